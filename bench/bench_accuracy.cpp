@@ -1,0 +1,279 @@
+// Detection rate, corner error, distance error and time against distance and
+// yaw, per family, on rendered scenes of the thesis camera. Prints Markdown:
+// the figures of the closing note come from this program, so its output
+// format is kept stable.
+//
+//   bench_accuracy --family all --frames 50 --dist 0.3:3.0:0.1
+//                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
+
+#include <unistd.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <exception>
+#include <fmt/format.h>
+#include <opencv2/core/utility.hpp>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/detector.hpp"
+#include "markerd/detector/evaluate.hpp"
+#include "markerd/detector/family.hpp"
+#include "markerd/detector/render.hpp"
+
+namespace {
+
+using markerd::Family;
+
+constexpr double kGoodRate = 0.9;
+
+markerd::CameraModel thesis_camera() {
+  markerd::CameraModel c;
+  c.width = 640;
+  c.height = 480;
+  c.fx = 516;
+  c.fy = 515;
+  c.cx = 319;
+  c.cy = 238;
+  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
+  return c;
+}
+
+// "start:stop:step", stop included when the steps land on it (to within
+// rounding, so 0.3:3.0:0.1 ends at 3.0).
+std::vector<double> parse_range(const std::string& text, const char* what) {
+  double start = 0, stop = 0, step = 0;
+  char c1 = 0, c2 = 0;
+  std::istringstream in(text);
+  if (!(in >> start >> c1 >> stop >> c2 >> step) || c1 != ':' || c2 != ':' || !in.eof() || !(step > 0) ||
+      stop < start) {
+    throw CLI::ValidationError(what, "expected start:stop:step with step > 0 and stop >= start, got '" + text + "'");
+  }
+  const auto n = static_cast<int>(std::floor((stop - start) / step + 1e-6)) + 1;
+  std::vector<double> values;
+  for (int i = 0; i < n; ++i) values.push_back(std::round((start + i * step) * 1e9) / 1e9);
+  return values;
+}
+
+std::vector<double> parse_list(const std::string& text, const char* what) {
+  std::vector<double> values;
+  std::istringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    try {
+      std::size_t used = 0;
+      values.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw CLI::ValidationError(what, "expected comma-separated numbers, got '" + text + "'");
+    }
+  }
+  if (values.empty()) throw CLI::ValidationError(what, "expected at least one number");
+  return values;
+}
+
+struct Sweeps {
+  std::vector<markerd::EvalResult> by_distance;
+  std::vector<std::vector<markerd::EvalResult>> by_yaw;  // one per --yaw-at distance
+};
+
+// The farthest value reached by an unbroken run of points at >= 90% from the
+// first, as text: "-" when the first point already falls short, and marked
+// ">=" when the run lasts to the end of the sweep (the sweep, not the
+// detector, set the limit).
+std::string reach(const std::vector<markerd::EvalResult>& points, bool by_yaw) {
+  std::optional<double> last;
+  std::size_t good = 0;
+  for (const auto& r : points) {
+    if (r.rate() < kGoodRate) break;
+    last = by_yaw ? r.point.yaw_deg : r.point.distance_m;
+    ++good;
+  }
+  if (!last) return "-";
+  const std::string value = by_yaw ? fmt::format("{:.0f} deg", *last) : fmt::format("{:.2f} m", *last);
+  return good == points.size() ? ">= " + value : value;
+}
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return NAN;
+  std::sort(v.begin(), v.end());
+  const std::size_t m = v.size() / 2;
+  return v.size() % 2 ? v[m] : 0.5 * (v[m - 1] + v[m]);
+}
+
+std::string percent(double rate) { return fmt::format("{:.1f}%", 100 * rate); }
+std::string or_dash(bool present, const std::string& s) { return present ? s : "-"; }
+
+void print_family(const markerd::FamilyInfo& info, const Sweeps& s, const std::vector<double>& yaw_at) {
+  fmt::print("## {}\n\n", info.name);
+  fmt::print("### Against distance (yaw 0 deg)\n\n");
+  fmt::print("| distance (m) | rate | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
+  fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: |\n");
+  for (const auto& r : s.by_distance) {
+    const bool any = r.detected > 0;
+    fmt::print("| {:.2f} | {} | {} | {} | {} | {:.3f} |\n", r.point.distance_m, percent(r.rate()), r.wrong_id,
+               or_dash(any, fmt::format("{:.3f}", r.median_corner_error_px)),
+               or_dash(any, fmt::format("{:.2f}", 100 * r.median_distance_error_rel)), r.median_time_ms);
+  }
+  if (s.by_yaw.empty()) {
+    fmt::print("\n");
+    return;
+  }
+  fmt::print("\n### Against yaw (rate)\n\n| yaw (deg) |");
+  for (double d : yaw_at) fmt::print(" at {:.2f} m |", d);
+  fmt::print("\n| ---: |");
+  for (std::size_t i = 0; i < yaw_at.size(); ++i) fmt::print(" ---: |");
+  fmt::print("\n");
+  for (std::size_t row = 0; row < s.by_yaw.front().size(); ++row) {
+    fmt::print("| {:.0f} |", s.by_yaw.front()[row].point.yaw_deg);
+    for (const auto& sweep : s.by_yaw) fmt::print(" {} |", percent(sweep[row].rate()));
+    fmt::print("\n");
+  }
+  fmt::print("\n");
+}
+
+std::string summary_row(const markerd::FamilyInfo& info, const Sweeps& s) {
+  std::string row = fmt::format("| {} |", info.name);
+  row += fmt::format(" {} |", reach(s.by_distance, false));
+  for (const auto& sweep : s.by_yaw) row += fmt::format(" {} |", reach(sweep, true));
+  std::vector<double> corner, dist, time;
+  for (const auto& r : s.by_distance) {
+    time.push_back(r.median_time_ms);
+    if (r.detected == 0) continue;
+    corner.push_back(r.median_corner_error_px);
+    dist.push_back(r.median_distance_error_rel);
+  }
+  const auto num = [](double v, const char* f) { return std::isnan(v) ? std::string("-") : fmt::format(fmt::runtime(f), v); };
+  row += fmt::format(" {} | {} | {} |", num(median_of(corner), "{:.3f}"), num(100 * median_of(dist), "{:.2f}"),
+                     num(median_of(time), "{:.3f}"));
+  return row;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"Detection rate and accuracy on rendered scenes, as Markdown tables"};
+  std::string family_name = "all";
+  int frames = 50;
+  std::string dist_text = "0.3:3.0:0.1";
+  std::string yaw_at_text = "0.5,0.95";
+  std::string yaw_text = "0:85:5";
+  std::string camera_path;
+  double size_m = 0.08;
+  double noise = 2;
+  double blur = 0.6;
+  std::uint64_t seed = 1;
+  app.add_option("--family", family_name, "frame8, aruco4x4_50, tag36h11 or all")
+      ->check(CLI::IsMember({"frame8", "aruco4x4_50", "tag36h11", "all"}))
+      ->capture_default_str();
+  app.add_option("--frames", frames, "frames per point")->check(CLI::Range(1, 100000))->capture_default_str();
+  app.add_option("--dist", dist_text, "distance sweep, metres, start:stop:step")->capture_default_str();
+  app.add_option("--yaw-at", yaw_at_text, "distances (m) of the yaw sweeps, comma-separated")->capture_default_str();
+  app.add_option("--yaw", yaw_text, "yaw sweep, degrees, start:stop:step")->capture_default_str();
+  app.add_option("--camera", camera_path, "OpenCV calibration file (default: the thesis camera)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--size", size_m, "marker size, metres (the family's size)")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--noise", noise, "sensor noise sigma, grey levels")->check(CLI::NonNegativeNumber)->capture_default_str();
+  app.add_option("--blur", blur, "blur sigma, pixels")->check(CLI::NonNegativeNumber)->capture_default_str();
+  app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
+
+  std::vector<double> distances, yaw_at, yaws;
+  try {
+    app.parse(argc, argv);
+    distances = parse_range(dist_text, "--dist");
+    yaw_at = parse_list(yaw_at_text, "--yaw-at");
+    yaws = parse_range(yaw_text, "--yaw");
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+
+  // Times are of one thread, as the daemon runs a detector per worker.
+  cv::setNumThreads(1);
+
+  markerd::CameraModel camera = thesis_camera();
+  if (!camera_path.empty()) {
+    try {
+      camera = markerd::CameraModel::load(camera_path);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "bench_accuracy: %s\n", e.what());
+      return 2;
+    }
+  }
+
+  std::vector<markerd::FamilyInfo> families;
+  for (const auto& info : markerd::all_families()) {
+    if (family_name == "all" || info.name == family_name) families.push_back(info);
+  }
+
+  markerd::EvalSettings settings;
+  settings.frames_per_point = frames;
+  settings.seed = seed;
+  settings.scene.marker_size_m = size_m;
+  settings.scene.noise_sigma = noise;
+  settings.scene.blur_sigma_px = blur;
+  settings.scene.clutter = true;
+
+  fmt::print("# Detection on rendered scenes\n\n");
+  fmt::print("- camera: {}x{}, fx {:.1f}, fy {:.1f}, cx {:.1f}, cy {:.1f}, k1 k2 p1 p2 k3 {} {} {} {} {}{}\n",
+             camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy, camera.dist[0], camera.dist[1],
+             camera.dist[2], camera.dist[3], camera.dist[4], camera_path.empty() ? " (the thesis camera)" : "");
+  fmt::print("- marker: {:.1f} cm (frame8: the outer edge; aruco4x4_50, tag36h11: the outer black border)\n",
+             100 * size_m);
+  fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, clutter, lens distortion, supersampling {}\n", noise,
+             blur, settings.scene.supersample);
+  fmt::print("- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
+             "random ids, seed {}\n",
+             frames, settings.position_jitter_px, settings.roll_jitter_deg, seed);
+  fmt::print("- rate: frames with the right id found; wrong ids: detections with another id, summed; errors and "
+             "time: medians (errors over detected frames, time of detect() alone over all frames)\n\n");
+  std::fflush(stdout);
+
+  const bool progress = isatty(STDERR_FILENO) != 0;
+  std::vector<std::string> summary;
+  for (const auto& info : families) {
+    settings.scene.family = info.family;
+    Sweeps s;
+    try {
+      markerd::DetectorConfig config;
+      config.family = info.family;
+      config.camera = camera;
+      config.marker_size_m = size_m;
+      auto detector = markerd::make_detector(config);
+      const auto run = [&](double d, double yaw) {
+        if (progress) std::fprintf(stderr, "\r%s: %.2f m, %.0f deg   ", std::string(info.name).c_str(), d, yaw);
+        return markerd::evaluate_point(*detector, camera, settings, {d, yaw});
+      };
+      for (double d : distances) s.by_distance.push_back(run(d, 0));
+      for (double d : yaw_at) {
+        auto& sweep = s.by_yaw.emplace_back();
+        for (double yaw : yaws) sweep.push_back(run(d, yaw));
+      }
+      if (progress) std::fprintf(stderr, "\r%60s\r", "");
+    } catch (const std::exception& e) {
+      if (progress) std::fprintf(stderr, "\n");
+      fmt::print("## {}\n\nnot measured: {}\n\n", info.name, e.what());
+      std::fflush(stdout);
+      continue;
+    }
+    print_family(info, s, yaw_at);
+    summary.push_back(summary_row(info, s));
+    std::fflush(stdout);
+  }
+
+  fmt::print("## Summary\n\n| family | max distance, rate >= 90% |");
+  for (double d : yaw_at) fmt::print(" max yaw at {:.2f} m |", d);
+  fmt::print(" corner error (px) | distance error (%) | time (ms) |\n| --- | ---: |");
+  for (std::size_t i = 0; i < yaw_at.size(); ++i) fmt::print(" ---: |");
+  fmt::print(" ---: | ---: | ---: |\n");
+  for (const auto& row : summary) fmt::print("{}\n", row);
+  fmt::print("\nMax distance and max yaw: the farthest point of an unbroken run of points at >= 90% from the nearest "
+             "(from yaw 0); \">=\" when that run lasts to the end of the sweep. Errors and time: the median of "
+             "the per-distance medians (points with detections for the errors).\n");
+  return 0;
+}

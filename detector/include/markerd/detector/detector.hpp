@@ -1,0 +1,57 @@
+#pragma once
+// One interface for every marker family. A detector owns its working memory:
+// after the first frames of a given size, detect() allocates nothing (the
+// output vector keeps its capacity). A detector is not thread-safe; run one
+// per worker thread.
+
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <vector>
+
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/detection.hpp"
+#include "markerd/detector/family.hpp"
+#include "markerd/detector/image.hpp"
+
+namespace markerd {
+
+class DetectorError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct Frame8Options {
+  // Segmentation runs on the image decimated by this factor; 0 picks one from
+  // the image size (1 up to about 1 MP, then 2). Refinement and decoding
+  // always use the full-resolution image.
+  int decimate = 0;
+  // Adaptive threshold: a pixel is dark when it is this many grey levels
+  // below the mean of its neighbourhood.
+  int threshold_offset = 6;
+  // Smallest hole side, in full-resolution pixels, that is worth decoding.
+  double min_hole_side_px = 5.0;
+  // Least decoding margin (0..1) that a detection must reach.
+  double min_margin = 0.12;
+};
+
+struct DetectorConfig {
+  Family family = Family::frame8;
+  Frame8Options frame8;
+  // With both, every detection carries its pose.
+  std::optional<CameraModel> camera;
+  double marker_size_m = 0;  // family's "size" (see FamilyInfo)
+};
+
+class MarkerDetector {
+ public:
+  virtual ~MarkerDetector() = default;
+  [[nodiscard]] virtual Family family() const = 0;
+  // Appends nothing and clears `out` when nothing is found. Throws
+  // DetectorError for an empty image or a camera model of another size.
+  virtual void detect(const GreyView& image, std::vector<Detection>& out) = 0;
+};
+
+std::unique_ptr<MarkerDetector> make_detector(const DetectorConfig& config);
+
+}  // namespace markerd

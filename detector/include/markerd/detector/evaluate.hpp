@@ -1,0 +1,46 @@
+#pragma once
+// Detector evaluation on rendered scenes: for each (distance, yaw) point,
+// render frames with the scene model (noise, blur, clutter), detect them and
+// compare against the truth. The numbers the figures are stated in.
+
+#include <cstdint>
+#include <vector>
+
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/detector.hpp"
+#include "markerd/detector/render.hpp"
+
+namespace markerd {
+
+struct EvalPoint {
+  double distance_m = 1;
+  double yaw_deg = 0;
+};
+
+struct EvalSettings {
+  Scene scene;          // family, id, size, imaging; pose is set per frame
+  int frames_per_point = 50;
+  // Each frame jitters the pose so frames are not copies: the marker centre
+  // moves within this many pixels of the principal point, rolls within
+  // +-roll_jitter_deg and the id is drawn at random when random_ids.
+  double position_jitter_px = 40;
+  double roll_jitter_deg = 5;
+  bool random_ids = true;
+  std::uint64_t seed = 1;
+};
+
+struct EvalResult {
+  EvalPoint point;
+  int frames = 0;
+  int detected = 0;        // the right id, once
+  int wrong_id = 0;        // detections with another id (false positives)
+  double median_corner_error_px = 0;     // over detected frames, all four corners
+  double median_distance_error_rel = 0;  // |t| against truth, relative; with a camera
+  double median_time_ms = 0;
+  [[nodiscard]] double rate() const { return frames ? static_cast<double>(detected) / frames : 0; }
+};
+
+EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, const EvalSettings& settings,
+                          const EvalPoint& point);
+
+}  // namespace markerd

@@ -1,0 +1,53 @@
+#pragma once
+// Planar pose of a square marker: IPPE (Collins and Bartoli, 2014) from four
+// corners, both solutions kept, each polished by Gauss-Newton on the pixel
+// reprojection error through the full distortion model. Written with Eigen
+// because OpenCV 4.6's SOLVEPNP_IPPE_SQUARE is wrong for double-precision
+// points and for markers exactly on the principal point's row (see
+// tests/test_pose.cpp).
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <array>
+#include <optional>
+
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/geometry.hpp"
+
+namespace markerd {
+
+struct MarkerPose {
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();  // marker frame -> camera frame
+  Eigen::Vector3d translation = Eigen::Vector3d::Zero();   // marker centre in the camera frame, metres
+  double reprojection_error_px = 0;  // RMS over the corners used
+
+  [[nodiscard]] Eigen::Vector3d rvec() const;  // Rodrigues vector
+  [[nodiscard]] Eigen::Quaterniond quaternion() const;
+};
+
+struct PoseEstimate {
+  MarkerPose best;
+  std::optional<MarkerPose> alternative;  // IPPE's second solution
+  // True when the second solution explains the corners almost as well as the
+  // first (the flip ambiguity of a small or frontal marker).
+  bool ambiguous = false;
+};
+
+// The two IPPE solutions for a square of side `side` (model corners at
+// (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)) seen at ideal normalized
+// image points in the same order. Returns nothing for a degenerate quad.
+std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vector2d, 4>& normalized,
+                                                      double side);
+
+// Pose from pixel corners (TL, TR, BR, BL) of a square of side `side` metres.
+std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, const Quad& corners_px,
+                                                 double side);
+// The same from ideal normalized corners, when the caller has undistorted them already.
+std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& camera,
+                                                            const std::array<Eigen::Vector2d, 4>& normalized,
+                                                            double side);
+
+// Projects a point of the marker frame through pose and camera, to pixels.
+Point2 project(const CameraModel& camera, const MarkerPose& pose, const Eigen::Vector3d& marker_point);
+
+}  // namespace markerd

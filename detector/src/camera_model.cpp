@@ -1,0 +1,152 @@
+#include "markerd/detector/camera_model.hpp"
+
+#include <opencv2/core.hpp>
+#include <opencv2/core/persistence.hpp>
+
+#include <cmath>
+#include <fmt/format.h>
+
+namespace markerd {
+namespace {
+
+[[noreturn]] void fail(const std::filesystem::path& path, const std::string& what) {
+  throw CameraModelError(fmt::format("{}: {}", path.string(), what));
+}
+
+cv::Mat read_matrix(const cv::FileStorage& fs, const std::filesystem::path& path, const char* key) {
+  const cv::FileNode node = fs[key];
+  if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
+  cv::Mat m;
+  try {
+    node >> m;
+  } catch (const cv::Exception&) {
+    fail(path, fmt::format("key '{}' is not a matrix", key));
+  }
+  if (m.empty()) fail(path, fmt::format("key '{}' is not a matrix", key));
+  m.convertTo(m, CV_64F);
+  return m;
+}
+
+int read_int(const cv::FileStorage& fs, const std::filesystem::path& path, const char* key) {
+  const cv::FileNode node = fs[key];
+  if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
+  if (!node.isInt() && !node.isReal()) fail(path, fmt::format("key '{}' is not a number", key));
+  return static_cast<int>(node.real());
+}
+
+}  // namespace
+
+CameraModel CameraModel::load(const std::filesystem::path& path) {
+  cv::FileStorage fs;
+  try {
+    if (!fs.open(path.string(), cv::FileStorage::READ)) fail(path, "cannot open or parse the camera file");
+  } catch (const cv::Exception& e) {
+    fail(path, fmt::format("cannot parse the camera file ({})", e.err));
+  }
+  CameraModel cam;
+  cam.width = read_int(fs, path, "image_width");
+  cam.height = read_int(fs, path, "image_height");
+  if (cam.width <= 0 || cam.height <= 0) fail(path, "image_width and image_height must be positive");
+
+  const cv::Mat k = read_matrix(fs, path, "camera_matrix");
+  if (k.rows != 3 || k.cols != 3) fail(path, "key 'camera_matrix' must be 3x3");
+  cam.fx = k.at<double>(0, 0);
+  cam.fy = k.at<double>(1, 1);
+  cam.cx = k.at<double>(0, 2);
+  cam.cy = k.at<double>(1, 2);
+  if (!(cam.fx > 0) || !(cam.fy > 0)) fail(path, "key 'camera_matrix' needs positive focal lengths");
+  if (std::abs(k.at<double>(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
+
+  const cv::Mat d = read_matrix(fs, path, "distortion_coefficients");
+  const int n = static_cast<int>(d.total());
+  if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14) {
+    fail(path, fmt::format("key 'distortion_coefficients' has {} values; OpenCV's model has 4, 5, 8, 12 or 14", n));
+  }
+  const auto* v = d.ptr<double>();
+  for (int i = 0; i < std::min(n, 12); ++i) cam.dist[static_cast<std::size_t>(i)] = v[i];
+  if (n == 14 && (v[12] != 0.0 || v[13] != 0.0)) {
+    fail(path, "key 'distortion_coefficients': the tilted-sensor terms (tauX, tauY) are not supported");
+  }
+  for (int i = 0; i < n; ++i) {
+    if (!std::isfinite(v[i])) fail(path, "key 'distortion_coefficients' holds a value that is not finite");
+  }
+  return cam;
+}
+
+void CameraModel::save(const std::filesystem::path& path) const {
+  cv::FileStorage fs(path.string(), cv::FileStorage::WRITE);
+  if (!fs.isOpened()) throw CameraModelError(fmt::format("{}: cannot write the camera file", path.string()));
+  fs << "image_width" << width << "image_height" << height;
+  const cv::Mat k = (cv::Mat_<double>(3, 3) << fx, 0, cx, 0, fy, cy, 0, 0, 1);
+  fs << "camera_matrix" << k;
+  int n = 12;
+  while (n > 5 && dist[static_cast<std::size_t>(n - 1)] == 0.0) --n;
+  n = n <= 5 ? 5 : (n <= 8 ? 8 : 12);
+  cv::Mat d(1, n, CV_64F);
+  for (int i = 0; i < n; ++i) d.at<double>(0, i) = dist[static_cast<std::size_t>(i)];
+  fs << "distortion_coefficients" << d;
+}
+
+CameraModel CameraModel::scaled_to(int new_width, int new_height) const {
+  CameraModel c = *this;
+  const double sx = static_cast<double>(new_width) / width;
+  const double sy = static_cast<double>(new_height) / height;
+  c.width = new_width;
+  c.height = new_height;
+  c.fx = fx * sx;
+  c.fy = fy * sy;
+  // Pixel centres sit at integers: the centre of pixel 0 moves with the scale.
+  c.cx = (cx + 0.5) * sx - 0.5;
+  c.cy = (cy + 0.5) * sy - 0.5;
+  return c;
+}
+
+bool CameraModel::has_distortion() const {
+  for (double v : dist) {
+    if (v != 0.0) return true;
+  }
+  return false;
+}
+
+Point2 CameraModel::distort(Point2 p) const {
+  const auto& k = dist;
+  const double x = p.x, y = p.y;
+  const double r2 = x * x + y * y, r4 = r2 * r2, r6 = r4 * r2;
+  const double radial = (1 + k[0] * r2 + k[1] * r4 + k[4] * r6) / (1 + k[5] * r2 + k[6] * r4 + k[7] * r6);
+  const double xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x * x) + k[8] * r2 + k[9] * r4;
+  const double yd = y * radial + k[2] * (r2 + 2 * y * y) + 2 * k[3] * x * y + k[10] * r2 + k[11] * r4;
+  return {xd, yd};
+}
+
+Point2 CameraModel::undistort(Point2 d) const {
+  if (!has_distortion()) return d;
+  // Newton's method on distort(p) = d with a numerical Jacobian: converges in
+  // a few steps where OpenCV's fixed-point iteration stalls on strong lenses.
+  Point2 p = d;
+  for (int iter = 0; iter < 20; ++iter) {
+    const Point2 f = distort(p);
+    const double ex = f.x - d.x, ey = f.y - d.y;
+    if (ex * ex + ey * ey < 1e-24) break;
+    constexpr double h = 1e-7;
+    const Point2 fx_ = distort({p.x + h, p.y});
+    const Point2 fy_ = distort({p.x, p.y + h});
+    const double a = (fx_.x - f.x) / h, b = (fy_.x - f.x) / h;
+    const double c = (fx_.y - f.y) / h, e = (fy_.y - f.y) / h;
+    const double det = a * e - b * c;
+    if (std::abs(det) < 1e-12) break;
+    p.x -= (e * ex - b * ey) / det;
+    p.y -= (-c * ex + a * ey) / det;
+  }
+  return p;
+}
+
+Point2 CameraModel::pixel_to_normalized(Point2 px) const {
+  return undistort({(px.x - cx) / fx, (px.y - cy) / fy});
+}
+
+Point2 CameraModel::normalized_to_pixel(Point2 n) const {
+  const Point2 d = distort(n);
+  return {fx * d.x + cx, fy * d.y + cy};
+}
+
+}  // namespace markerd

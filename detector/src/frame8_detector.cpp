@@ -1,0 +1,1067 @@
+// The frame8 detector.
+//
+// The thesis found the marker with Canny, contours and approxPolyDP and read
+// it by counting pixels per cell against a fixed 127 threshold. Here:
+//
+//  1. Segmentation on a (possibly decimated) working image: a pixel is dark
+//     when it lies a few grey levels under the mean of its neighbourhood (tile
+//     means, so the threshold follows light falloff and exposure). Light
+//     pixels are grouped into 4-connected components from row runs with
+//     union-find; the hole of a marker is a light component enclosed by the
+//     black line (8-connected dark, so a line one pixel thin on a diagonal
+//     still closes it).
+//  2. Each enclosed component's convex hull is fitted with its largest
+//     inscribed quadrilateral; components that are not quads are dropped.
+//  3. Each side of the quad is refined at full resolution: points along the
+//     side search the intensity profile across it for the light-to-dark step
+//     into the line, with sub-pixel peak interpolation, and a weighted total
+//     least-squares line is fitted (with one round of outlier rejection). The
+//     corners are the intersections. With a camera model the same edge points
+//     are fitted again in undistorted coordinates, so the corners and the pose
+//     are right under lens distortion.
+//  4. The ring is sampled at the centre of each cell (the thesis's own future
+//     work) through the homography of the refined quad; black and white levels
+//     come from the cells themselves (2-means seeded by the corners), each cell
+//     gives a soft vote, and every bit is decided over the four edges, each
+//     weighted by how well its cells are resolved. A bit with two confident
+//     dissenting edges is uncorrectable and rejects the candidate.
+//
+// Memory: every buffer is a member that grows to the largest frame seen and is
+// reused, so detect() allocates nothing in steady state.
+
+#include "frame8_detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <numbers>
+#include <vector>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+#include "markerd/detector/frame8.hpp"
+
+#ifdef FRAME8_DEBUG
+#include <cstdio>
+#define F8_TRACE(...) std::fprintf(stderr, __VA_ARGS__)
+#else
+#define F8_TRACE(...) ((void)0)
+#endif
+#include "markerd/detector/pose.hpp"
+
+namespace markerd {
+namespace {
+
+constexpr int kTile = 4;  // threshold tile side, working-image pixels
+
+// Maps the unit square (0,0) (1,0) (1,1) (0,1) onto a quad (Heckbert's closed form).
+struct Homography {
+  double a = 1, b = 0, c = 0, d = 0, e = 1, f = 0, g = 0, h = 0;
+
+  static bool from_unit_square(const std::array<Point2, 4>& q, Homography& out) {
+    const double sx = q[0].x - q[1].x + q[2].x - q[3].x;
+    const double sy = q[0].y - q[1].y + q[2].y - q[3].y;
+    const double dx1 = q[1].x - q[2].x, dx2 = q[3].x - q[2].x;
+    const double dy1 = q[1].y - q[2].y, dy2 = q[3].y - q[2].y;
+    const double den = dx1 * dy2 - dx2 * dy1;
+    if (std::abs(den) < 1e-12) return false;
+    out.g = (sx * dy2 - dx2 * sy) / den;
+    out.h = (dx1 * sy - sx * dy1) / den;
+    out.a = q[1].x - q[0].x + out.g * q[1].x;
+    out.b = q[3].x - q[0].x + out.h * q[3].x;
+    out.c = q[0].x;
+    out.d = q[1].y - q[0].y + out.g * q[1].y;
+    out.e = q[3].y - q[0].y + out.h * q[3].y;
+    out.f = q[0].y;
+    return true;
+  }
+  [[nodiscard]] Point2 map(double u, double v) const {
+    const double w = g * u + h * v + 1;
+    return {(a * u + b * v + c) / w, (d * u + e * v + f) / w};
+  }
+};
+
+// Grid coordinates (0..10 across the marker, y down) of the inner square's
+// corners, and the map from grid coordinates to the unit square of that quad.
+constexpr double kInnerLo = frame8::line_inner;
+constexpr double kInnerSide = frame8::grid - 2 * frame8::line_inner;  // 7 cells
+inline Point2 grid_point(const Homography& H, double gx, double gy) {
+  return H.map((gx - kInnerLo) / kInnerSide, (gy - kInnerLo) / kInnerSide);
+}
+
+inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
+
+// Bilinear sample; false outside the image.
+inline bool sample(const GreyView& img, double x, double y, float& out) {
+  if (!(x >= 0 && y >= 0 && x <= img.width - 1.001 && y <= img.height - 1.001)) return false;
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+  const std::uint8_t* r0 = img.row(y0) + x0;
+  const std::uint8_t* r1 = r0 + img.stride;
+  const float top = r0[0] + fx * (r0[1] - r0[0]);
+  const float bot = r1[0] + fx * (r1[1] - r1[0]);
+  out = top + fy * (bot - top);
+  return true;
+}
+
+struct Line {
+  double nx = 0, ny = 0, c = 0;  // nx*x + ny*y = c, |n| = 1
+};
+
+inline bool intersect(const Line& l1, const Line& l2, Point2& p) {
+  const double det = l1.nx * l2.ny - l1.ny * l2.nx;
+  if (std::abs(det) < 1e-9) return false;
+  p = {(l1.c * l2.ny - l1.ny * l2.c) / det, (l1.nx * l2.c - l1.c * l2.nx) / det};
+  return true;
+}
+
+struct EdgePoint {
+  double x, y, w;
+};
+
+// Weighted total least squares; drops points further than `reject` from a
+// first fit and fits again.
+bool fit_line(EdgePoint* pts, int n, double reject, Line& line) {
+  auto fit = [&](Line& out) {
+    double sw = 0, mx = 0, my = 0;
+    for (int i = 0; i < n; ++i) {
+      if (pts[i].w <= 0) continue;
+      sw += pts[i].w;
+      mx += pts[i].w * pts[i].x;
+      my += pts[i].w * pts[i].y;
+    }
+    if (sw <= 0) return false;
+    mx /= sw;
+    my /= sw;
+    double sxx = 0, sxy = 0, syy = 0;
+    int used = 0;
+    for (int i = 0; i < n; ++i) {
+      if (pts[i].w <= 0) continue;
+      const double dx = pts[i].x - mx, dy = pts[i].y - my;
+      sxx += pts[i].w * dx * dx;
+      sxy += pts[i].w * dx * dy;
+      syy += pts[i].w * dy * dy;
+      ++used;
+    }
+    if (used < 2) return false;
+    // Normal = eigenvector of the smaller eigenvalue of the scatter matrix.
+    const double theta = 0.5 * std::atan2(2 * sxy, sxx - syy);  // direction of the line
+    out.nx = -std::sin(theta);
+    out.ny = std::cos(theta);
+    out.c = out.nx * mx + out.ny * my;
+    return true;
+  };
+  if (!fit(line)) return false;
+  bool dropped = false;
+  for (int i = 0; i < n; ++i) {
+    if (pts[i].w > 0 && std::abs(line.nx * pts[i].x + line.ny * pts[i].y - line.c) > reject) {
+      pts[i].w = 0;
+      dropped = true;
+    }
+  }
+  return dropped ? fit(line) : true;
+}
+
+class Frame8Detector final : public MarkerDetector {
+ public:
+  explicit Frame8Detector(const DetectorConfig& config) : config_(config) {
+    if (config_.frame8.decimate < 0 || config_.frame8.decimate > 8) {
+      throw DetectorError("frame8: decimate must be 0 (auto) to 8");
+    }
+    if (config_.frame8.threshold_offset < 1 || config_.frame8.threshold_offset > 100) {
+      throw DetectorError("frame8: threshold_offset must be 1..100 grey levels");
+    }
+  }
+
+  [[nodiscard]] Family family() const override { return Family::frame8; }
+
+  void detect(const GreyView& image, std::vector<Detection>& out) override {
+    out.clear();
+    if (image.empty()) throw DetectorError("frame8: empty image");
+    if (image.stride < image.width) throw DetectorError("frame8: image stride is smaller than its width");
+    if (config_.camera && (config_.camera->width != image.width || config_.camera->height != image.height)) {
+      throw DetectorError("frame8: image size differs from the camera model's");
+    }
+    if (image.width < 16 || image.height < 16) return;
+    full_ = image;
+    make_working_image();
+    threshold_and_runs();
+    label_components();
+    for (int r = 0; r < static_cast<int>(runs_.size()); ++r) {
+      if (runs_[static_cast<std::size_t>(r)].parent == r) consider_component(r, out);
+    }
+    remove_nested(out);
+  }
+
+ private:
+  struct Run {
+    std::int32_t x0, x1;  // light pixels x0 .. x1-1
+    std::int32_t y;
+    std::int32_t parent;
+    std::int32_t next;  // next run of the same component, -1 at the end
+  };
+  struct Component {
+    std::int64_t area = 0;
+    std::int32_t x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+    std::int32_t first = -1, last = -1;
+    bool touches_border = false;
+  };
+
+  // --- 1. segmentation ------------------------------------------------------
+
+  void make_working_image() {
+    int d = config_.frame8.decimate;
+    if (d == 0) d = (static_cast<long>(full_.width) * full_.height > 1'300'000) ? 2 : 1;
+    decimate_ = d;
+    if (d == 1) {
+      work_ = full_;
+      return;
+    }
+    const int w = full_.width / d, h = full_.height / d;
+    decimated_.resize(static_cast<std::size_t>(w) * h);
+    for (int y = 0; y < h; ++y) {
+      std::uint8_t* dst = decimated_.data() + static_cast<std::size_t>(y) * w;
+      if (d == 2) {
+        const std::uint8_t* a = full_.row(2 * y);
+        const std::uint8_t* b = a + full_.stride;
+        for (int x = 0; x < w; ++x) {
+          dst[x] = static_cast<std::uint8_t>((a[2 * x] + a[2 * x + 1] + b[2 * x] + b[2 * x + 1] + 2) >> 2);
+        }
+      } else {
+        for (int x = 0; x < w; ++x) {
+          int s = 0;
+          for (int j = 0; j < d; ++j) {
+            const std::uint8_t* r = full_.row(d * y + j) + d * x;
+            for (int i = 0; i < d; ++i) s += r[i];
+          }
+          dst[x] = static_cast<std::uint8_t>((s + d * d / 2) / (d * d));
+        }
+      }
+    }
+    work_ = {decimated_.data(), w, h, w};
+  }
+
+  void threshold_and_runs() {
+    const int w = work_.width, h = work_.height;
+    const int tw = (w + kTile - 1) / kTile, th = (h + kTile - 1) / kTile;
+    tile_sum_.assign(static_cast<std::size_t>(tw) * th, 0);
+    tile_count_.assign(static_cast<std::size_t>(tw) * th, 0);
+    for (int y = 0; y < h; ++y) {
+      const std::uint8_t* row = work_.row(y);
+      std::uint32_t* sums = tile_sum_.data() + static_cast<std::size_t>(y / kTile) * tw;
+      std::uint16_t* counts = tile_count_.data() + static_cast<std::size_t>(y / kTile) * tw;
+      const int full_tiles = w / kTile;
+      for (int t = 0; t < full_tiles; ++t) {
+        const std::uint8_t* p = row + t * kTile;
+        sums[t] += static_cast<std::uint32_t>(p[0] + p[1] + p[2] + p[3]);
+        counts[t] += kTile;
+      }
+      for (int x = full_tiles * kTile; x < w; ++x) {
+        sums[full_tiles] += row[x];
+        counts[full_tiles] += 1;
+      }
+    }
+    // Threshold per tile: mean of the 3x3 tiles around it, minus the offset.
+    tile_threshold_.resize(static_cast<std::size_t>(tw) * th);
+    const int offset = config_.frame8.threshold_offset;
+    for (int ty = 0; ty < th; ++ty) {
+      for (int tx = 0; tx < tw; ++tx) {
+        std::uint32_t s = 0, n = 0;
+        for (int j = std::max(0, ty - 1); j <= std::min(th - 1, ty + 1); ++j) {
+          for (int i = std::max(0, tx - 1); i <= std::min(tw - 1, tx + 1); ++i) {
+            s += tile_sum_[static_cast<std::size_t>(j) * tw + i];
+            n += tile_count_[static_cast<std::size_t>(j) * tw + i];
+          }
+        }
+        const int mean = static_cast<int>((s + n / 2) / n);
+        tile_threshold_[static_cast<std::size_t>(ty) * tw + tx] =
+            static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
+      }
+    }
+
+    runs_.clear();
+    row_first_.resize(static_cast<std::size_t>(h) + 1);
+    pixel_threshold_.resize(static_cast<std::size_t>(w) + 16);
+    column_max_.resize(static_cast<std::size_t>(w) + 2);
+    local_max_.resize(static_cast<std::size_t>(w));
+    const int words = (w + 63) / 64;
+    light_bits_.resize(static_cast<std::size_t>(words) + 1);
+    for (int y = 0; y < h; ++y) {
+      if (y % kTile == 0) {
+        const std::uint8_t* t = tile_threshold_.data() + static_cast<std::size_t>(y / kTile) * tw;
+        for (int x = 0; x < w; ++x) pixel_threshold_[static_cast<std::size_t>(x)] = t[x / kTile];
+      }
+      row_first_[static_cast<std::size_t>(y)] = static_cast<std::int32_t>(runs_.size());
+      local_max_row(y);
+      light_row_bits(work_.row(y), w);
+      extract_runs(y, w, words);
+    }
+    row_first_[static_cast<std::size_t>(h)] = static_cast<std::int32_t>(runs_.size());
+  }
+
+  // local_max_[x] = (brightest pixel of the 3x3 neighbourhood of (x, y)) - step,
+  // saturated at 0. A pixel under it sits on the dark side of a sharp edge: a
+  // marker's line one pixel thin, which the wide mean misses when the
+  // background around a small marker drags the mean down.
+  void local_max_row(int y) {
+    const int w = work_.width;
+    const std::uint8_t* above = work_.row(std::max(0, y - 1));
+    const std::uint8_t* here = work_.row(y);
+    const std::uint8_t* below = work_.row(std::min(work_.height - 1, y + 1));
+    std::uint8_t* colmax = column_max_.data() + 1;  // colmax[-1] and colmax[w] pad the borders
+    int x = 0;
+#if defined(__SSE2__)
+    for (; x + 16 <= w; x += 16) {
+      const __m128i a = _mm_loadu_si128(reinterpret_cast<const __m128i*>(above + x));
+      const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(here + x));
+      const __m128i c = _mm_loadu_si128(reinterpret_cast<const __m128i*>(below + x));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(colmax + x), _mm_max_epu8(_mm_max_epu8(a, b), c));
+    }
+#endif
+    for (; x < w; ++x) colmax[x] = std::max({above[x], here[x], below[x]});
+    colmax[-1] = colmax[0];
+    colmax[w] = colmax[w - 1];
+    const auto step = static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
+    std::uint8_t* out = local_max_.data();
+    x = 0;
+#if defined(__SSE2__)
+    const __m128i vstep = _mm_set1_epi8(static_cast<char>(step));
+    for (; x + 16 <= w; x += 16) {
+      const __m128i l = _mm_loadu_si128(reinterpret_cast<const __m128i*>(colmax + x - 1));
+      const __m128i m = _mm_loadu_si128(reinterpret_cast<const __m128i*>(colmax + x));
+      const __m128i r = _mm_loadu_si128(reinterpret_cast<const __m128i*>(colmax + x + 1));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x), _mm_subs_epu8(_mm_max_epu8(_mm_max_epu8(l, m), r), vstep));
+    }
+#endif
+    for (; x < w; ++x) {
+      const int m = std::max({colmax[x - 1], colmax[x], colmax[x + 1]});
+      out[x] = static_cast<std::uint8_t>(std::max(0, m - step));
+    }
+  }
+
+  // Bit x of light_bits_ is set when pixel x is light: not below the mean of
+  // its neighbourhood (minus the offset) and not under the local maximum
+  // (minus the step).
+  void light_row_bits(const std::uint8_t* row, int w) {
+    std::fill(light_bits_.begin(), light_bits_.end(), 0);
+    const std::uint8_t* thr = pixel_threshold_.data();
+    const std::uint8_t* lmax = local_max_.data();
+    int x = 0;
+#if defined(__SSE2__)
+    for (; x + 16 <= w; x += 16) {
+      const __m128i p = _mm_loadu_si128(reinterpret_cast<const __m128i*>(row + x));
+      const __m128i t = _mm_max_epu8(_mm_loadu_si128(reinterpret_cast<const __m128i*>(thr + x)),
+                                     _mm_loadu_si128(reinterpret_cast<const __m128i*>(lmax + x)));
+      const __m128i light = _mm_cmpeq_epi8(_mm_max_epu8(p, t), p);  // p >= t
+      const auto mask = static_cast<std::uint64_t>(static_cast<std::uint32_t>(_mm_movemask_epi8(light)));
+      light_bits_[static_cast<std::size_t>(x >> 6)] |= mask << (x & 63);
+    }
+#endif
+    for (; x < w; ++x) {
+      if (row[x] >= std::max(thr[x], lmax[x])) light_bits_[static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1} << (x & 63);
+    }
+  }
+
+  void extract_runs(int y, int w, int words) {
+    int x = 0;
+    while (x < w) {
+      // Find the next set bit at or after x.
+      int wi = x >> 6;
+      std::uint64_t word = light_bits_[static_cast<std::size_t>(wi)] & (~std::uint64_t{0} << (x & 63));
+      while (word == 0 && ++wi < words) word = light_bits_[static_cast<std::size_t>(wi)];
+      if (word == 0) break;
+      const int start = (wi << 6) + __builtin_ctzll(word);
+      if (start >= w) break;
+      // Find the next clear bit after start.
+      wi = start >> 6;
+      word = ~light_bits_[static_cast<std::size_t>(wi)] & (~std::uint64_t{0} << (start & 63));
+      while (word == 0 && ++wi < words) word = ~light_bits_[static_cast<std::size_t>(wi)];
+      int end = word == 0 ? w : (wi << 6) + __builtin_ctzll(word);
+      end = std::min(end, w);
+      const auto index = static_cast<std::int32_t>(runs_.size());
+      runs_.push_back({start, end, y, index, -1});
+      x = end;
+    }
+  }
+
+  std::int32_t find(std::int32_t r) {
+    while (runs_[static_cast<std::size_t>(r)].parent != r) {
+      auto& run = runs_[static_cast<std::size_t>(r)];
+      run.parent = runs_[static_cast<std::size_t>(run.parent)].parent;
+      r = run.parent;
+    }
+    return r;
+  }
+
+  void unite(std::int32_t a, std::int32_t b) {
+    a = find(a);
+    b = find(b);
+    if (a == b) return;
+    // The earlier run becomes the root, so a component's root is its first run.
+    if (a < b) {
+      runs_[static_cast<std::size_t>(b)].parent = a;
+    } else {
+      runs_[static_cast<std::size_t>(a)].parent = b;
+    }
+  }
+
+  void label_components() {
+    const int h = work_.height, w = work_.width;
+    for (int y = 1; y < h; ++y) {
+      int i = row_first_[static_cast<std::size_t>(y - 1)], j = row_first_[static_cast<std::size_t>(y)];
+      const int i_end = row_first_[static_cast<std::size_t>(y)], j_end = row_first_[static_cast<std::size_t>(y) + 1];
+      while (i < i_end && j < j_end) {
+        const Run& a = runs_[static_cast<std::size_t>(i)];
+        const Run& b = runs_[static_cast<std::size_t>(j)];
+        if (a.x0 < b.x1 && b.x0 < a.x1) unite(i, j);
+        if (a.x1 < b.x1) {
+          ++i;
+        } else {
+          ++j;
+        }
+      }
+    }
+    components_.resize(runs_.size());
+    for (std::int32_t r = 0; r < static_cast<std::int32_t>(runs_.size()); ++r) {
+      const std::int32_t root = find(r);
+      Run& run = runs_[static_cast<std::size_t>(r)];
+      run.parent = root;
+      Component& c = components_[static_cast<std::size_t>(root)];
+      if (root == r) {
+        c = Component{0, run.x0, run.x1, run.y, run.y, r, r, false};
+      } else {
+        runs_[static_cast<std::size_t>(c.last)].next = r;
+        c.last = r;
+        c.x0 = std::min(c.x0, run.x0);
+        c.x1 = std::max(c.x1, run.x1);
+        c.y1 = run.y;  // runs come in row order
+      }
+      c.area += run.x1 - run.x0;
+      if (run.x0 == 0 || run.x1 == w || run.y == 0 || run.y == h - 1) c.touches_border = true;
+    }
+  }
+
+  // --- 2. quads -------------------------------------------------------------
+
+  // Largest-area quadrilateral on the vertices of a convex polygon (hull_),
+  // by rotating the two free vertices monotonically for each diagonal.
+  bool max_area_quad(std::array<Point2, 4>& quad) const {
+    const int n = static_cast<int>(hull_.size());
+    if (n < 4) return false;
+    auto at = [&](int i) { return hull_[static_cast<std::size_t>(i % n)]; };
+    double best = 0;
+    for (int i = 0; i < n; ++i) {
+      int k = i + 1;
+      int l = i + 3;
+      for (int j = i + 2; j < i + n - 1; ++j) {
+        if (k >= j) k = j - 1;
+        while (k + 1 < j && std::abs(cross(at(i), at(k + 1), at(j))) >= std::abs(cross(at(i), at(k), at(j)))) ++k;
+        if (l <= j) l = j + 1;
+        while (l + 1 < i + n && std::abs(cross(at(j), at(l + 1), at(i))) >= std::abs(cross(at(j), at(l), at(i)))) ++l;
+        const double area = std::abs(cross(at(i), at(k), at(j))) + std::abs(cross(at(j), at(l), at(i)));
+        if (area > best) {
+          best = area;
+          quad = {at(i), at(k), at(j), at(l)};
+        }
+      }
+    }
+    return best > 0;
+  }
+
+  void consider_component(std::int32_t root, std::vector<Detection>& out) {
+    const Component& c = components_[static_cast<std::size_t>(root)];
+    if (c.touches_border) return;
+    const double d = decimate_;
+    const int bw = c.x1 - c.x0, bh = c.y1 - c.y0 + 1;
+    const double min_side = config_.frame8.min_hole_side_px / d;
+    if (bw < min_side || bh < min_side) return;
+    if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return;
+    if (c.area < 0.2 * bw * bh) return;
+    F8_TRACE("component at %d,%d size %dx%d area %ld\n", c.x0, c.y0, bw, bh, static_cast<long>(c.area));
+
+    // Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
+    // extreme boundary x of the rows touching it: the component's outline.
+    line_min_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::max());
+    line_max_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::min());
+    for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
+      const Run& run = runs_[static_cast<std::size_t>(r)];
+      const auto k = static_cast<std::size_t>(run.y - c.y0);
+      for (std::size_t kk = k; kk <= k + 1; ++kk) {
+        line_min_[kk] = std::min(line_min_[kk], run.x0);
+        line_max_[kk] = std::max(line_max_[kk], run.x1);
+      }
+    }
+    // Andrew's monotone chain over points already sorted by (y, x).
+    hull_.clear();
+    points_.clear();
+    for (int k = 0; k <= bh; ++k) {
+      const double y = c.y0 + k - 0.5;
+      points_.push_back({line_min_[static_cast<std::size_t>(k)] - 0.5, y});
+      if (line_max_[static_cast<std::size_t>(k)] != line_min_[static_cast<std::size_t>(k)]) {
+        points_.push_back({line_max_[static_cast<std::size_t>(k)] - 0.5, y});
+      }
+    }
+    convex_hull();
+    std::array<Point2, 4> quad{};
+    if (!max_area_quad(quad)) return;
+
+    // The hull must be a quad, and the component must fill most of it.
+    double hull_area = 0;
+    for (std::size_t i = 0; i < hull_.size(); ++i) {
+      const Point2 a = hull_[i], b = hull_[(i + 1) % hull_.size()];
+      hull_area += a.x * b.y - b.x * a.y;
+    }
+    hull_area = std::abs(hull_area) / 2;
+    double quad_area = 0;
+    for (int i = 0; i < 4; ++i) {
+      const Point2 a = quad[static_cast<std::size_t>(i)], b = quad[static_cast<std::size_t>((i + 1) % 4)];
+      quad_area += a.x * b.y - b.x * a.y;
+    }
+    if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
+    quad_area = std::abs(quad_area) / 2;
+    F8_TRACE("  quad area %.1f hull %.1f\n", quad_area, hull_area);
+    // Pixel staircases make a small hull bigger than the quad by up to about
+    // a third of a pixel along the perimeter; beyond that it is not a quad.
+    double perimeter = 0;
+    for (int i = 0; i < 4; ++i) {
+      perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
+    }
+    if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter || c.area < 0.5 * quad_area) return;
+    for (int i = 0; i < 4; ++i) {
+      const Point2 a = quad[static_cast<std::size_t>(i)];
+      const Point2 b = quad[static_cast<std::size_t>((i + 1) % 4)];
+      const Point2 p = quad[static_cast<std::size_t>((i + 3) % 4)];
+      const double la = distance(a, b), lp = distance(a, p);
+      if (la < min_side * 0.5) return;
+      const double cosang = ((b.x - a.x) * (p.x - a.x) + (b.y - a.y) * (p.y - a.y)) / (la * lp);
+      if (std::abs(cosang) > 0.94) return;  // a corner sharper than 20 degrees or flatter than 160
+    }
+    for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+
+    Detection det;
+    F8_TRACE("  candidate quad (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f)\n", quad[0].x, quad[0].y, quad[1].x,
+             quad[1].y, quad[2].x, quad[2].y, quad[3].x, quad[3].y);
+    if (refine_and_decode(quad, det)) out.push_back(det);
+  }
+
+  void convex_hull() {
+    const int n = static_cast<int>(points_.size());
+    hull_.resize(static_cast<std::size_t>(2 * n));
+    int k = 0;
+    // Points are sorted by (y, x); build both chains.
+    for (int i = 0; i < n; ++i) {
+      while (k >= 2 && cross(hull_[static_cast<std::size_t>(k - 2)], hull_[static_cast<std::size_t>(k - 1)],
+                             points_[static_cast<std::size_t>(i)]) <= 0) {
+        --k;
+      }
+      hull_[static_cast<std::size_t>(k++)] = points_[static_cast<std::size_t>(i)];
+    }
+    for (int i = n - 2, t = k + 1; i >= 0; --i) {
+      while (k >= t && cross(hull_[static_cast<std::size_t>(k - 2)], hull_[static_cast<std::size_t>(k - 1)],
+                             points_[static_cast<std::size_t>(i)]) <= 0) {
+        --k;
+      }
+      hull_[static_cast<std::size_t>(k++)] = points_[static_cast<std::size_t>(i)];
+    }
+    hull_.resize(static_cast<std::size_t>(std::max(0, k - 1)));
+  }
+
+  // --- 3. edges at full resolution -------------------------------------------
+
+  // Finds the hole-to-line edge along side i of the quad; fills
+  // edge_points_[i]. Without a code (id < 0), every point takes the centroid
+  // of the light-to-dark step. With the code read once, each point knows the
+  // colour of the cell beyond the line: where it is white and the line is
+  // thin against the blur, the step is cut short by the white cell and its
+  // centroid falls inside the hole; the blurred line is then a symmetric dip
+  // instead, whose centroid is the line's centre, a quarter cell outside the
+  // edge.
+  int collect_edge_points(const std::array<Point2, 4>& q, int side, int id) {
+    const Point2 a = q[static_cast<std::size_t>(side)];
+    const Point2 b = q[static_cast<std::size_t>((side + 1) % 4)];
+    const double len = distance(a, b);
+    const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
+    const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
+    // A cell's size across this side, at either end: foreshortening makes it
+    // differ from side to side and along a side.
+    const double cell_a = distance(q[static_cast<std::size_t>((side + 3) % 4)], a) / kInnerSide;
+    const double cell_b = distance(b, q[static_cast<std::size_t>((side + 2) % 4)]) / kInnerSide;
+    constexpr double step = 0.5;
+    const int count = std::clamp(static_cast<int>(len / 1.5), 4, kMaxEdgePoints);
+    EdgePoint* pts = edge_points_[static_cast<std::size_t>(side)].data();
+    int used = 0;
+    std::array<float, 64> profile{};
+    for (int k = 0; k < count; ++k) {
+      // Stay clear of the corners, where the line turns.
+      const double t = 0.12 + 0.76 * (k + 0.5) / count;
+      const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
+      const double cell_px = (1 - t) * cell_a + t * cell_b;
+      bool white_beyond = false;
+      if (id >= 0) {
+        // Cells along a side follow the reading order, the same on every side.
+        const double along = 0.5 + kInnerSide * t;
+        const double frac = along - std::floor(along);
+        if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
+        const int bit = 7 - std::clamp(static_cast<int>(along), 0, 7);
+        white_beyond = (id >> bit) & 1;
+      }
+      // Inward as far as the coarse quad may be off; outward past the line's
+      // far side (half a cell) and its blur.
+      const double reach_in = id >= 0 ? std::max(1.0, 0.5 * cell_px) : std::clamp(1.2 * cell_px, 1.5, 2.0 + decimate_);
+      const double reach_out =
+          id >= 0 ? 0.75 * cell_px + 1.5 : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
+      const int n_steps = std::min(static_cast<int>((reach_in + reach_out) / step) + 1, 64);
+      bool ok = true;
+      for (int s = 0; s < n_steps && ok; ++s) {
+        const double off = -reach_in + s * step;
+        ok = sample(full_, px + off * nx, py + off * ny, profile[static_cast<std::size_t>(s)]);
+      }
+      if (!ok) continue;
+      auto P = [&](int i) { return static_cast<double>(profile[static_cast<std::size_t>(i)]); };
+      // The steepest light-to-dark step going outward.
+      int best = -1;
+      double best_drop = 0;
+      for (int s = 0; s + 1 < n_steps; ++s) {
+        if (P(s) - P(s + 1) > best_drop) {
+          best_drop = P(s) - P(s + 1);
+          best = s;
+        }
+      }
+      if (best < 0 || best_drop < 2.0) continue;
+      // The whole step: from where the profile starts falling to where it stops.
+      const double floor_drop = 0.05 * best_drop;
+      int lo = best, hi = best;
+      while (lo > 0 && P(lo - 1) - P(lo) > floor_drop) --lo;
+      while (hi + 2 < n_steps && P(hi + 1) - P(hi + 2) > floor_drop) ++hi;
+      double off = 0;
+      if (white_beyond && cell_px < kThinLineCells) {
+        int peak = hi + 1;
+        while (peak + 1 < n_steps && P(peak + 1) >= P(peak)) ++peak;
+        const double ref = std::min(P(lo), P(peak));
+        double sum = 0, moment = 0;
+        for (int i = lo; i <= peak; ++i) {
+          const double depth = std::max(0.0, ref - P(i));
+          sum += depth;
+          moment += depth * i;
+        }
+        if (sum <= 0) continue;
+        off = -reach_in + (moment / sum) * step - 0.25 * cell_px;
+      } else {
+        double sum = 0, moment = 0;
+        for (int i = lo; i <= hi; ++i) {
+          const double drop = P(i) - P(i + 1);
+          sum += drop;
+          moment += drop * (i + 0.5);
+        }
+        off = -reach_in + (moment / sum) * step;
+      }
+      pts[used++] = {px + off * nx, py + off * ny, best_drop};
+    }
+    return used;
+  }
+
+  // Refines the four sides from a quad; the inner corners in `inner`.
+  bool refine_sides(const std::array<Point2, 4>& from, int id, double cell_px, std::array<Point2, 4>& inner) {
+    std::array<Line, 4> lines{};
+    for (int side = 0; side < 4; ++side) {
+      auto& n = edge_count_[static_cast<std::size_t>(side)];
+      n = collect_edge_points(from, side, id);
+      if (n < 3) return false;
+      if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px),
+                    lines[static_cast<std::size_t>(side)])) {
+        return false;
+      }
+    }
+    for (int i = 0; i < 4; ++i) {
+      if (!intersect(lines[static_cast<std::size_t>((i + 3) % 4)], lines[static_cast<std::size_t>(i)],
+                     inner[static_cast<std::size_t>(i)])) {
+        return false;
+      }
+      if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) > 2.0 * cell_px + 2 * decimate_) {
+        return false;
+      }
+    }
+    return true;
+  }
+
+  bool refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
+    double perimeter = 0;
+    for (int i = 0; i < 4; ++i) {
+      perimeter += distance(coarse[static_cast<std::size_t>(i)], coarse[static_cast<std::size_t>((i + 1) % 4)]);
+    }
+    const double cell_px = perimeter / 4 / kInnerSide;
+    if (perimeter / 4 < config_.frame8.min_hole_side_px) return false;
+
+    std::array<Point2, 4> inner{};
+    if (!refine_sides(coarse, -1, cell_px, inner)) return false;
+    Homography H;
+    if (!Homography::from_unit_square(inner, H)) return false;
+    int rotation = 0;
+    if (!decode(H, cell_px, det, rotation)) return false;
+    if (cell_px < kThinLineCells) {
+      // Measure again knowing which cells are white, then read again.
+      std::array<Point2, 4> second{};
+      Homography H2;
+      Detection det2;
+      int rotation2 = 0;
+      if (refine_sides(inner, det.id, cell_px, second) && Homography::from_unit_square(second, H2) &&
+          decode(H2, cell_px, det2, rotation2)) {
+        inner = second;
+        H = H2;
+        det = det2;
+        rotation = rotation2;
+      } else if (!refine_sides(coarse, -1, cell_px, inner)) {
+        return false;  // (restores the first pass's edge points for the camera refit)
+      }
+    }
+
+    // Report in the marker's own order: corner j is quad corner (j + rotation) % 4.
+    std::array<Point2, 4> outer{};
+    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
+    for (int i = 0; i < 4; ++i) outer[static_cast<std::size_t>(i)] = grid_point(H, kOuterGrid[static_cast<std::size_t>(i)].x, kOuterGrid[static_cast<std::size_t>(i)].y);
+    if (config_.camera) {
+      if (!refit_undistorted(rotation, det)) return false;
+    } else {
+      Quad in{}, outq{};
+      for (int j = 0; j < 4; ++j) {
+        in[static_cast<std::size_t>(j)] = inner[static_cast<std::size_t>((j + rotation) % 4)];
+        outq[static_cast<std::size_t>(j)] = outer[static_cast<std::size_t>((j + rotation) % 4)];
+      }
+      det.inner_corners = in;
+      det.corners = outq;
+    }
+    const Point2 top = det.corners[1] - det.corners[0];
+    const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
+    det.quarter_turns = ((quarter % 4) + 4) % 4;
+    return true;
+  }
+
+  // With a camera: fit the same edge points in undistorted normalized
+  // coordinates (straight lines there), then map back through the lens.
+  bool refit_undistorted(int rotation, Detection& det) {
+    const CameraModel& cam = *config_.camera;
+    std::array<Line, 4> lines{};
+    for (int side = 0; side < 4; ++side) {
+      auto& pts = edge_points_[static_cast<std::size_t>(side)];
+      const int n = edge_count_[static_cast<std::size_t>(side)];
+      for (int i = 0; i < n; ++i) {
+        if (pts[static_cast<std::size_t>(i)].w <= 0) continue;
+        const Point2 p = cam.pixel_to_normalized({pts[static_cast<std::size_t>(i)].x, pts[static_cast<std::size_t>(i)].y});
+        pts[static_cast<std::size_t>(i)].x = p.x;
+        pts[static_cast<std::size_t>(i)].y = p.y;
+      }
+      // Outliers were dropped in pixel space already; no second rejection.
+      if (!fit_line(pts.data(), n, std::numeric_limits<double>::infinity(), lines[static_cast<std::size_t>(side)])) {
+        return false;
+      }
+    }
+    std::array<Point2, 4> inner_n{};
+    for (int i = 0; i < 4; ++i) {
+      if (!intersect(lines[static_cast<std::size_t>((i + 3) % 4)], lines[static_cast<std::size_t>(i)],
+                     inner_n[static_cast<std::size_t>(i)])) {
+        return false;
+      }
+    }
+    Homography Hn;
+    if (!Homography::from_unit_square(inner_n, Hn)) return false;
+    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
+    Quad in{}, outq{};
+    std::array<Eigen::Vector2d, 4> model_order{};
+    for (int j = 0; j < 4; ++j) {
+      const int q = (j + rotation) % 4;
+      const Point2 n_in = inner_n[static_cast<std::size_t>(q)];
+      const Point2 g = kOuterGrid[static_cast<std::size_t>(q)];
+      in[static_cast<std::size_t>(j)] = cam.normalized_to_pixel(n_in);
+      outq[static_cast<std::size_t>(j)] = cam.normalized_to_pixel(grid_point(Hn, g.x, g.y));
+      model_order[static_cast<std::size_t>(j)] = {n_in.x, n_in.y};
+    }
+    det.inner_corners = in;
+    det.corners = outq;
+    det.pose = estimate_square_pose_normalized(cam, model_order, config_.marker_size_m * frame8::hole_fraction);
+    return det.pose.has_value();
+  }
+
+  // --- 4. the code ----------------------------------------------------------
+
+  struct CellSample {
+    float mean = 0, lo = 0, hi = 0;  // over the points sampled in the cell
+    bool valid = false;
+  };
+
+  // Samples a ring cell at its centre; where cells are resolved, at four
+  // points around the centre instead (less noise, and a cell that is not one
+  // colour all over shows itself).
+  CellSample sample_cell(const Homography& H, frame8::Cell cell, double cell_px) const {
+    CellSample out;
+    const double cx = cell.col + 0.5, cy = cell.row + 0.5;
+    if (cell_px < kResolvedCells) {
+      const Point2 p = grid_point(H, cx, cy);
+      out.valid = sample(full_, p.x, p.y, out.mean);
+      out.lo = out.hi = out.mean;
+      return out;
+    }
+    float sum = 0;
+    out.lo = 255;
+    out.hi = 0;
+    for (int k = 0; k < 4; ++k) {
+      const Point2 p = grid_point(H, cx + ((k & 1) ? 0.25 : -0.25), cy + ((k & 2) ? 0.25 : -0.25));
+      float v = 0;
+      if (!sample(full_, p.x, p.y, v)) return out;
+      sum += v;
+      out.lo = std::min(out.lo, v);
+      out.hi = std::max(out.hi, v);
+    }
+    out.mean = sum / 4;
+    out.valid = true;
+    return out;
+  }
+
+  // How well an edge's cells are resolved along the edge, 0..1: a cell under
+  // a pixel wide is blurred into its neighbours.
+  static double edge_weight(const Homography& H, int edge) {
+    const frame8::Cell a = frame8::data_cell(edge, 6), b = frame8::data_cell(edge, 1);
+    const double pitch = distance(grid_point(H, a.col + 0.5, a.row + 0.5), grid_point(H, b.col + 0.5, b.row + 0.5)) / 5.0;
+    return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
+  }
+
+  bool decode(const Homography& H, double cell_px, Detection& det, int& rotation) const {
+    std::array<CellSample, 4> corner{};
+    std::array<std::array<CellSample, 8>, 4> cell{};
+    for (int k = 0; k < 4; ++k) {
+      corner[static_cast<std::size_t>(k)] = sample_cell(H, frame8::corner_cell(k), cell_px);
+      if (!corner[static_cast<std::size_t>(k)].valid) return false;
+    }
+    int valid_cells = 0;
+    for (int e = 0; e < 4; ++e) {
+      for (int b = 0; b < 8; ++b) {
+        auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+        c = sample_cell(H, frame8::data_cell(e, b), cell_px);
+        valid_cells += c.valid;
+      }
+    }
+    if (valid_cells < 24) return false;
+
+    // Grey model: 2-means over the ring, seeded by the corners (three black, one white).
+    int white_corner = 0;
+    for (int k = 1; k < 4; ++k) {
+      if (corner[static_cast<std::size_t>(k)].mean > corner[static_cast<std::size_t>(white_corner)].mean) white_corner = k;
+    }
+    double black = 0;
+    for (int k = 0; k < 4; ++k) {
+      if (k != white_corner) black += corner[static_cast<std::size_t>(k)].mean;
+    }
+    black /= 3;
+    double white = corner[static_cast<std::size_t>(white_corner)].mean;
+    for (int iter = 0; iter < 3; ++iter) {
+      const double thr = 0.5 * (black + white);
+      double sb = 0, sw = 0;
+      int nb = 0, nw = 0;
+      auto add = [&](const CellSample& c) {
+        if (!c.valid) return;
+        if (c.mean < thr) {
+          sb += c.mean;
+          ++nb;
+        } else {
+          sw += c.mean;
+          ++nw;
+        }
+      };
+      for (const auto& c : corner) add(c);
+      for (const auto& edge : cell) {
+        for (const auto& c : edge) add(c);
+      }
+      if (nb == 0 || nw == 0) return false;
+      black = sb / nb;
+      white = sw / nw;
+    }
+    const double contrast = white - black;
+    F8_TRACE("  grey model black %.1f white %.1f\n", black, white);
+    if (contrast < 3.0 * config_.frame8.threshold_offset || contrast < 20) return false;
+    const double thr = 0.5 * (black + white);
+    auto soft = [&](double v) { return std::clamp((v - thr) / (0.5 * contrast), -1.0, 1.0); };
+    // A cell read clearly and, where resolved, one colour all over; otherwise
+    // it is an erasure (an occluder's edge, or clutter that is no cell at all).
+    constexpr double kConfident = 0.3;
+    auto clear = [&](const CellSample& c) {
+      const double lo = soft(c.lo), hi = soft(c.hi);
+      return c.valid && ((lo > kConfident && hi > kConfident) || (lo < -kConfident && hi < -kConfident));
+    };
+
+    // Orientation: the one white corner is C1 (top right). Four dark corners
+    // are never a marker: that is every dark square frame with a light inside.
+    int white_corners = 0;
+    for (const auto& c : corner) white_corners += soft(c.mean) > 0;
+    if (white_corners == 0 || white_corners > 2) return false;
+    if (!clear(corner[static_cast<std::size_t>(white_corner)])) return false;
+    rotation = (white_corner + 3) % 4;
+
+    // The bits: soft votes of the four edges, weighted by resolution.
+    constexpr double kClearCode = 0.35;
+    std::array<double, 4> weight{};
+    for (int e = 0; e < 4; ++e) weight[static_cast<std::size_t>(e)] = edge_weight(H, e);
+    int id = 0, corrected = 0, erased = 0;
+    double margin = 1.0;
+    for (int b = 0; b < 8; ++b) {
+      double sum = 0, wsum = 0;
+      for (int e = 0; e < 4; ++e) {
+        const auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+        if (!c.valid) continue;
+        sum += weight[static_cast<std::size_t>(e)] * soft(c.mean);
+        wsum += weight[static_cast<std::size_t>(e)];
+      }
+      if (wsum <= 0) return false;
+      const bool bit = sum > 0;
+      int agree = 0, dissent = 0;
+      for (int e = 0; e < 4; ++e) {
+        const auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+        if (!clear(c)) {
+          ++erased;
+          continue;  // an erasure, not a vote
+        }
+        if ((soft(c.mean) > 0) == bit) {
+          ++agree;
+        } else {
+          ++dissent;
+        }
+      }
+      F8_TRACE("  bit %d: sum %.2f / %.2f agree %d dissent %d\n", b, sum, wsum, agree, dissent);
+      // At most one wrong edge per bit position is correctable; a second is detected.
+      if (dissent > 1 || agree < 1 || agree <= dissent) return false;
+      corrected += dissent;
+      margin = std::min(margin, std::abs(sum) / wsum);
+      if (bit) id |= 1 << b;
+    }
+    // C1 is a whole cell: its two neighbours along the ring (the last cell of
+    // the edge before it, the first of the edge after it) never contradict
+    // the code. A light blob that merely reaches the spot where C1 is sampled
+    // (the diagonal neighbour of a light square in a checkered pattern)
+    // spills into both.
+    auto contradicts = [&](const CellSample& c, bool bit) {
+      return c.valid && (bit ? soft(c.mean) < -kConfident : soft(c.mean) > kConfident);
+    };
+    if (contradicts(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0], id & 1) ||
+        contradicts(cell[static_cast<std::size_t>(white_corner)][7], (id >> 7) & 1)) {
+      return false;
+    }
+    // Where cells are resolved, more erasures than one edge's worth is not
+    // a marker with an edge covered but something else.
+    if (cell_px >= kResolvedCells && erased > 8) return false;
+    if (margin < config_.frame8.min_margin) return false;
+    // Outvoting most of an edge (a covered edge) is only believable when the
+    // other three read clearly.
+    if (corrected >= 4 && margin < kClearCode) return false;
+    // Ids 0 and 255 have no structure along the ring: a dark ring with one
+    // light corner, or a light ring with three dark ones. Under about three
+    // pixels a cell, the bowl of a printed letter looks exactly like that;
+    // these two are reported only where their cells can be verified.
+    if ((id == 0 || id == 255) && cell_px < kResolvedCells) return false;
+    // Corners decide orientation. Without a clean 3:1 split (an edge covered
+    // with its corners) the whitest corner still decides, as the contract
+    // says, but only a clearly read code may rely on that.
+    std::array<float, 4> sorted{};
+    for (int k = 0; k < 4; ++k) sorted[static_cast<std::size_t>(k)] = corner[static_cast<std::size_t>(k)].mean;
+    std::sort(sorted.begin(), sorted.end());
+    const double orientation_clarity = 0.5 * (soft(sorted[3]) - soft(sorted[2]));
+    if (orientation_clarity < config_.frame8.min_margin && margin < kClearCode) return false;
+    margin = std::min(margin, std::max(orientation_clarity, 0.0));
+
+    // The line must be dark where it is resolved, all around and at each of
+    // its four corners: a light square among the bits of a checkered pattern
+    // reads as id 0 when a diagonal neighbour lands on C1, but that neighbour
+    // also covers the line's corner.
+    if (cell_px >= kResolvedCells) {
+      static constexpr std::array<Point2, 4> kLineCorners{{{1.25, 1.25}, {8.75, 1.25}, {8.75, 8.75}, {1.25, 8.75}}};
+      for (const Point2& g : kLineCorners) {
+        float v = 0;
+        const Point2 p = grid_point(H, g.x, g.y);
+        if (!sample(full_, p.x, p.y, v) || soft(v) > -kConfident) return false;
+      }
+      int dark = 0, total = 0;
+      for (int k = 0; k < 7; ++k) {
+        const double along = kInnerLo + 0.5 + k;
+        const std::array<Point2, 4> probes{{{along, 1.25}, {8.75, along}, {10 - along, 8.75}, {1.25, 10 - along}}};
+        for (const Point2& g : probes) {
+          float v = 0;
+          const Point2 p = grid_point(H, g.x, g.y);
+          if (!sample(full_, p.x, p.y, v)) continue;
+          ++total;
+          dark += v < thr;
+        }
+      }
+      if (total < 14 || dark < 0.75 * total) return false;
+    }
+
+    det.family = Family::frame8;
+    det.id = id;
+    det.bits_corrected = corrected;
+    det.margin = margin;
+    return true;
+  }
+
+  static bool inside(const Quad& q, Point2 p) {
+    for (int i = 0; i < 4; ++i) {
+      if (cross(q[static_cast<std::size_t>(i)], q[static_cast<std::size_t>((i + 1) % 4)], p) < 0) return false;
+    }
+    return true;
+  }
+
+  // A marker has one hole, but a white cell enclosed by black neighbours (or
+  // the line) is a small light square too, and may read as some code. Any
+  // detection lying within a larger one is such a part of it, and is dropped.
+  static void remove_nested(std::vector<Detection>& out) {
+    auto area = [](const Quad& q) {
+      double a = 0;
+      for (int i = 0; i < 4; ++i) a += q[static_cast<std::size_t>(i)].x * q[static_cast<std::size_t>((i + 1) % 4)].y - q[static_cast<std::size_t>((i + 1) % 4)].x * q[static_cast<std::size_t>(i)].y;
+      return std::abs(a) / 2;
+    };
+    for (std::size_t i = out.size(); i-- > 0;) {
+      const Point2 centre = 0.25 * (out[i].corners[0] + out[i].corners[1] + out[i].corners[2] + out[i].corners[3]);
+      const double a = area(out[i].corners);
+      for (std::size_t j = 0; j < out.size(); ++j) {
+        if (j != i && area(out[j].corners) > a && inside(out[j].corners, centre)) {
+          out.erase(out.begin() + static_cast<std::ptrdiff_t>(i));
+          break;
+        }
+      }
+    }
+  }
+
+  static constexpr int kMaxEdgePoints = 48;
+  // Below this many pixels per cell the black line (half a cell) is thin
+  // against a typical blur, and the edges are measured a second time.
+  static constexpr double kThinLineCells = 4.0;
+  // From this many pixels per cell, a cell is sampled at four points.
+  static constexpr double kResolvedCells = 3.0;
+
+  DetectorConfig config_;
+  GreyView full_{};
+  GreyView work_{};
+  int decimate_ = 1;
+  std::vector<std::uint8_t> decimated_;
+  std::vector<std::uint32_t> tile_sum_;
+  std::vector<std::uint16_t> tile_count_;
+  std::vector<std::uint8_t> tile_threshold_;
+  std::vector<std::uint8_t> pixel_threshold_;
+  std::vector<std::uint8_t> column_max_, local_max_;
+  std::vector<std::uint64_t> light_bits_;
+  std::vector<Run> runs_;
+  std::vector<std::int32_t> row_first_;
+  std::vector<Component> components_;
+  std::vector<std::int32_t> line_min_, line_max_;
+  std::vector<Point2> points_, hull_;
+  std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
+  std::array<int, 4> edge_count_{};
+};
+
+}  // namespace
+
+std::unique_ptr<MarkerDetector> make_frame8_detector(const DetectorConfig& config) {
+  return std::make_unique<Frame8Detector>(config);
+}
+
+}  // namespace markerd

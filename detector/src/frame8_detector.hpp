@@ -1,0 +1,8 @@
+#pragma once
+#include <memory>
+
+#include "markerd/detector/detector.hpp"
+
+namespace markerd {
+std::unique_ptr<MarkerDetector> make_frame8_detector(const DetectorConfig& config);
+}

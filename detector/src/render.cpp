@@ -1,0 +1,540 @@
+#include "markerd/detector/render.hpp"
+
+#include <apriltag/apriltag.h>
+#include <apriltag/tag36h11.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <memory>
+#include <numbers>
+#include <opencv2/aruco.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "markerd/detector/frame8.hpp"
+
+namespace markerd {
+namespace {
+
+constexpr float kPaper = 0.88F;
+constexpr float kInk = 0.05F;
+// Flat background without clutter: mid grey, lighter than the ink so that a
+// cut hole still shows the frame8 line's inner edge.
+constexpr std::uint8_t kFlatGrey = 128;
+// The noise stream is independent of the clutter stream, so that changing the
+// noise level does not move the clutter.
+constexpr std::uint64_t kNoiseSeedMix = 0x9E3779B97F4A7C15ULL;
+
+// Variates from mt19937_64 by our own formulas: the standard distributions
+// are implementation-defined, and the rendered bytes must not change with
+// the standard library.
+class Random {
+ public:
+  explicit Random(std::uint64_t seed) : engine_(seed) {}
+  std::uint64_t bits() { return engine_(); }
+  double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
+  double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
+  int integer(int lo, int hi_inclusive) {
+    return lo + static_cast<int>(uniform() * (hi_inclusive - lo + 1));
+  }
+
+ private:
+  std::mt19937_64 engine_;
+};
+
+// Sensor noise: a frame needs 300k normal variates, which from the polar
+// method cost as much as the whole marker. Instead each 16 bits of the
+// engine's output pick one of 65536 equiprobable quantiles of the standard
+// normal: four variates per engine call, the distribution exact to 1e-5 in
+// probability, its tails cut at 4.3 sigma (well past what matters to a grey
+// level).
+class NormalQuantiles {
+ public:
+  static constexpr int kBits = 16;
+  static constexpr int kSize = 1 << kBits;
+
+  NormalQuantiles() {
+    table_.resize(kSize);
+    for (int i = 0; i < kSize / 2; ++i) {
+      // Upper half by Newton's method on the normal CDF, mirrored below.
+      const double p = (kSize / 2 + i + 0.5) / kSize;
+      double x = 0;
+      for (int iter = 0; iter < 100; ++iter) {
+        const double cdf = 0.5 * std::erfc(-x / std::numbers::sqrt2);
+        const double pdf = std::exp(-0.5 * x * x) / std::sqrt(2 * std::numbers::pi);
+        const double step = (cdf - p) / pdf;
+        x -= step;
+        if (std::abs(step) < 1e-12) break;
+      }
+      table_[static_cast<std::size_t>(kSize / 2 + i)] = static_cast<float>(x);
+      table_[static_cast<std::size_t>(kSize / 2 - 1 - i)] = static_cast<float>(-x);
+    }
+  }
+  [[nodiscard]] float operator[](std::uint64_t index) const { return table_[index & (kSize - 1)]; }
+
+ private:
+  std::vector<float> table_;
+};
+
+const NormalQuantiles& normal_quantiles() {
+  static const NormalQuantiles table;
+  return table;
+}
+
+Eigen::Matrix3d rot_x(double rad) { return Eigen::AngleAxisd(rad, Eigen::Vector3d::UnitX()).toRotationMatrix(); }
+Eigen::Matrix3d rot_y(double rad) { return Eigen::AngleAxisd(rad, Eigen::Vector3d::UnitY()).toRotationMatrix(); }
+Eigen::Matrix3d rot_z(double rad) { return Eigen::AngleAxisd(rad, Eigen::Vector3d::UnitZ()).toRotationMatrix(); }
+double deg(double d) { return d * std::numbers::pi / 180.0; }
+
+void check_id(Family family, int id) {
+  const FamilyInfo& info = family_info(family);
+  if (id < 0 || id >= info.id_count) {
+    throw std::out_of_range(
+        fmt::format("{}: id {} is out of range (0..{})", info.name, id, info.id_count - 1));
+  }
+}
+
+// ---------------------------------------------------------------- background
+
+struct Drawer {
+  cv::Mat& img;
+  Random& rng;
+  double scale;  // min(width, height)
+
+  static constexpr int kShift = 4;  // sub-pixel bits for cv's polygon drawing
+  static cv::Point fixed(double x, double y) {
+    return {static_cast<int>(std::lround(x * (1 << kShift))), static_cast<int>(std::lround(y * (1 << kShift)))};
+  }
+
+  double grey() { return rng.uniform(8, 248); }
+  cv::Point2d centre() {
+    return {rng.uniform(-0.1, 1.1) * img.cols, rng.uniform(-0.1, 1.1) * img.rows};
+  }
+
+  // A rectangle (lu0..lu1, lv0..lv1) of a frame centred at c, rotated by `angle`.
+  std::array<cv::Point, 4> quad(cv::Point2d c, double angle, double lu0, double lv0, double lu1, double lv1) const {
+    const double ca = std::cos(angle), sa = std::sin(angle);
+    auto at = [&](double u, double v) { return fixed(c.x + ca * u - sa * v, c.y + sa * u + ca * v); };
+    return {at(lu0, lv0), at(lu1, lv0), at(lu1, lv1), at(lu0, lv1)};
+  }
+  void fill(const std::array<cv::Point, 4>& q, double g) const {
+    cv::fillConvexPoly(img, q.data(), 4, cv::Scalar(g), cv::LINE_AA, kShift);
+  }
+
+  void filled_rect() {
+    const auto c = centre();
+    const double w = rng.uniform(0.03, 0.35) * scale, h = rng.uniform(0.03, 0.35) * scale;
+    fill(quad(c, rng.uniform(0, std::numbers::pi), -w / 2, -h / 2, w / 2, h / 2), grey());
+  }
+  void outlined_rect() {
+    const auto c = centre();
+    const double w = rng.uniform(0.05, 0.4) * scale, h = rng.uniform(0.05, 0.4) * scale;
+    const auto q = quad(c, rng.uniform(0, std::numbers::pi), -w / 2, -h / 2, w / 2, h / 2);
+    cv::polylines(img, std::vector<cv::Point>(q.begin(), q.end()), true, cv::Scalar(grey()), rng.integer(1, 5),
+                  cv::LINE_AA, kShift);
+  }
+  void ellipse(bool filled) {
+    const auto c = centre();
+    const cv::Size axes(static_cast<int>(rng.uniform(0.02, 0.2) * scale) + 1,
+                        static_cast<int>(rng.uniform(0.02, 0.2) * scale) + 1);
+    cv::ellipse(img, cv::Point(static_cast<int>(c.x), static_cast<int>(c.y)), axes, rng.uniform(0, 180), 0, 360,
+                cv::Scalar(grey()), filled ? cv::FILLED : rng.integer(1, 4), cv::LINE_AA);
+  }
+  void line() {
+    const auto a = centre(), b = centre();
+    cv::line(img, fixed(a.x, a.y), fixed(b.x, b.y), cv::Scalar(grey()), rng.integer(1, 6), cv::LINE_AA, kShift);
+  }
+  void gradient_patch() {
+    const int w = static_cast<int>(rng.uniform(0.05, 0.4) * scale) + 2;
+    const int h = static_cast<int>(rng.uniform(0.05, 0.4) * scale) + 2;
+    const int x0 = rng.integer(-w / 2, img.cols - w / 2), y0 = rng.integer(-h / 2, img.rows - h / 2);
+    const double g0 = grey(), g1 = grey(), angle = rng.uniform(0, 2 * std::numbers::pi);
+    const double dx = std::cos(angle), dy = std::sin(angle);
+    const double span = std::abs(dx) * w + std::abs(dy) * h;
+    for (int y = std::max(0, y0); y < std::min(img.rows, y0 + h); ++y) {
+      auto* row = img.ptr<std::uint8_t>(y);
+      for (int x = std::max(0, x0); x < std::min(img.cols, x0 + w); ++x) {
+        const double s = ((x - x0 - w / 2.0) * dx + (y - y0 - h / 2.0) * dy) / span + 0.5;
+        row[x] = cv::saturate_cast<std::uint8_t>(g0 + (g1 - g0) * s);
+      }
+    }
+  }
+  // A dark square band around a lighter inside: the shape every square-marker
+  // detector starts from, to exercise its rejection.
+  void square_frame() {
+    const auto c = centre();
+    const double side = rng.uniform(0.05, 0.25) * scale;
+    const double band = side * rng.uniform(0.08, 0.25);
+    const double angle = rng.uniform(0, std::numbers::pi);
+    const double h = side / 2;
+    fill(quad(c, angle, -h, -h, h, h), rng.uniform(5, 60));
+    fill(quad(c, angle, -h + band, -h + band, h - band, h - band), rng.uniform(120, 245));
+  }
+  // A dark-bordered grid of random cells: looks like a coded marker but
+  // carries no valid code (except by rare chance).
+  void checker_patch() {
+    const auto c = centre();
+    const int n = rng.integer(4, 8);
+    const double cell = rng.uniform(0.008, 0.035) * scale;
+    const double angle = rng.uniform(0, std::numbers::pi);
+    const double h = n * cell / 2;
+    const double dark = rng.uniform(5, 60), light = rng.uniform(150, 245);
+    fill(quad(c, angle, -h - cell, -h - cell, h + cell, h + cell), dark);
+    for (int r = 0; r < n; ++r) {
+      for (int k = 0; k < n; ++k) {
+        if (rng.uniform() < 0.5) continue;
+        fill(quad(c, angle, -h + k * cell, -h + r * cell, -h + (k + 1) * cell, -h + (r + 1) * cell), light);
+      }
+    }
+  }
+  void text() {
+    static constexpr std::string_view chars = "ABCDEFGHKMNPRSTUVXYZ0123456789";
+    std::string s;
+    const int len = rng.integer(2, 8);
+    for (int i = 0; i < len; ++i) s += chars[static_cast<std::size_t>(rng.integer(0, static_cast<int>(chars.size()) - 1))];
+    const auto c = centre();
+    cv::putText(img, s, cv::Point(static_cast<int>(c.x), static_cast<int>(c.y)), cv::FONT_HERSHEY_SIMPLEX,
+                rng.uniform(0.4, 2.0) * scale / 480.0, cv::Scalar(grey()), rng.integer(1, 3), cv::LINE_AA);
+  }
+};
+
+cv::Mat make_background(int width, int height, const Scene& scene) {
+  cv::Mat img(height, width, CV_8U, cv::Scalar(kFlatGrey));
+  if (!scene.clutter) return img;
+  Random rng(scene.seed);
+  // A smooth illumination gradient under everything.
+  const double g0 = rng.uniform(70, 190), gx = rng.uniform(-60, 60), gy = rng.uniform(-60, 60);
+  for (int y = 0; y < height; ++y) {
+    auto* row = img.ptr<std::uint8_t>(y);
+    const double base = g0 + gy * (static_cast<double>(y) / height - 0.5);
+    for (int x = 0; x < width; ++x) {
+      row[x] = cv::saturate_cast<std::uint8_t>(base + gx * (static_cast<double>(x) / width - 0.5));
+    }
+  }
+  Drawer d{img, rng, static_cast<double>(std::min(width, height))};
+  const int shapes = rng.integer(30, 50);
+  for (int i = 0; i < shapes; ++i) {
+    switch (rng.integer(0, 9)) {
+      case 0:
+      case 1: d.filled_rect(); break;
+      case 2: d.outlined_rect(); break;
+      case 3: d.ellipse(true); break;
+      case 4: d.ellipse(false); break;
+      case 5: d.line(); break;
+      case 6: d.gradient_patch(); break;
+      case 7: d.square_frame(); break;
+      case 8: d.checker_patch(); break;
+      default: d.text(); break;
+    }
+  }
+  return img;
+}
+
+void check_inputs(const CameraModel& camera, const Scene& scene) {
+  if (camera.width <= 0 || camera.height <= 0) throw std::invalid_argument("render: camera has no image size");
+  if (!(camera.fx > 0) || !(camera.fy > 0)) throw std::invalid_argument("render: camera needs positive focal lengths");
+  if (!(scene.marker_size_m > 0)) throw std::invalid_argument("render: marker_size_m must be positive");
+  if (!std::isfinite(scene.exposure) || scene.exposure < 0) throw std::invalid_argument("render: bad exposure");
+  if (!std::isfinite(scene.blur_sigma_px) || !std::isfinite(scene.noise_sigma)) {
+    throw std::invalid_argument("render: blur and noise must be finite");
+  }
+  check_id(scene.family, scene.id);
+}
+
+// The camera's view of a marker-frame point (in metres) as a pixel; nullopt
+// behind the camera.
+std::optional<Point2> project_point(const CameraModel& camera, const Scene& scene, const Eigen::Vector3d& p) {
+  const Eigen::Vector3d c = scene.pose.rotation * p + scene.pose.translation;
+  if (!(c.z() > 1e-9)) return std::nullopt;
+  const Point2 n{c.x() / c.z(), c.y() / c.z()};
+  if (scene.distort) return camera.normalized_to_pixel(n);
+  return Point2{camera.fx * n.x + camera.cx, camera.fy * n.y + camera.cy};
+}
+
+// The ideal normalized point that camera.distort() maps to `d`, by Newton's
+// method from `start` (a neighbour's solution): the camera's own undistort()
+// starts cold at every call, which made it most of a frame's render time.
+Point2 invert_distortion(const CameraModel& camera, Point2 d, Point2 start) {
+  Point2 p = start;
+  for (int iter = 0; iter < 12; ++iter) {
+    const Point2 f = camera.distort(p);
+    const double ex = f.x - d.x, ey = f.y - d.y;
+    if (ex * ex + ey * ey < 1e-26) return p;
+    constexpr double h = 1e-7;
+    const Point2 fx = camera.distort({p.x + h, p.y});
+    const Point2 fy = camera.distort({p.x, p.y + h});
+    const double a = (fx.x - f.x) / h, b = (fy.x - f.x) / h;
+    const double c = (fx.y - f.y) / h, e = (fy.y - f.y) / h;
+    const double det = a * e - b * c;
+    if (!(std::abs(det) > 1e-12)) break;
+    p.x -= (e * ex - b * ey) / det;
+    p.y -= (-c * ex + a * ey) / det;
+  }
+  return camera.undistort(d);  // no convergence from here: the careful way
+}
+
+// Marker pixels: each pixel of the marker's bounding box is the mean of
+// supersample^2 rays through it, each cut with the marker plane.
+void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) {
+  const MarkerPattern pattern(scene.family, scene.id, scene.cut_hole);
+  const double s = scene.marker_size_m;
+  const Eigen::Matrix3d& r = scene.pose.rotation;
+  const Eigen::Vector3d& t = scene.pose.translation;
+
+  // The plane's homography: marker (u, v, 1) in units of S -> camera point.
+  Eigen::Matrix3d h;
+  h.col(0) = r.col(0) * s;
+  h.col(1) = r.col(1) * s;
+  h.col(2) = t;
+  if (std::abs(h.determinant()) < 1e-15) return;  // seen edge-on: the marker has no area
+  const Eigen::Matrix3d h_inv = h.inverse();
+  // Seen from behind, a print shows the blank back of the paper.
+  const bool front = r.col(2).dot(t) < 0;
+
+  // Bounding box from the printed outline, densely sampled because lens
+  // distortion bends the edges.
+  const double e = pattern.printed_half_extent();
+  int x0 = 0, y0 = 0, x1 = image.cols - 1, y1 = image.rows - 1;
+  {
+    double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
+    bool behind = false;
+    constexpr int kSteps = 64;
+    for (int side = 0; side < 4 && !behind; ++side) {
+      for (int i = 0; i < kSteps; ++i) {
+        const double a = -e + 2 * e * i / kSteps;
+        const std::array<double, 2> uv = side == 0 ? std::array{a, e}
+                                         : side == 1 ? std::array{e, -a}
+                                         : side == 2 ? std::array{-a, -e}
+                                                     : std::array{-e, a};
+        const auto px = project_point(camera, scene, Eigen::Vector3d(uv[0] * s, uv[1] * s, 0));
+        if (!px) {
+          behind = true;
+          break;
+        }
+        minx = std::min(minx, px->x), maxx = std::max(maxx, px->x);
+        miny = std::min(miny, px->y), maxy = std::max(maxy, px->y);
+      }
+    }
+    if (!behind) {
+      constexpr double kMargin = 2;
+      const auto clampi = [](double v, int lo, int hi) {
+        return static_cast<int>(std::clamp(v, static_cast<double>(lo), static_cast<double>(hi)));
+      };
+      x0 = clampi(std::floor(minx - kMargin), 0, image.cols);
+      x1 = clampi(std::ceil(maxx + kMargin), -1, image.cols - 1);
+      y0 = clampi(std::floor(miny - kMargin), 0, image.rows);
+      y1 = clampi(std::ceil(maxy + kMargin), -1, image.rows - 1);
+    }
+  }
+  if (x1 < x0 || y1 < y0) return;
+
+  // Rays are computed exactly at the pixel corners and interpolated
+  // bilinearly inside the pixel: undistortion is iterative and too slow per
+  // sample, and over one pixel the inverse distortion is linear to better
+  // than 1e-3 px even at the corners of the thesis's strong lens (6e-4 px
+  // measured). The ray is carried already mapped through h_inv (a linear
+  // map, so the interpolation commutes with it).
+  const bool use_distortion = scene.distort && camera.has_distortion();
+  const int nx = x1 - x0 + 2;
+  std::vector<Point2> solved(static_cast<std::size_t>(nx));
+  std::optional<Point2> row_start;  // the previous row's first solution
+  const auto lattice_row = [&](double py, std::vector<Eigen::Vector3d>& rays) {
+    for (int i = 0; i < nx; ++i) {
+      const auto k = static_cast<std::size_t>(i);
+      const Point2 d{(x0 - 0.5 + i - camera.cx) / camera.fx, (py - camera.cy) / camera.fy};
+      Point2 n = d;
+      if (use_distortion) {
+        // Warm start by extrapolating along the row: Newton then needs one
+        // or two steps, against ten or more from a cold start.
+        Point2 start = d;
+        if (i >= 2) {
+          start = 2.0 * solved[k - 1] - solved[k - 2];
+        } else if (i == 1) {
+          start = solved[0] + Point2{1.0 / camera.fx, 0};
+        } else if (row_start) {
+          start = *row_start + Point2{0, 1.0 / camera.fy};
+        }
+        n = invert_distortion(camera, d, start);
+        solved[k] = n;
+        if (i == 0) row_start = n;
+      }
+      rays[k] = h_inv * Eigen::Vector3d(n.x, n.y, 1.0);
+    }
+  };
+  std::vector<Eigen::Vector3d> upper(static_cast<std::size_t>(nx)), lower(static_cast<std::size_t>(nx));
+  lattice_row(y0 - 0.5, upper);
+
+  const int ss = std::clamp(scene.supersample, 1, 32);
+  std::vector<double> offsets(static_cast<std::size_t>(ss));
+  for (int i = 0; i < ss; ++i) offsets[static_cast<std::size_t>(i)] = (i + 0.5) / ss;
+  const double samples = static_cast<double>(ss) * ss;
+  const double level = scene.exposure * 255.0;
+
+  for (int y = y0; y <= y1; ++y) {
+    lattice_row(y + 0.5, lower);
+    auto* row = image.ptr<float>(y);
+    for (int x = x0; x <= x1; ++x) {
+      const auto k = static_cast<std::size_t>(x - x0);
+      const Eigen::Vector3d& a = upper[k];
+      const Eigen::Vector3d& b = upper[k + 1];
+      const Eigen::Vector3d& c = lower[k];
+      const Eigen::Vector3d& d = lower[k + 1];
+      double reflect = 0;
+      int misses = 0;
+      for (double fy : offsets) {
+        const Eigen::Vector3d left = a + (c - a) * fy;
+        const Eigen::Vector3d right = b + (d - b) * fy;
+        for (double fx : offsets) {
+          const Eigen::Vector3d m = left + (right - left) * fx;
+          // w <= 0: the ray meets the plane behind the camera, or never.
+          std::optional<float> rf;
+          if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
+          if (rf) {
+            reflect += front ? *rf : kPaper;
+          } else {
+            ++misses;
+          }
+        }
+      }
+      row[x] = static_cast<float>((reflect * level + misses * static_cast<double>(row[x])) / samples);
+    }
+    std::swap(upper, lower);
+  }
+}
+
+GreyImage render_impl(const CameraModel& camera, const Scene& scene, bool with_marker) {
+  check_inputs(camera, scene);
+  cv::Mat image;
+  make_background(camera.width, camera.height, scene).convertTo(image, CV_32F, scene.exposure);
+  if (with_marker) draw_marker(image, camera, scene);
+  if (scene.blur_sigma_px > 0) {
+    cv::GaussianBlur(image, image, cv::Size(0, 0), scene.blur_sigma_px, scene.blur_sigma_px, cv::BORDER_REPLICATE);
+  }
+  GreyImage out(camera.width, camera.height);
+  Random noise(scene.seed ^ kNoiseSeedMix);
+  const NormalQuantiles* normal = scene.noise_sigma > 0 ? &normal_quantiles() : nullptr;
+  const auto sigma = static_cast<float>(scene.noise_sigma);
+  std::uint64_t bits = 0;
+  int left = 0;  // unused 16-bit fields in `bits`
+  for (int y = 0; y < camera.height; ++y) {
+    const float* src = image.ptr<float>(y);
+    std::uint8_t* dst = out.row(y);
+    for (int x = 0; x < camera.width; ++x) {
+      float v = src[x];
+      if (normal != nullptr) {
+        if (left == 0) {
+          bits = noise.bits();
+          left = 4;
+        }
+        v += sigma * (*normal)[bits];
+        bits >>= NormalQuantiles::kBits;
+        --left;
+      }
+      dst[x] = static_cast<std::uint8_t>(std::clamp(std::floor(v + 0.5F), 0.0F, 255.0F));
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+MarkerPattern::MarkerPattern(Family family, int id, bool cut_hole) : family_(family), id_(id), cut_hole_(cut_hole) {
+  check_id(family, id);
+  const FamilyInfo& info = family_info(family);
+  grid_ = info.size_cells;
+  half_extent_ = 0.5 * (info.size_cells + 2 * info.quiet_zone_cells) / info.size_cells;
+  cells_.assign(static_cast<std::size_t>(grid_ * grid_), 1);
+  switch (family) {
+    case Family::frame8: {
+      const auto ring = frame8::ring_cells(id);
+      cells_.assign(ring.begin(), ring.end());
+      break;
+    }
+    case Family::aruco4x4_50: {
+      const auto dict = cv::aruco::getPredefinedDictionary(cv::aruco::DICT_4X4_50);
+      cv::Mat bits;
+      // One pixel per cell, border included: exactly the cell grid.
+      cv::aruco::drawMarker(dict, id, grid_, bits, 1);
+      for (int r = 0; r < grid_; ++r) {
+        for (int c = 0; c < grid_; ++c) {
+          cells_[static_cast<std::size_t>(r * grid_ + c)] = bits.at<std::uint8_t>(r, c) > 127 ? 1 : 0;
+        }
+      }
+      break;
+    }
+    case Family::tag36h11: {
+      const std::unique_ptr<apriltag_family_t, void (*)(apriltag_family_t*)> fam(tag36h11_create(),
+                                                                                 tag36h11_destroy);
+      if (fam->width_at_border != grid_ || fam->reversed_border ||
+          fam->total_width != grid_ + 2 * info.quiet_zone_cells) {
+        throw std::logic_error("tag36h11: unexpected layout in libapriltag");
+      }
+      // As libapriltag's apriltag_to_image (whose image_u8_destroy lives in
+      // libapriltag-utils, which pkg-config does not link): black border,
+      // then the code's bits, most significant first, at (bit_x, bit_y)
+      // counted from the black border's corner.
+      std::fill(cells_.begin(), cells_.end(), 0);
+      const std::uint64_t code = fam->codes[id];
+      for (std::uint32_t i = 0; i < fam->nbits; ++i) {
+        if ((code >> (fam->nbits - 1 - i)) & 1U) {
+          cells_[static_cast<std::size_t>(fam->bit_y[i]) * static_cast<std::size_t>(grid_) + fam->bit_x[i]] = 1;
+        }
+      }
+      break;
+    }
+  }
+}
+
+std::optional<float> MarkerPattern::reflectance(double u, double v) const {
+  // Written so that NaN falls outside.
+  if (!(std::abs(u) <= half_extent_ && std::abs(v) <= half_extent_)) return std::nullopt;
+  if (!(std::abs(u) <= 0.5 && std::abs(v) <= 0.5)) return kPaper;  // quiet zone
+  const double gx = (u + 0.5) * grid_;
+  const double gy = (0.5 - v) * grid_;
+  const int col = std::min(static_cast<int>(gx), grid_ - 1);
+  const int row = std::min(static_cast<int>(gy), grid_ - 1);
+  const std::uint8_t cell = cells_[static_cast<std::size_t>(row * grid_ + col)];
+  if (cell == 2) {  // frame8 inside the ring: the line, then the hole
+    const double in = std::min(std::min(gx, grid_ - gx), std::min(gy, grid_ - gy));
+    if (in < frame8::line_inner) return kInk;
+    if (cut_hole_) return std::nullopt;
+    return kPaper;
+  }
+  return cell != 0 ? kPaper : kInk;
+}
+
+MarkerPose facing_pose(double distance_m, double yaw_deg, double pitch_deg, double roll_deg, double offset_x_m,
+                       double offset_y_m) {
+  Eigen::Matrix3d facing;
+  facing << 1, 0, 0, 0, -1, 0, 0, 0, -1;
+  MarkerPose pose;
+  pose.rotation = facing * rot_y(deg(yaw_deg)) * rot_x(deg(pitch_deg)) * rot_z(deg(roll_deg));
+  pose.translation = Eigen::Vector3d(offset_x_m, offset_y_m, distance_m);
+  return pose;
+}
+
+GreyImage render_scene(const CameraModel& camera, const Scene& scene) { return render_impl(camera, scene, true); }
+
+GreyImage render_background(const CameraModel& camera, const Scene& scene) {
+  return render_impl(camera, scene, false);
+}
+
+Quad project_marker_corners(const CameraModel& camera, const Scene& scene, double scale) {
+  const double h = scene.marker_size_m * scale / 2;
+  static constexpr std::array<std::array<double, 2>, 4> signs{{{-1, 1}, {1, 1}, {1, -1}, {-1, -1}}};
+  Quad quad;
+  for (std::size_t k = 0; k < 4; ++k) {
+    const auto px = project_point(camera, scene, Eigen::Vector3d(signs[k][0] * h, signs[k][1] * h, 0));
+    // Behind the camera: no pixel; NaN makes every later comparison fail loudly.
+    quad[k] = px.value_or(Point2{std::nan(""), std::nan("")});
+  }
+  return quad;
+}
+
+}  // namespace markerd

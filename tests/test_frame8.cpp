@@ -1,0 +1,1 @@
+// placeholder while the session builds this file; replaced before landing

@@ -1,0 +1,457 @@
+// End-to-end tests of markerctl: each runs the real binary (MARKERCTL_PATH)
+// in a temporary directory of its own and checks what it wrote, printed and
+// exited with.
+
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+const std::string thesis_camera_file = std::string(MARKERD_SOURCE_DIR) + "/config/cameras/thesis-640x480.yaml";
+
+struct Outcome {
+  int code = -1;
+  std::string out;
+  std::string err;
+
+  // Every non-empty stdout line as JSON; a line that is not JSON fails the test.
+  [[nodiscard]] std::vector<json> json_lines() const {
+    std::vector<json> lines;
+    std::istringstream in(out);
+    std::string line;
+    while (std::getline(in, line)) {
+      if (line.empty()) continue;
+      try {
+        lines.push_back(json::parse(line));
+      } catch (const json::exception& e) {
+        ADD_FAILURE() << "stdout line is not JSON: " << line << " (" << e.what() << ")";
+      }
+    }
+    return lines;
+  }
+  [[nodiscard]] std::string describe() const {
+    return "exit " + std::to_string(code) + "\n--- stdout\n" + out + "--- stderr\n" + err;
+  }
+};
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream bytes;
+  bytes << in.rdbuf();
+  return bytes.str();
+}
+
+// Width and height from a PNG's IHDR chunk (big-endian, at bytes 16 and 20).
+std::pair<int, int> png_size(const fs::path& path) {
+  const std::string bytes = read_file(path);
+  if (bytes.size() < 24 || bytes.compare(1, 3, "PNG") != 0) return {-1, -1};
+  const auto be32 = [&](std::size_t at) {
+    std::uint32_t v = 0;
+    for (std::size_t i = 0; i < 4; ++i) v = (v << 8) | static_cast<unsigned char>(bytes[at + i]);
+    return static_cast<int>(v);
+  };
+  return {be32(16), be32(20)};
+}
+
+double worst_corner_error(const json& detection, const json& truth) {
+  double worst = 0;
+  for (std::size_t k = 0; k < 4; ++k) {
+    worst =
+        std::max(worst, std::hypot(detection["corners"][k][0].get<double>() - truth["corners"][k][0].get<double>(),
+                                   detection["corners"][k][1].get<double>() - truth["corners"][k][1].get<double>()));
+  }
+  return worst;
+}
+
+// The detection at the rendered marker (nearest to the true corners), or null.
+// Other detections are the detector's false positives, which its own tests
+// count; these tests judge what markerctl reports about the marker.
+const json* detection_at(const std::vector<json>& detections, const json& truth) {
+  const json* best = nullptr;
+  for (const auto& d : detections) {
+    if (!d.contains("corners") || d["corners"].size() != 4) continue;
+    if (best == nullptr || worst_corner_error(d, truth) < worst_corner_error(*best, truth)) best = &d;
+  }
+  return best;
+}
+
+class Markerctl : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    std::string pattern = (fs::path(::testing::TempDir()) / "markerctl-XXXXXX").string();
+    ASSERT_NE(mkdtemp(pattern.data()), nullptr) << "cannot create a temporary directory";
+    dir_ = pattern;
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+
+  [[nodiscard]] std::string path(const std::string& name) const { return (dir_ / name).string(); }
+
+  // Runs markerctl with `args`; stdout and stderr go through files, so a
+  // chatty child cannot block on a full pipe.
+  Outcome run(const std::vector<std::string>& args) const {
+    const std::string out_path = path(".stdout"), err_path = path(".stderr");
+    const pid_t pid = fork();
+    if (pid == 0) {
+      const int out = open(out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      const int err = open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (out < 0 || err < 0 || dup2(out, 1) < 0 || dup2(err, 2) < 0) _exit(126);
+      std::vector<char*> argv;
+      std::string program = MARKERCTL_PATH;
+      argv.push_back(program.data());
+      std::vector<std::string> copies = args;
+      for (auto& a : copies) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      execv(program.c_str(), argv.data());
+      _exit(127);
+    }
+    Outcome r;
+    if (pid < 0) {
+      ADD_FAILURE() << "fork failed";
+      return r;
+    }
+    int status = 0;
+    while (waitpid(pid, &status, 0) < 0) {
+    }
+    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    r.out = read_file(out_path);
+    r.err = read_file(err_path);
+    return r;
+  }
+
+  // Renders a scene and returns the truth line it printed.
+  json render(const std::string& name, std::vector<std::string> extra) const {
+    std::vector<std::string> args{"render", "-o", path(name)};
+    args.insert(args.end(), extra.begin(), extra.end());
+    const Outcome r = run(args);
+    EXPECT_EQ(r.code, 0) << r.describe();
+    const auto lines = r.json_lines();
+    EXPECT_EQ(lines.size(), 1u) << r.describe();
+    return lines.empty() ? json{} : lines.front();
+  }
+
+  fs::path dir_;
+};
+
+// ---------------------------------------------------------------- usage
+
+TEST_F(Markerctl, HelpListsTheCommands) {
+  const Outcome r = run({"--help"});
+  EXPECT_EQ(r.code, 0) << r.describe();
+  for (const char* command : {"marker", "render", "detect", "evaluate"}) {
+    EXPECT_NE(r.out.find(command), std::string::npos) << command << "\n" << r.describe();
+  }
+  const Outcome render_help = run({"render", "--help"});
+  EXPECT_EQ(render_help.code, 0) << render_help.describe();
+  EXPECT_NE(render_help.out.find("thesis camera"), std::string::npos) << render_help.describe();
+  EXPECT_NE(render_help.out.find("fx 516"), std::string::npos) << render_help.describe();
+}
+
+TEST_F(Markerctl, NoCommandOrAnUnknownOneIsAUsageError) {
+  const Outcome none = run({});
+  EXPECT_EQ(none.code, 2) << none.describe();
+  const Outcome unknown = run({"frobnicate"});
+  EXPECT_EQ(unknown.code, 2) << unknown.describe();
+  EXPECT_EQ(unknown.err.rfind("markerctl: ", 0), 0u) << unknown.describe();
+  const Outcome bad_option = run({"detect", "--no-such-option", path("x.png")});
+  EXPECT_EQ(bad_option.code, 2) << bad_option.describe();
+}
+
+TEST_F(Markerctl, BadIdIsAUsageError) {
+  const Outcome r = run({"marker", "--family", "frame8", "--id", "300", "--size", "80mm", "-o", path("m.svg")});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_EQ(r.err.rfind("markerctl: --id: ", 0), 0u) << r.describe();
+  EXPECT_NE(r.err.find("300"), std::string::npos) << r.describe();
+  EXPECT_NE(r.err.find("0 to 255"), std::string::npos) << r.describe();
+  EXPECT_FALSE(fs::exists(path("m.svg")));
+}
+
+TEST_F(Markerctl, BadLengthIsAUsageError) {
+  const Outcome r = run({"marker", "--id", "165", "--size", "80furlongs", "-o", path("m.svg")});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_EQ(r.err.rfind("markerctl: --size: ", 0), 0u) << r.describe();
+  EXPECT_NE(r.err.find("80furlongs"), std::string::npos) << r.describe();
+  EXPECT_NE(r.err.find("furlongs'"), std::string::npos) << "names the unknown unit\n" << r.describe();
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line\n" << r.describe();
+
+  const Outcome not_a_number = run({"render", "--dist", "far", "-o", path("f.png")});
+  EXPECT_EQ(not_a_number.code, 2) << not_a_number.describe();
+  EXPECT_NE(not_a_number.err.find("--dist"), std::string::npos) << not_a_number.describe();
+}
+
+TEST_F(Markerctl, UnknownFamilyIsAUsageError) {
+  const Outcome r = run({"marker", "--family", "qr", "--id", "1", "--size", "80mm", "-o", path("m.svg")});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_NE(r.err.find("frame8"), std::string::npos) << "lists the known families\n" << r.describe();
+}
+
+// ---------------------------------------------------------------- marker
+
+TEST_F(Markerctl, MarkerSvgIsTheMarkerPlusTheMargins) {
+  for (const char* size : {"80mm", "8cm", "0.08m"}) {
+    SCOPED_TRACE(size);
+    const std::string file = path(std::string("m-") + size + ".svg");
+    const Outcome r = run({"marker", "--family", "frame8", "--id", "165", "--size", size, "-o", file});
+    ASSERT_EQ(r.code, 0) << r.describe();
+    const std::string svg = read_file(file);
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(svg, m, std::regex(R"(<svg[^>]*\swidth="([^"]*)\")"))) << svg.substr(0, 400);
+    EXPECT_EQ(m[1].str(), "100mm");
+    ASSERT_TRUE(std::regex_search(svg, m, std::regex(R"(<svg[^>]*\sheight="([^"]*)\")"))) << svg.substr(0, 400);
+    EXPECT_EQ(m[1].str(), "100mm");
+  }
+  const Outcome wide = run({"marker", "--id", "7", "--size", "80mm", "--margin", "20mm", "-o", path("wide.svg")});
+  ASSERT_EQ(wide.code, 0) << wide.describe();
+  EXPECT_NE(read_file(path("wide.svg")).find("width=\"120mm\""), std::string::npos);
+}
+
+TEST_F(Markerctl, MarkerPdfPageIsTheMarkerPlusTheMargins) {
+  const Outcome r = run({"marker", "--id", "165", "--size", "80mm", "-o", path("m.pdf")});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  const std::string pdf = read_file(path("m.pdf"));
+  ASSERT_EQ(pdf.rfind("%PDF", 0), 0u);
+  std::smatch m;
+  ASSERT_TRUE(
+      std::regex_search(pdf, m, std::regex(R"(/MediaBox\s*\[\s*([-\d.]+)\s+([-\d.]+)\s+([-\d.]+)\s+([-\d.]+))")))
+      << "no /MediaBox";
+  const double page_pt = 100.0 / 25.4 * 72.0;  // 100 mm in PostScript points
+  EXPECT_NEAR(std::stod(m[3].str()) - std::stod(m[1].str()), page_pt, 0.5);
+  EXPECT_NEAR(std::stod(m[4].str()) - std::stod(m[2].str()), page_pt, 0.5);
+}
+
+TEST_F(Markerctl, MarkerPngHasThePixelsOfItsDpi) {
+  const Outcome r = run({"marker", "--id", "165", "--size", "80mm", "--dpi", "300", "-o", path("m.png")});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  const auto [w, h] = png_size(path("m.png"));
+  const double expected = 100.0 / 25.4 * 300.0;  // 1181.1 px
+  EXPECT_NEAR(w, expected, 1.0);
+  EXPECT_NEAR(h, expected, 1.0);
+
+  const Outcome low = run({"marker", "--id", "165", "--size", "80mm", "--dpi", "150", "-o", path("low.png")});
+  ASSERT_EQ(low.code, 0) << low.describe();
+  EXPECT_NEAR(png_size(path("low.png")).first, expected / 2, 1.0);
+}
+
+TEST_F(Markerctl, MarkerImagePxWritesTheIdealImage) {
+  const Outcome r = run({"marker", "--id", "165", "--image-px", "200", "-o", path("ideal.png")});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(png_size(path("ideal.png")), std::make_pair(200, 200));  // frame8 has no quiet zone
+
+  const Outcome with_size = run({"marker", "--id", "165", "--image-px", "200", "--size", "80mm", "-o", path("x.png")});
+  EXPECT_EQ(with_size.code, 2) << "--image-px excludes --size\n" << with_size.describe();
+  const Outcome bad_ext = run({"marker", "--id", "165", "--size", "80mm", "-o", path("m.docx")});
+  EXPECT_EQ(bad_ext.code, 2) << bad_ext.describe();
+}
+
+// ---------------------------------------------------------------- render and detect
+
+struct RoundTripCase {
+  const char* family;
+  int id;
+  const char* yaw;
+  // frame8 and AprilTag refine their corners to sub-pixel; the ArUco peer
+  // keeps OpenCV's unrefined contour vertices as the benchmarks' baseline
+  // (about 1 px; see tests/test_peers.cpp).
+  double corner_tolerance_px = 0.5;
+};
+
+// Names the case in failure messages instead of its bytes.
+void PrintTo(const RoundTripCase& c, std::ostream* os) {
+  *os << c.family << " id " << c.id << " yaw " << c.yaw << ", corners within " << c.corner_tolerance_px << " px";
+}
+
+class RoundTrip : public Markerctl, public ::testing::WithParamInterface<RoundTripCase> {};
+
+TEST_P(RoundTrip, DetectFindsTheRenderedIdAtTheTrueCorners) {
+  const RoundTripCase c = GetParam();
+  const json truth = render("frame.png", {"--family", c.family, "--id", std::to_string(c.id), "--dist", "0.5", "--yaw",
+                                          c.yaw, "--roll", "10", "--noise", "2", "--blur", "0.6"});
+  ASSERT_TRUE(truth.contains("corners")) << truth.dump();
+  ASSERT_EQ(truth["corners"].size(), 4u);
+  EXPECT_EQ(truth["file"], path("frame.png"));
+  EXPECT_EQ(truth["id"], c.id);
+  EXPECT_EQ(truth["tvec"].size(), 3u);
+  EXPECT_NEAR(truth["tvec"][2].get<double>(), 0.5, 1e-9);
+  EXPECT_EQ(png_size(path("frame.png")), std::make_pair(640, 480));
+
+  const Outcome r = run({"detect", "--family", c.family, path("frame.png")});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  const auto lines = r.json_lines();
+  ASSERT_FALSE(lines.empty()) << r.describe();
+  const json* found = detection_at(lines, truth);
+  ASSERT_NE(found, nullptr) << r.describe();
+  const json& d = *found;
+  EXPECT_EQ(d["file"], path("frame.png"));
+  EXPECT_EQ(d["family"], c.family);
+  EXPECT_EQ(d["id"], c.id) << d.dump();
+  EXPECT_LT(worst_corner_error(d, truth), c.corner_tolerance_px) << d.dump() << "\n" << truth.dump();
+  EXPECT_EQ(d.contains("inner_corners"), std::string(c.family) == "frame8") << d.dump();
+  EXPECT_TRUE(d.contains("quarter_turns") && d.contains("bits_corrected") && d.contains("margin")) << d.dump();
+  EXPECT_GE(d["time_ms"].get<double>(), 0.0);
+  EXPECT_FALSE(d.contains("tvec")) << "no pose without --camera and --size\n" << d.dump();
+}
+
+INSTANTIATE_TEST_SUITE_P(Families, RoundTrip,
+                         ::testing::Values(RoundTripCase{"frame8", 165, "20"}, RoundTripCase{"frame8", 42, "-35"},
+                                           RoundTripCase{"aruco4x4_50", 7, "20", 1.2},
+                                           RoundTripCase{"tag36h11", 11, "20"}),
+                         [](const auto& param_info) {
+                           return std::string(param_info.param.family) + "_id" + std::to_string(param_info.param.id);
+                         });
+
+TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
+  ASSERT_TRUE(fs::exists(thesis_camera_file)) << thesis_camera_file;
+  for (const char* yaw : {"0", "30"}) {
+    SCOPED_TRACE(std::string("yaw ") + yaw);
+    const std::string file = path(std::string("yaw") + yaw + ".png");
+    const json truth = render(file.substr(dir_.string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
+    const Outcome r = run({"detect", "--camera", thesis_camera_file, "--size", "0.08", file});
+    ASSERT_EQ(r.code, 0) << r.describe();
+    const auto lines = r.json_lines();
+    const json* found = detection_at(lines, truth);
+    ASSERT_NE(found, nullptr) << r.describe();
+    const json& d = *found;
+    EXPECT_EQ(d["id"], 165);
+    EXPECT_LT(worst_corner_error(d, truth), 0.5) << d.dump();
+    ASSERT_EQ(d["tvec"].size(), 3u) << d.dump();
+    EXPECT_NEAR(d["tvec"][2].get<double>(), 0.95, 0.02 * 0.95) << d.dump();
+    ASSERT_EQ(d["rvec"].size(), 3u) << d.dump();
+    ASSERT_EQ(d["quaternion"].size(), 4u) << d.dump();
+    double norm2 = 0;
+    for (const auto& v : d["quaternion"]) norm2 += v.get<double>() * v.get<double>();
+    EXPECT_NEAR(norm2, 1.0, 1e-5);
+    EXPECT_TRUE(d["ambiguous"].is_boolean()) << d.dump();
+    EXPECT_LT(d["reprojection_error_px"].get<double>(), 1.0) << d.dump();
+  }
+}
+
+TEST_F(Markerctl, PoseNeedsBothCameraAndSize) {
+  render("f.png", {"--dist", "0.5"});
+  const Outcome camera_only = run({"detect", "--camera", thesis_camera_file, path("f.png")});
+  EXPECT_EQ(camera_only.code, 2) << camera_only.describe();
+  EXPECT_NE(camera_only.err.find("--size"), std::string::npos) << camera_only.describe();
+  const Outcome size_only = run({"detect", "--size", "0.08", path("f.png")});
+  EXPECT_EQ(size_only.code, 2) << size_only.describe();
+  EXPECT_NE(size_only.err.find("--camera"), std::string::npos) << size_only.describe();
+}
+
+TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
+  const json truth = render("good.png", {"--dist", "0.5", "--yaw", "10"});
+  {
+    std::ofstream corrupt(path("corrupt.png"), std::ios::binary);
+    std::mt19937 rng(7);
+    for (int i = 0; i < 4096; ++i) corrupt.put(static_cast<char>(rng() & 0xff));
+  }
+  { std::ofstream empty(path("empty.png")); }
+  const Outcome r = run({"detect", path("missing.png"), path("good.png"), path("corrupt.png"), path("empty.png")});
+  EXPECT_NE(r.code, 0) << r.describe();
+  EXPECT_EQ(r.code, 1) << r.describe();
+  for (const char* name : {"missing.png", "corrupt.png", "empty.png"}) {
+    EXPECT_NE(r.err.find(path(name) + ": "), std::string::npos) << name << "\n" << r.describe();
+  }
+  const auto lines = r.json_lines();
+  for (const auto& line : lines) EXPECT_EQ(line["file"], path("good.png")) << r.describe();
+  const json* found = detection_at(lines, truth);
+  ASSERT_NE(found, nullptr) << r.describe();
+  EXPECT_EQ((*found)["id"], 165) << r.describe();
+
+  // A good file after a bad one is processed too.
+  const Outcome last = run({"detect", path("corrupt.png"), path("good.png")});
+  EXPECT_EQ(last.code, 1) << last.describe();
+  const auto last_lines = last.json_lines();
+  EXPECT_NE(detection_at(last_lines, truth), nullptr) << last.describe();
+}
+
+TEST_F(Markerctl, ImageOfAnotherSizeThanTheCameraIsAnError) {
+  render("f.png", {"--dist", "0.5"});
+  {
+    // OpenCV's calibration YAML, written by hand to keep this test a user of the binary only.
+    std::ofstream yaml(path("big.yaml"));
+    yaml << "%YAML:1.0\n---\nimage_width: 1280\nimage_height: 960\n"
+            "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+            "   data: [ 1032., 0., 639.5, 0., 1030., 479.5, 0., 0., 1. ]\n"
+            "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n"
+            "   data: [ 0., 0., 0., 0., 0. ]\n";
+  }
+  const Outcome r = run({"detect", "--camera", path("big.yaml"), "--size", "0.08", path("f.png")});
+  EXPECT_EQ(r.code, 1) << r.describe();
+  EXPECT_NE(r.err.find(path("f.png")), std::string::npos) << r.describe();
+  EXPECT_NE(r.err.find("640x480"), std::string::npos) << r.describe();
+}
+
+TEST_F(Markerctl, VerboseReportsImagesWithoutDetections) {
+  // The marker is about a pixel wide, on a plain background: nothing to find.
+  render("far.png", {"--dist", "40", "--no-clutter"});
+  const Outcome quiet = run({"detect", path("far.png")});
+  EXPECT_EQ(quiet.code, 0) << quiet.describe();
+  EXPECT_TRUE(quiet.json_lines().empty()) << quiet.describe();
+  const Outcome verbose = run({"detect", "--verbose", path("far.png")});
+  EXPECT_EQ(verbose.code, 0) << verbose.describe();
+  const auto lines = verbose.json_lines();
+  ASSERT_EQ(lines.size(), 1u) << verbose.describe();
+  EXPECT_EQ(lines.front()["file"], path("far.png"));
+  EXPECT_EQ(lines.front()["detections"], 0);
+  EXPECT_TRUE(lines.front().contains("time_ms"));
+}
+
+TEST_F(Markerctl, RenderAcceptsUnitsAndNegativeValues) {
+  const json a = render("a.png", {"--dist", "95cm", "--yaw", "-30deg", "--offset-x=-0.05"});
+  ASSERT_TRUE(a.contains("tvec")) << a.dump();
+  EXPECT_NEAR(a["tvec"][2].get<double>(), 0.95, 1e-9);
+  EXPECT_NEAR(a["tvec"][0].get<double>(), -0.05, 1e-9);
+  const json b = render("b.png", {"--dist", "0.95", "--yaw", "-30", "--offset-x", "-0.05"});
+  ASSERT_TRUE(b.contains("corners")) << b.dump();
+  EXPECT_EQ(a["corners"], b["corners"]);
+}
+
+// ---------------------------------------------------------------- evaluate
+
+TEST_F(Markerctl, EvaluateTinyGridPrintsATable) {
+  const Outcome r = run(
+      {"evaluate", "--family", "frame8", "--frames", "3", "--dist", "0.5,1.0", "--yaw", "0:30:30", "--yaw-at", "0.5"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_NE(r.out.find("frame8"), std::string::npos) << r.describe();
+  EXPECT_NE(r.out.find("rate %"), std::string::npos) << r.describe();
+  EXPECT_NE(r.out.find("max distance"), std::string::npos) << r.describe();
+  EXPECT_TRUE(std::regex_search(r.out, std::regex(R"(\n\s+0\.50\s)"))) << r.describe();
+  EXPECT_TRUE(std::regex_search(r.out, std::regex(R"(\n\s+1\.00\s)"))) << r.describe();
+  EXPECT_TRUE(std::regex_search(r.out, std::regex(R"(\n\s+30\s)"))) << r.describe();
+  EXPECT_EQ(r.out.find("aruco4x4_50"), std::string::npos) << r.describe();
+
+  const Outcome j = run(
+      {"evaluate", "--family", "frame8", "--frames", "2", "--dist", "0.5", "--yaw-at", "none", "--json", "--quiet"});
+  ASSERT_EQ(j.code, 0) << j.describe();
+  const auto lines = j.json_lines();
+  ASSERT_EQ(lines.size(), 1u) << j.describe();
+  EXPECT_EQ(lines.front()["family"], "frame8");
+  EXPECT_EQ(lines.front()["frames"], 2);
+  EXPECT_TRUE(j.err.empty()) << j.describe();
+}
+
+TEST_F(Markerctl, EvaluateRejectsABadRange) {
+  const Outcome r = run({"evaluate", "--dist", "3.0:0.3:0.3", "--frames", "1"});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_NE(r.err.find("--dist"), std::string::npos) << r.describe();
+}
+
+}  // namespace

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Installs everything markerd builds, tests and benchmarks with, from Debian's
+# archive (bookworm). Idempotent: apt-get skips what is already installed, and
+# the package lists are refreshed only when they are missing or a day old.
+set -euo pipefail
+
+packages=(
+  # toolchain
+  build-essential cmake pkg-config ninja-build git
+  # required libraries
+  libopencv-dev libopencv-contrib-dev libeigen3-dev libspdlog-dev libfmt-dev
+  libgpiod-dev libmodbus-dev libcamera-dev libsystemd-dev
+  # detector peers and file formats
+  libapriltag-dev libcairo2-dev libturbojpeg0-dev
+  # command line, config, JSON
+  libcli11-dev libtomlplusplus-dev nlohmann-json3-dev
+  # tests and benchmarks
+  libgtest-dev libgmock-dev libbenchmark-dev
+)
+
+if [[ $(id -u) -ne 0 ]]; then
+  sudo=sudo
+else
+  sudo=
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
+done
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+lists=/var/lib/apt/lists
+if [[ -z $(find "$lists" -maxdepth 1 -name '*Packages*' -mmin -1440 2>/dev/null | head -1) ]]; then
+  $sudo apt-get update -qq
+fi
+echo "install-deps: installing ${missing[*]}"
+DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"

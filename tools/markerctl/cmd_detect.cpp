@@ -1,0 +1,197 @@
+// markerctl detect: markers in image files, one JSON line per detection. An
+// image that cannot be read is reported and skipped; the exit status says
+// whether any was.
+
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <iterator>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <optional>
+
+#include "common.hpp"
+#include "markerd/detector/detector.hpp"
+
+namespace markerctl {
+namespace {
+
+struct DetectOptions {
+  std::string camera;
+  std::string size;
+  std::string family = "frame8";
+  int decimate = 0;
+  int threshold_offset = markerd::Frame8Options{}.threshold_offset;
+  double min_margin = markerd::Frame8Options{}.min_margin;
+  bool verbose = false;
+  std::vector<std::string> images;
+};
+
+// Reads an image as 8-bit grey, the way cv::imread(IMREAD_GRAYSCALE) does, but
+// from bytes read here so that a missing, unreadable, empty or undecodable
+// file each gets its own message. Returns nullopt after reporting.
+std::optional<cv::Mat> read_grey(const std::string& path) {
+  const auto report = [&](const std::string& why) {
+    std::cout.flush();
+    std::cerr << fmt::format("markerctl: {}: {}\n", path, why);
+    return std::nullopt;
+  };
+  std::error_code ec;
+  const auto status = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(status)) return report("no such file");
+  if (std::filesystem::is_directory(status)) return report("is a directory, not an image");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return report(fmt::format("cannot open: {}", std::strerror(errno)));
+  const std::vector<uchar> bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  if (in.bad()) return report(fmt::format("cannot read: {}", std::strerror(errno)));
+  if (bytes.empty()) return report("empty file, not an image");
+  cv::Mat grey;
+  try {
+    grey = cv::imdecode(bytes, cv::IMREAD_GRAYSCALE);
+  } catch (const cv::Exception& e) {
+    return report(fmt::format("not a readable image ({})", e.err));
+  }
+  if (grey.empty()) {
+    return report(
+        fmt::format("not a readable image ({} bytes; corrupt, truncated or an unsupported format)", bytes.size()));
+  }
+  return grey;
+}
+
+nlohmann::ordered_json quad_json(const markerd::Quad& quad) {
+  auto out = nlohmann::ordered_json::array();
+  // 1e-4 px: ten times finer than the detectors' best sub-pixel accuracy.
+  for (const auto& p : quad) out.push_back({rounded(p.x, 4), rounded(p.y, 4)});
+  return out;
+}
+
+nlohmann::ordered_json detection_json(const std::string& file, const markerd::Detection& d, double time_ms) {
+  nlohmann::ordered_json j;
+  j["file"] = file;
+  j["family"] = markerd::family_info(d.family).name;
+  j["id"] = d.id;
+  j["corners"] = quad_json(d.corners);
+  if (d.inner_corners) j["inner_corners"] = quad_json(*d.inner_corners);
+  j["quarter_turns"] = d.quarter_turns;
+  j["bits_corrected"] = d.bits_corrected;
+  j["margin"] = rounded(d.margin, 4);
+  if (d.pose) {
+    const markerd::MarkerPose& pose = d.pose->best;
+    const Eigen::Vector3d r = pose.rvec();
+    const Eigen::Quaterniond q = pose.quaternion();
+    const Eigen::Vector3d& t = pose.translation;
+    j["rvec"] = {rounded(r.x(), 7), rounded(r.y(), 7), rounded(r.z(), 7)};
+    j["tvec"] = {rounded(t.x(), 7), rounded(t.y(), 7), rounded(t.z(), 7)};
+    j["quaternion"] = {rounded(q.w(), 7), rounded(q.x(), 7), rounded(q.y(), 7), rounded(q.z(), 7)};
+    j["reprojection_error_px"] = rounded(pose.reprojection_error_px, 4);
+    j["ambiguous"] = d.pose->ambiguous;
+  }
+  j["time_ms"] = rounded(time_ms, 3);
+  return j;
+}
+
+int run_detect(const DetectOptions& o) {
+  const markerd::Family family = parse_family(o.family);
+  if (o.camera.empty() != o.size.empty()) {
+    throw usage_error(o.camera.empty() ? "--size" : "--camera",
+                      "the pose needs both --camera and --size (give both or neither)");
+  }
+  markerd::DetectorConfig config;
+  config.family = family;
+  config.frame8.decimate = o.decimate;
+  config.frame8.threshold_offset = o.threshold_offset;
+  config.frame8.min_margin = o.min_margin;
+  if (!o.camera.empty()) {
+    config.marker_size_m = parse_length_m(o.size, BareUnit::metre, "--size");
+    if (!(config.marker_size_m > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
+    config.camera = load_camera(o.camera);
+  }
+  const auto detector = markerd::make_detector(config);
+
+  int failed = 0;
+  std::vector<markerd::Detection> detections;
+  for (const std::string& path : o.images) {
+    const auto grey = read_grey(path);
+    if (!grey) {
+      ++failed;
+      continue;
+    }
+    if (config.camera && (grey->cols != config.camera->width || grey->rows != config.camera->height)) {
+      std::cout.flush();
+      std::cerr << fmt::format("markerctl: {}: the image is {}x{} but the camera model {} is {}x{}\n", path, grey->cols,
+                               grey->rows, o.camera, config.camera->width, config.camera->height);
+      ++failed;
+      continue;
+    }
+    const markerd::GreyView view{grey->data, grey->cols, grey->rows, static_cast<std::ptrdiff_t>(grey->step[0])};
+    double time_ms = 0;
+    try {
+      const auto start = std::chrono::steady_clock::now();
+      detector->detect(view, detections);
+      time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    } catch (const markerd::DetectorError& e) {
+      std::cout.flush();
+      std::cerr << fmt::format("markerctl: {}: {}\n", path, e.what());
+      ++failed;
+      continue;
+    }
+    for (const auto& d : detections) std::cout << json_line(detection_json(path, d, time_ms)) << '\n';
+    if (o.verbose && detections.empty()) {
+      nlohmann::ordered_json j;
+      j["file"] = path;
+      j["detections"] = 0;
+      j["time_ms"] = rounded(time_ms, 3);
+      std::cout << json_line(j) << '\n';
+    }
+    std::cout.flush();
+  }
+  if (failed > 0) {
+    throw runtime_error("detect", fmt::format("{} of {} image{} could not be processed", failed, o.images.size(),
+                                              o.images.size() == 1 ? "" : "s"));
+  }
+  return 0;
+}
+
+}  // namespace
+
+void add_detect_command(CLI::App& parent, Commands& commands) {
+  auto o = std::make_shared<DetectOptions>();
+  CLI::App* app = parent.add_subcommand("detect", "Detect markers in image files; one JSON line per detection");
+  app->footer(
+      "Detect markers in image files and print one JSON object per detection per line:\n"
+      "  {\"file\", \"family\", \"id\", \"corners\": [[x,y] x4], \"inner_corners\" (frame8), \"quarter_turns\",\n"
+      "   \"bits_corrected\", \"margin\", \"rvec\", \"tvec\", \"quaternion\" [w,x,y,z], \"reprojection_error_px\",\n"
+      "   \"ambiguous\", \"time_ms\"}\n"
+      "Corners are pixels (pixel centres at integers), TL TR BR BL of the outer printed square, to 1e-4 px.\n"
+      "The pose fields (tvec in metres) appear only with both --camera and --size. time_ms is the\n"
+      "detection time of that image. An image without detections prints nothing (with --verbose a\n"
+      "{\"file\", \"detections\": 0, \"time_ms\"} line). Images are read as 8-bit grey as\n"
+      "cv::imread(IMREAD_GRAYSCALE) reads them: colour is converted to grey by the image decoder.\n"
+      "A file that cannot be read is reported on stderr and skipped; the others are still processed\n"
+      "and the exit status is then 1. The camera model must have the images' size.");
+  app->add_option("--family", o->family, "Marker family: " + family_names())->type_name("NAME")->capture_default_str();
+  app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON), for the pose")->type_name("FILE");
+  app->add_option("--size", o->size, "Marker size for the pose (0.08, 8cm; frame8: outer edge)")->type_name("LENGTH");
+  app->add_option("--decimate", o->decimate, "frame8: segmentation decimation (0: from the image size)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 8));
+  app->add_option("--threshold-offset", o->threshold_offset, "frame8: adaptive threshold offset, grey levels")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 255));
+  app->add_option("--min-margin", o->min_margin, "frame8: least decoding margin (0..1)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
+  app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
+  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM, BMP, TIFF, ...)")->type_name("IMAGE")->required();
+  commands.push_back({app, [o] { return run_detect(*o); }});
+}
+
+}  // namespace markerctl
