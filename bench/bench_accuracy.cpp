@@ -33,17 +33,7 @@ using markerd::Family;
 
 constexpr double kGoodRate = 0.9;
 
-markerd::CameraModel thesis_camera() {
-  markerd::CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
-  return c;
-}
+markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
 
 // "start:stop:step", stop included when the steps land on it (to within
 // rounding, so 0.3:3.0:0.1 ends at 3.0).

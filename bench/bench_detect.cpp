@@ -32,17 +32,7 @@ namespace {
 
 using markerd::Family;
 
-markerd::CameraModel thesis_camera() {
-  markerd::CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
-  return c;
-}
+markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
 
 constexpr int kFrames = 20;
 constexpr double kMarkerSize = 0.08;

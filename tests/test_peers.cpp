@@ -21,17 +21,7 @@
 namespace markerd {
 namespace {
 
-CameraModel thesis_camera() {
-  CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
-  return c;
-}
+CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
 
 Scene scene_of(Family family, int id, double roll_deg = 0, double yaw_deg = 10, std::uint64_t seed = 7) {
   Scene s;

@@ -32,19 +32,7 @@ constexpr double kSide = 0.08;
 
 double deg(double d) { return d * kPi / 180; }
 
-CameraModel thesis_camera() {
-  CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist[0] = 0.3495;
-  c.dist[1] = -2.2549;
-  c.dist[4] = 4.9959;
-  return c;
-}
+CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
 
 CameraModel pinhole_camera() {
   CameraModel c = thesis_camera();

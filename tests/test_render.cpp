@@ -35,17 +35,7 @@ extern "C" const char* __lsan_default_suppressions() { return "leak:libfontconfi
 namespace markerd {
 namespace {
 
-CameraModel thesis_camera() {
-  CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
-  return c;
-}
+CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
 
 CameraModel pinhole_camera() {
   CameraModel c;

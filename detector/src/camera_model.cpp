@@ -87,6 +87,18 @@ void CameraModel::save(const std::filesystem::path& path) const {
   fs << "distortion_coefficients" << d;
 }
 
+CameraModel CameraModel::thesis_640x480() {
+  CameraModel c;
+  c.width = 640;
+  c.height = 480;
+  c.fx = 516;
+  c.fy = 515;
+  c.cx = 319;
+  c.cy = 238;
+  c.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
+  return c;
+}
+
 CameraModel CameraModel::scaled_to(int new_width, int new_height) const {
   CameraModel c = *this;
   const double sx = static_cast<double>(new_width) / width;

@@ -148,17 +148,7 @@ void check_id(markerd::Family family, int id, std::string_view option) {
   }
 }
 
-markerd::CameraModel thesis_camera() {
-  markerd::CameraModel cam;
-  cam.width = 640;
-  cam.height = 480;
-  cam.fx = 516;
-  cam.fy = 515;
-  cam.cx = 319;
-  cam.cy = 238;
-  cam.dist = {0.3495, -2.2549, 0.0, 0.0, 4.9959};
-  return cam;
-}
+markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
 
 markerd::CameraModel load_camera(const std::string& path) {
   if (path.empty()) return thesis_camera();

@@ -30,6 +30,10 @@ struct CameraModel {
   static CameraModel load(const std::filesystem::path& path);
   void save(const std::filesystem::path& path) const;
 
+  // The camera of the thesis (640x480, its calibration): the reference for
+  // the renderer, the tests, the benchmarks and the demonstration.
+  static CameraModel thesis_640x480();
+
   // The same lens at another resolution (intrinsics scale with the image).
   [[nodiscard]] CameraModel scaled_to(int new_width, int new_height) const;
 
