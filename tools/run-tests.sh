@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# The README's test command: installs the dependencies, builds with warnings
+# as errors, runs every test, then builds again under AddressSanitizer and
+# UndefinedBehaviorSanitizer and runs every test once more.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+bash tools/install-deps.sh
+
+jobs=$(nproc)
+cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DMARKERD_WERROR=ON
+cmake --build build -j"$jobs"
+ctest --test-dir build -j"$jobs" --output-on-failure
+
+# The sanitizer build skips the benchmarks (built above, never run by tests).
+cmake -S . -B build-sanitize -G Ninja -DCMAKE_BUILD_TYPE=Debug -DMARKERD_WERROR=ON \
+  -DMARKERD_SANITIZE=ON -DMARKERD_BUILD_BENCH=OFF
+cmake --build build-sanitize -j"$jobs"
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  ctest --test-dir build-sanitize -j"$jobs" --output-on-failure
