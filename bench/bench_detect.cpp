@@ -46,7 +46,8 @@ struct FrameSet {
 markerd::Scene scene_for(Family family, int i) {
   markerd::Scene s;
   s.family = family;
-  s.id = (37 * i + 11) % markerd::family_info(family).id_count;
+  const auto& info = markerd::family_info(family);
+  s.id = info.first_default_id + (37 * i + 11) % (info.last_default_id - info.first_default_id + 1);
   s.marker_size_m = kMarkerSize;
   const double t = static_cast<double>(i) / (kFrames - 1);
   const double distance = 0.3 + t * (2.5 - 0.3);

@@ -1,1 +1,303 @@
-// placeholder while the session builds this file; replaced before landing
+// The frame8 detector against the renderer's ground truth.
+
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <vector>
+
+#include "markerd/detector/detector.hpp"
+#include "markerd/detector/frame8.hpp"
+#include "markerd/detector/render.hpp"
+
+namespace markerd {
+namespace {
+
+const CameraModel kCamera = CameraModel::thesis_640x480();
+
+Scene scene(int id, double dist, double yaw, double roll, std::uint64_t seed) {
+  Scene s;
+  s.family = Family::frame8;
+  s.id = id;
+  s.marker_size_m = 0.08;
+  s.pose = facing_pose(dist, yaw, 0, roll);
+  s.noise_sigma = 2;
+  s.blur_sigma_px = 0.6;
+  s.seed = seed;
+  return s;
+}
+
+std::vector<Detection> detect(MarkerDetector& det, const GreyImage& img) {
+  std::vector<Detection> out;
+  det.detect(img, out);
+  return out;
+}
+
+double max_corner_error(const Quad& found, const Quad& truth) {
+  double worst = 0;
+  for (std::size_t i = 0; i < 4; ++i) worst = std::max(worst, distance(found[i], truth[i]));
+  return worst;
+}
+
+double mean_corner_error(const Quad& found, const Quad& truth) {
+  double sum = 0;
+  for (std::size_t i = 0; i < 4; ++i) sum += distance(found[i], truth[i]);
+  return sum / 4;
+}
+
+// Every id in every quarter turn: the id, the orientation and the corner order.
+// Ids 0 and 255 are read only when asked for (Frame8Options::uniform_ids).
+TEST(Frame8, RoundTripAllIdsAllRotations) {
+  auto det = make_detector(DetectorConfig{});
+  DetectorConfig with_uniform;
+  with_uniform.frame8.uniform_ids = true;
+  auto uniform = make_detector(with_uniform);
+  int failures = 0;
+  for (int id = 0; id < 256; ++id) {
+    for (int turn = 0; turn < 4; ++turn) {
+      Scene s = scene(id, 0.45, 15, -90.0 * turn, static_cast<std::uint64_t>(id * 4 + turn));
+      s.supersample = 2;  // enough at this size, and four times faster
+      // Without a camera model the detector cannot undo the lens; this test
+      // is about the code, so the image has none (the lens: next tests).
+      s.distort = false;
+      const GreyImage img = render_scene(kCamera, s);
+      const bool uniform_id = id == 0 || id == 255;
+      const auto found = detect(uniform_id ? *uniform : *det, img);
+      const Quad truth = project_marker_corners(kCamera, s);
+      const bool ok = found.size() == 1 && found[0].id == id && found[0].quarter_turns == turn &&
+                      max_corner_error(found[0].corners, truth) < 0.5;
+      if (!ok) {
+        ++failures;
+        ADD_FAILURE() << "id " << id << " turn " << turn << ": " << found.size() << " detections"
+                      << (found.empty() ? "" : ", first id " + std::to_string(found[0].id) + " turns " +
+                                                    std::to_string(found[0].quarter_turns));
+      }
+      if (failures > 10) return;
+    }
+  }
+}
+
+// Paints over ring cells of the rendered marker: the cell polygons are
+// projected through the true pose.
+void cover_cells(GreyImage& img, const Scene& s, const std::vector<frame8::Cell>& cells, std::uint8_t value) {
+  cv::Mat m(img.height(), img.width(), CV_8U, img.data());
+  for (const frame8::Cell c : cells) {
+    std::vector<cv::Point> poly;
+    for (const auto& [gx, gy] : {std::pair{c.col, c.row}, {c.col + 1, c.row}, {c.col + 1, c.row + 1}, {c.col, c.row + 1}}) {
+      // Grid (0..10, y down) to the marker frame (metres, y up).
+      const double u = (gx - 5.0) / 10.0, v = (5.0 - gy) / 10.0;
+      const Point2 p = project(kCamera, s.pose, Eigen::Vector3d(u * s.marker_size_m, v * s.marker_size_m, 0));
+      poly.emplace_back(static_cast<int>(std::lround(p.x * 16)), static_cast<int>(std::lround(p.y * 16)));
+    }
+    cv::fillConvexPoly(m, poly, cv::Scalar(value), cv::LINE_AA, 4);
+  }
+}
+
+// One edge covered, black or white, on its data cells or along its whole
+// strip: the other three edges still decide every bit.
+TEST(Frame8, OneCoveredEdgeStillDecodes) {
+  auto det = make_detector(DetectorConfig{});
+  for (const int id : {165, 0x5a, 0x0f, 1, 254}) {
+    for (int edge = 0; edge < 4; ++edge) {
+      for (const std::uint8_t paint : {std::uint8_t{10}, std::uint8_t{235}}) {
+        const Scene s = scene(id, 0.5, 20, 0, 100 + edge);
+        GreyImage img = render_scene(kCamera, s);
+        std::vector<frame8::Cell> cells;
+        for (int bit = 0; bit < 8; ++bit) cells.push_back(frame8::data_cell(edge, bit));
+        cover_cells(img, s, cells, paint);
+        const auto found = detect(*det, img);
+        ASSERT_EQ(found.size(), 1u) << "id " << id << " edge " << edge << " paint " << int(paint);
+        EXPECT_EQ(found[0].id, id) << "edge " << edge << " paint " << int(paint);
+        EXPECT_EQ(found[0].quarter_turns, 0) << "id " << id << " edge " << edge << " paint " << int(paint);
+        EXPECT_GT(found[0].bits_corrected, 0) << "id " << id << " edge " << edge;
+      }
+    }
+  }
+}
+
+TEST(Frame8, CoveredStripWithItsCornersStillGivesTheId) {
+  auto det = make_detector(DetectorConfig{});
+  // The bottom and left strips hold black corners only; covered in black,
+  // the white corner still orients the marker.
+  for (const int edge : {2, 3}) {
+    const Scene s = scene(165, 0.5, -20, 0, 200 + edge);
+    GreyImage img = render_scene(kCamera, s);
+    std::vector<frame8::Cell> cells;
+    for (int bit = 0; bit < 8; ++bit) cells.push_back(frame8::data_cell(edge, bit));
+    cells.push_back(frame8::corner_cell(edge));
+    cells.push_back(frame8::corner_cell((edge + 1) % 4));
+    cover_cells(img, s, cells, 10);
+    const auto found = detect(*det, img);
+    ASSERT_EQ(found.size(), 1u) << "edge " << edge;
+    EXPECT_EQ(found[0].id, 165);
+    EXPECT_EQ(found[0].quarter_turns, 0);
+  }
+}
+
+TEST(Frame8, TwoCoveredEdgesAreNotMisread) {
+  auto det = make_detector(DetectorConfig{});
+  const Scene s = scene(165, 0.5, 10, 0, 300);
+  GreyImage img = render_scene(kCamera, s);
+  std::vector<frame8::Cell> cells;
+  for (int bit = 0; bit < 8; ++bit) {
+    cells.push_back(frame8::data_cell(0, bit));
+    cells.push_back(frame8::data_cell(1, bit));
+  }
+  cover_cells(img, s, cells, 235);
+  for (const Detection& d : detect(*det, img)) EXPECT_EQ(d.id, 165) << "a misread, not an erasure";
+}
+
+// Clean renders (no noise, no blur): the outer corners within 0.2 px on
+// average, none beyond 0.3 px where cells are 4 px or more, and a median
+// under 0.1 px over all views.
+// Lens distortion bows the edges (0.3 px over a marker 120 px wide with the
+// thesis's lens), so distorted renders go through the camera model, which
+// fits the edges where they are straight; undistorted ones need no model.
+TEST(Frame8, CornersWithinAFifthOfAPixelOnCleanRenders) {
+  DetectorConfig with_lens;
+  with_lens.camera = kCamera;
+  with_lens.marker_size_m = 0.08;
+  auto lens = make_detector(with_lens);
+  auto plain = make_detector(DetectorConfig{});
+  std::vector<double> errors;
+  int k = 0;
+  for (const bool distort : {false, true}) {
+    for (const double dist : {0.35, 0.6, 1.0, 1.5}) {
+      for (const double yaw : {0.0, 25.0, -45.0}) {
+        for (const double roll : {0.0, 30.0}) {
+          Scene s = scene(0x3c + k, dist, yaw, roll, static_cast<std::uint64_t>(400 + k));
+          ++k;
+          s.noise_sigma = 0;
+          s.blur_sigma_px = 0;
+          s.distort = distort;
+          const auto found = detect(distort ? *lens : *plain, render_scene(kCamera, s));
+          ASSERT_EQ(found.size(), 1u) << dist << " m, yaw " << yaw << ", roll " << roll << ", distort " << distort;
+          const Quad truth = project_marker_corners(kCamera, s);
+          const double err = mean_corner_error(found[0].corners, truth);
+          EXPECT_LT(err, 0.2) << dist << " m, yaw " << yaw << ", roll " << roll << ", distort " << distort;
+          // At 1.5 m a cell is under 3 px, and under 2 px across when turned
+          // 45 degrees: there only the average holds.
+          if (dist <= 1.0) {
+            EXPECT_LT(max_corner_error(found[0].corners, truth), 0.3)
+                << dist << " m, yaw " << yaw << ", roll " << roll << ", distort " << distort;
+          }
+          errors.push_back(err);
+        }
+      }
+    }
+  }
+  std::sort(errors.begin(), errors.end());
+  EXPECT_LT(errors[errors.size() / 2], 0.1);
+  RecordProperty("median_corner_error_px", std::to_string(errors[errors.size() / 2]));
+}
+
+// With the camera model: the pose's distance within 1% at 1 m, under noise
+// and blur, and the outer corners through the lens model.
+TEST(Frame8, PoseDistanceWithinOnePercentAtOneMetre) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  for (int k = 0; k < 12; ++k) {
+    const double yaw = -40 + 8.0 * k;
+    Scene s = scene(17 * k + 3, 1.0, yaw, 5.0 * k, static_cast<std::uint64_t>(500 + k));
+    s.pose.translation.x() = 0.02 * (k % 5 - 2);
+    const auto found = detect(*det, render_scene(kCamera, s));
+    ASSERT_EQ(found.size(), 1u) << "yaw " << yaw;
+    ASSERT_TRUE(found[0].pose.has_value());
+    const Eigen::Vector3d t = found[0].pose->best.translation;
+    const double truth = s.pose.translation.norm();
+    EXPECT_LT(std::abs(t.norm() - truth) / truth, 0.01) << "yaw " << yaw;
+    EXPECT_LT(max_corner_error(found[0].corners, project_marker_corners(kCamera, s)), 0.5) << "yaw " << yaw;
+    // The best solution's rotation is the true one (not IPPE's flip), away from frontal.
+    if (std::abs(yaw) > 15) {
+      const Eigen::AngleAxisd diff(found[0].pose->best.rotation.transpose() * s.pose.rotation);
+      EXPECT_LT(diff.angle() * 180 / std::numbers::pi, 3.0) << "yaw " << yaw;
+    }
+  }
+}
+
+// Clutter with dark frames, checkered patches and text: nothing.
+TEST(Frame8, NoDetectionOnClutter) {
+  auto det = make_detector(DetectorConfig{});
+  int false_positives = 0;
+  for (std::uint64_t seed = 1; seed <= 100; ++seed) {
+    Scene s = scene(0, 1, 0, 0, seed);
+    for (const Detection& d : detect(*det, render_background(kCamera, s))) {
+      ++false_positives;
+      ADD_FAILURE() << "seed " << seed << ": id " << d.id << " at " << d.corners[0].x << "," << d.corners[0].y;
+    }
+  }
+  EXPECT_EQ(false_positives, 0);
+}
+
+TEST(Frame8, BadImagesGiveErrorsNotCrashes) {
+  auto det = make_detector(DetectorConfig{});
+  std::vector<Detection> out;
+  EXPECT_THROW(det->detect(GreyView{}, out), DetectorError);
+  const GreyImage img(64, 48, 128);
+  GreyView narrow = img.view();
+  narrow.stride = 10;
+  EXPECT_THROW(det->detect(narrow, out), DetectorError);
+
+  // Tiny, flat, saturated and pure-noise frames: no crash, nothing found.
+  for (const auto& [w, h] : {std::pair{1, 1}, {15, 15}, {16, 16}, {3, 2000}, {2000, 3}}) {
+    const GreyImage tiny(w, h, 200);
+    EXPECT_NO_THROW(det->detect(tiny, out));
+    EXPECT_TRUE(out.empty());
+  }
+  std::mt19937 rng(7);
+  GreyImage noise(640, 480);
+  for (int y = 0; y < noise.height(); ++y) {
+    for (int x = 0; x < noise.width(); ++x) noise.at(x, y) = static_cast<std::uint8_t>(rng() & 0xff);
+  }
+  EXPECT_NO_THROW(det->detect(noise, out));
+  EXPECT_TRUE(out.empty());
+  for (const std::uint8_t level : {std::uint8_t{0}, std::uint8_t{255}}) {
+    EXPECT_NO_THROW(det->detect(GreyImage(640, 480, level), out));
+    EXPECT_TRUE(out.empty());
+  }
+
+  // A camera model of another size than the image.
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto posed = make_detector(cfg);
+  EXPECT_THROW(posed->detect(GreyImage(320, 240, 128), out), DetectorError);
+  // A pose needs both a camera and a size.
+  cfg.marker_size_m = 0;
+  EXPECT_THROW(make_detector(cfg), DetectorError);
+}
+
+// Ids 0 and 255 are a dark frame with one light corner and a light outline
+// with three dark ones: reported only when asked for.
+TEST(Frame8, UniformIdsOnlyWhenAskedFor) {
+  auto plain = make_detector(DetectorConfig{});
+  DetectorConfig cfg;
+  cfg.frame8.uniform_ids = true;
+  auto uniform = make_detector(cfg);
+  for (const int id : {0, 255}) {
+    const GreyImage img = render_scene(kCamera, scene(id, 0.6, 10, 0, 700 + static_cast<std::uint64_t>(id)));
+    EXPECT_TRUE(detect(*plain, img).empty()) << "id " << id;
+    const auto found = detect(*uniform, img);
+    ASSERT_EQ(found.size(), 1u) << "id " << id;
+    EXPECT_EQ(found[0].id, id);
+  }
+}
+
+// A marker partly outside the frame is either found right or not at all.
+TEST(Frame8, MarkerAtTheImageBorder) {
+  auto det = make_detector(DetectorConfig{});
+  for (int k = 0; k < 8; ++k) {
+    Scene s = scene(165, 0.4, 0, 0, static_cast<std::uint64_t>(600 + k));
+    s.pose.translation.x() = 0.20 + 0.005 * k;  // sliding out of the right edge
+    for (const Detection& d : detect(*det, render_scene(kCamera, s))) EXPECT_EQ(d.id, 165);
+  }
+}
+
+}  // namespace
+}  // namespace markerd

@@ -49,7 +49,8 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
   if (detector.family() != settings.scene.family) {
     throw std::invalid_argument("evaluate_point: the scene shows another family than the detector reads");
   }
-  const int id_count = family_info(settings.scene.family).id_count;
+  const FamilyInfo& family = family_info(settings.scene.family);
+  const int id_count = family.last_default_id - family.first_default_id + 1;
 
   std::uint64_t h = mix(0, settings.seed);
   h = mix(h, std::bit_cast<std::uint64_t>(point.distance_m));
@@ -80,7 +81,9 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
     const double dx_m = r * std::cos(phi) * point.distance_m / camera.fx;
     const double dy_m = r * std::sin(phi) * point.distance_m / camera.fy;
     scene.pose = facing_pose(point.distance_m, point.yaw_deg, 0, roll, dx_m, dy_m);
-    if (settings.random_ids) scene.id = std::min(static_cast<int>(id_draw * id_count), id_count - 1);
+    if (settings.random_ids) {
+      scene.id = family.first_default_id + std::min(static_cast<int>(id_draw * id_count), id_count - 1);
+    }
     scene.seed = scene_seed;
 
     const GreyImage image = render_scene(camera, scene);

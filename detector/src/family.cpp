@@ -6,9 +6,9 @@
 namespace markerd {
 namespace {
 constexpr std::array<FamilyInfo, 3> families{{
-    {Family::frame8, "frame8", 256, 10, 0},
-    {Family::aruco4x4_50, "aruco4x4_50", 50, 6, 1},
-    {Family::tag36h11, "tag36h11", 587, 8, 1},
+    {Family::frame8, "frame8", 256, 10, 0, 1, 254},
+    {Family::aruco4x4_50, "aruco4x4_50", 50, 6, 1, 0, 49},
+    {Family::tag36h11, "tag36h11", 587, 8, 1, 0, 586},
 }};
 }  // namespace
 

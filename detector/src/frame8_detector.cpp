@@ -54,6 +54,9 @@
 #endif
 #include "markerd/detector/pose.hpp"
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+
 namespace markerd {
 namespace {
 
@@ -531,7 +534,7 @@ class Frame8Detector final : public MarkerDetector {
     for (int i = 0; i < 4; ++i) {
       perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
     }
-    if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter || c.area < 0.5 * quad_area) return;
+    if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter || c.area < 0.8 * quad_area) return;
     for (int i = 0; i < 4; ++i) {
       const Point2 a = quad[static_cast<std::size_t>(i)];
       const Point2 b = quad[static_cast<std::size_t>((i + 1) % 4)];
@@ -602,6 +605,7 @@ class Frame8Detector final : public MarkerDetector {
       const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
       const double cell_px = (1 - t) * cell_a + t * cell_b;
       bool white_beyond = false;
+      const bool by_profile = id == kClassifyByProfile;
       if (id >= 0) {
         // Cells along a side follow the reading order, the same on every side.
         const double along = 0.5 + kInnerSide * t;
@@ -612,9 +616,10 @@ class Frame8Detector final : public MarkerDetector {
       }
       // Inward as far as the coarse quad may be off; outward past the line's
       // far side (half a cell) and its blur.
-      const double reach_in = id >= 0 ? std::max(1.0, 0.5 * cell_px) : std::clamp(1.2 * cell_px, 1.5, 2.0 + decimate_);
+      const bool near = id != kNoCode;  // the quad is refined already: a tight window
+      const double reach_in = near ? std::max(1.0, 0.5 * cell_px) : std::clamp(1.2 * cell_px, 1.5, 2.0 + decimate_);
       const double reach_out =
-          id >= 0 ? 0.75 * cell_px + 1.5 : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
+          near ? 0.75 * cell_px + 1.5 : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
       const int n_steps = std::min(static_cast<int>((reach_in + reach_out) / step) + 1, 64);
       bool ok = true;
       for (int s = 0; s < n_steps && ok; ++s) {
@@ -639,9 +644,19 @@ class Frame8Detector final : public MarkerDetector {
       while (lo > 0 && P(lo - 1) - P(lo) > floor_drop) --lo;
       while (hi + 2 < n_steps && P(hi + 1) - P(hi + 2) > floor_drop) ++hi;
       double off = 0;
+      int peak = hi + 1;
+      while (peak + 1 < n_steps && P(peak + 1) >= P(peak)) ++peak;
+      if (by_profile) {
+        // Without the code, the profile tells: the line alone (a white cell
+        // beyond) is a dip about half a cell wide plus the blur, that rises
+        // again; the line merged with a black cell is three times wider.
+        const double valley = P(hi + 1);
+        const double half = valley + 0.5 * (std::min(P(lo), P(peak)) - valley);
+        int width = 0;
+        for (int i = lo; i <= peak; ++i) width += P(i) < half;
+        white_beyond = P(peak) - valley > 0.3 * (P(lo) - valley) && width * step <= 1.0 * cell_px + 0.5;
+      }
       if (white_beyond && cell_px < kThinLineCells) {
-        int peak = hi + 1;
-        while (peak + 1 < n_steps && P(peak + 1) >= P(peak)) ++peak;
         const double ref = std::min(P(lo), P(peak));
         double sum = 0, moment = 0;
         for (int i = lo; i <= peak; ++i) {
@@ -694,15 +709,47 @@ class Frame8Detector final : public MarkerDetector {
     for (int i = 0; i < 4; ++i) {
       perimeter += distance(coarse[static_cast<std::size_t>(i)], coarse[static_cast<std::size_t>((i + 1) % 4)]);
     }
-    const double cell_px = perimeter / 4 / kInnerSide;
+    double cell_px = perimeter / 4 / kInnerSide;
     if (perimeter / 4 < config_.frame8.min_hole_side_px) return false;
 
     std::array<Point2, 4> inner{};
-    if (!refine_sides(coarse, -1, cell_px, inner)) return false;
+    if (!refine_sides(coarse, kNoCode, cell_px, inner)) return false;
+    // The coarse quad lies inside the hole; the refined one gives the scale.
+    perimeter = 0;
+    for (int i = 0; i < 4; ++i) {
+      perimeter += distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+    }
+    cell_px = perimeter / 4 / kInnerSide;
+    // Below a few pixels a cell the profile classification does better on
+    // the whole, but can take a line merged with a black cell for the line
+    // alone; the step-only quad is the fallback when its read fails.
+    std::array<Point2, 4> step_only = inner;
+    bool have_fallback = false;
+    if (cell_px < kThinLineCells) {
+      std::array<Point2, 4> by_profile{};
+      if (refine_sides(inner, kClassifyByProfile, cell_px, by_profile)) {
+        inner = by_profile;
+        have_fallback = true;
+      }
+    }
+    // A square seen at up to about 82 degrees keeps its short sides at least
+    // an eighth of its long ones; slivers beyond that are not worth a read.
+    double shortest = std::numeric_limits<double>::infinity(), longest = 0;
+    for (int i = 0; i < 4; ++i) {
+      const double len = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+      shortest = std::min(shortest, len);
+      longest = std::max(longest, len);
+    }
+    if (shortest < kMinSideRatio * longest) return false;
     Homography H;
     if (!Homography::from_unit_square(inner, H)) return false;
     int rotation = 0;
-    if (!decode(H, cell_px, det, rotation)) return false;
+    if (!decode(H, cell_px, det, rotation)) {
+      if (!have_fallback || !Homography::from_unit_square(step_only, H) || !decode(H, cell_px, det, rotation)) {
+        return false;
+      }
+      inner = step_only;
+    }
     if (cell_px < kThinLineCells) {
       // Measure again knowing which cells are white, then read again.
       std::array<Point2, 4> second{};
@@ -715,9 +762,14 @@ class Frame8Detector final : public MarkerDetector {
         H = H2;
         det = det2;
         rotation = rotation2;
-      } else if (!refine_sides(coarse, -1, cell_px, inner)) {
+      } else if (!refine_sides(coarse, kNoCode, cell_px, inner)) {
         return false;  // (restores the first pass's edge points for the camera refit)
       }
+    }
+
+    // With the code known, every edge of the printed pattern is a measurement.
+    if (cell_px >= kPatternCells && collect_pattern_edges(H, det.id, rotation, cell_px) >= kMinPatternEdges) {
+      return finish_by_pattern(rotation, det);
     }
 
     // Report in the marker's own order: corner j is quad corner (j + rotation) % 4.
@@ -734,6 +786,251 @@ class Frame8Detector final : public MarkerDetector {
       }
       det.inner_corners = in;
       det.corners = outq;
+    }
+    const Point2 top = det.corners[1] - det.corners[0];
+    const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
+    det.quarter_turns = ((quarter % 4) + 4) % 4;
+    return true;
+  }
+
+  // --- 3b. the whole pattern ------------------------------------------------
+
+  // An edge of the printed pattern seen in the image: the point lies on the
+  // grid line `value` of the given axis (0: x = value, 1: y = value).
+  struct PatternEdge {
+    double x, y, w;
+    int axis;
+    double value;
+  };
+
+  // The edge along `axis_normal` through grid point g0: searched across the
+  // edge within +-half (grid units) through the homography. A step is
+  // light-to-dark along the normal and located at its gradient centroid; a
+  // dip (the half-cell line between the hole and a white cell) at the
+  // centroid of its depth, the line's centre. Returns false when nothing
+  // clear is there.
+  bool locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset, double& strength) const {
+    constexpr int kSamples = 17;
+    std::array<float, kSamples> v{};
+    for (int i = 0; i < kSamples; ++i) {
+      const double s = -half + 2 * half * i / (kSamples - 1);
+      const Point2 p = grid_point(H, g0.x + s * normal.x, g0.y + s * normal.y);
+      if (!sample(full_, p.x, p.y, v[static_cast<std::size_t>(i)])) return false;
+    }
+    const double ds = 2 * half / (kSamples - 1);
+    double sum = 0, moment = 0, peak = 0;
+    if (dip) {
+      const double ref = std::min(v.front(), v.back());
+      for (int i = 0; i < kSamples; ++i) peak = std::max(peak, ref - v[static_cast<std::size_t>(i)]);
+      const double floor = 0.1 * peak;
+      for (int i = 0; i < kSamples; ++i) {
+        const double depth = ref - v[static_cast<std::size_t>(i)] - floor;
+        if (depth <= 0) continue;
+        sum += depth;
+        moment += depth * (-half + i * ds);
+      }
+    } else {
+      for (int i = 0; i + 1 < kSamples; ++i) peak = std::max(peak, static_cast<double>(v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)]));
+      const double floor = 0.1 * peak;
+      for (int i = 0; i + 1 < kSamples; ++i) {
+        const double drop = v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)] - floor;
+        if (drop <= 0) continue;
+        sum += drop;
+        moment += drop * (-half + (i + 0.5) * ds);
+      }
+      peak *= (kSamples - 1) / (2 * half);  // per grid unit, comparable with a dip's depth
+      peak = std::min(peak, static_cast<double>(v.front() - v.back()));
+    }
+    if (sum <= 0 || peak < 12) return false;
+    offset = moment / sum;
+    strength = peak;
+    return true;
+  }
+
+  // Collects the pattern's edges for the code `id` read with `rotation`:
+  // the hole's edge (a step where the ring cell beyond is black, the line's
+  // centre where it is white) and every boundary between ring cells of
+  // different colours. The outer edge is left out: what lies beyond it is
+  // unknown.
+  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px) {
+    std::array<std::uint8_t, 100> colour{};  // quad-oriented, row major; 2 = not a ring cell
+    colour.fill(2);
+    for (int k = 0; k < 4; ++k) {
+      const frame8::Cell c = frame8::corner_cell(k);
+      colour[static_cast<std::size_t>(c.row * 10 + c.col)] = k == (rotation + 1) % 4 ? 1 : 0;
+    }
+    for (int e = 0; e < 4; ++e) {
+      for (int b = 0; b < 8; ++b) {
+        const frame8::Cell c = frame8::data_cell(e, b);
+        colour[static_cast<std::size_t>(c.row * 10 + c.col)] = static_cast<std::uint8_t>((id >> b) & 1);
+      }
+    }
+    auto at = [&](int col, int row) { return colour[static_cast<std::size_t>(row * 10 + col)]; };
+    // Points per cell along an edge: about one per 1.5 px.
+    const int per_cell = std::clamp(static_cast<int>(cell_px / 1.5), 1, 4);
+    pattern_count_ = 0;
+    auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis, double value) {
+      if (pattern_count_ >= kMaxPatternEdges) return;
+      double off = 0, strength = 0;
+      if (!locate_edge(H, g, normal, half, dip, off, strength)) return;
+      const Point2 p = grid_point(H, g.x + off * normal.x, g.y + off * normal.y);
+      pattern_edges_[static_cast<std::size_t>(pattern_count_++)] = {p.x, p.y, strength, axis, value};
+    };
+    for (int k = 1; k <= 8; ++k) {  // the seven cells of each side of the hole, ring cells 1..8
+      for (int j = 0; j < per_cell; ++j) {
+        const double along = k + (j + 0.5) / per_cell;
+        if (along < 1.5 + 0.2 || along > 8.5 - 0.2) continue;  // clear of the line's corners
+        // Side by side: top (ring row 0), right (col 9), bottom (row 9), left (col 0).
+        const std::array<std::pair<int, int>, 4> beyond{{{k, 0}, {9, k}, {k, 9}, {0, k}}};
+        const std::array<Point2, 4> edge_point{{{along, 1.5}, {8.5, along}, {along, 8.5}, {1.5, along}}};
+        const std::array<Point2, 4> line_centre{{{along, 1.25}, {8.75, along}, {along, 8.75}, {1.25, along}}};
+        const std::array<Point2, 4> outward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
+        for (int side = 0; side < 4; ++side) {
+          const auto [col, row] = beyond[static_cast<std::size_t>(side)];
+          // Two cells meet at the integer positions; their colours may differ.
+          const double frac = along - std::floor(along);
+          if (frac < 0.15 || frac > 0.85) continue;
+          const bool white = at(col, row) == 1;
+          const int axis = side % 2 == 0 ? 1 : 0;
+          const auto si = static_cast<std::size_t>(side);
+          if (white) {
+            add(line_centre[si], outward[si], 0.65, true, axis, axis == 1 ? line_centre[si].y : line_centre[si].x);
+          } else {
+            add(edge_point[si], outward[si], 0.45, false, axis, axis == 1 ? edge_point[si].y : edge_point[si].x);
+          }
+        }
+      }
+    }
+    // Boundaries between neighbouring ring cells of different colours, across the ring.
+    for (int k = 0; k < 9; ++k) {
+      const std::array<std::array<std::pair<int, int>, 2>, 4> pairs{{{{{k, 0}, {k + 1, 0}}},
+                                                                      {{{9, k}, {9, k + 1}}},
+                                                                      {{{k, 9}, {k + 1, 9}}},
+                                                                      {{{0, k}, {0, k + 1}}}}};
+      for (int side = 0; side < 4; ++side) {
+        const auto& pr = pairs[static_cast<std::size_t>(side)];
+        const int a = at(pr[0].first, pr[0].second), b = at(pr[1].first, pr[1].second);
+        if (a == b) continue;
+        const bool horizontal_ring = side % 2 == 0;  // the cells sit side by side along x
+        // The normal points from the white cell to the black one.
+        const double sign = a == 1 ? 1.0 : -1.0;
+        const Point2 normal = horizontal_ring ? Point2{sign, 0} : Point2{0, sign};
+        const double boundary = k + 1;
+        for (int j = 0; j < per_cell; ++j) {
+          const double across = 0.15 + 0.7 * (j + 0.5) / per_cell;  // within the ring's width, clear of its edges
+          const double ring_lo = (side == 0 || side == 3) ? 0.0 : 9.0;
+          const Point2 g = horizontal_ring ? Point2{boundary, ring_lo + across} : Point2{ring_lo + across, boundary};
+          add(g, normal, 0.45, false, horizontal_ring ? 0 : 1, boundary);
+        }
+      }
+    }
+    return pattern_count_;
+  }
+
+  // Fits the map from grid coordinates to the image (or, with a camera, to
+  // undistorted normalized coordinates) to the pattern's edges: each edge
+  // point must lie on its grid line. The constraint is linear in the inverse
+  // map, solved as a 9x9 eigenproblem and reweighted towards grid-unit
+  // residuals, with one round of outlier rejection.
+  bool fit_grid_map(Eigen::Matrix3d& grid_to_image) {
+    const int n = pattern_count_;
+    double mx = 0, my = 0, sw = 0;
+    for (int i = 0; i < n; ++i) {
+      mx += pattern_edges_[static_cast<std::size_t>(i)].x;
+      my += pattern_edges_[static_cast<std::size_t>(i)].y;
+    }
+    mx /= n;
+    my /= n;
+    for (int i = 0; i < n; ++i) {
+      sw += std::abs(pattern_edges_[static_cast<std::size_t>(i)].x - mx) + std::abs(pattern_edges_[static_cast<std::size_t>(i)].y - my);
+    }
+    const double scale = sw > 0 ? n / sw : 1.0;  // points normalised to a spread of about 1
+    Eigen::Matrix<double, 3, 3> G;  // normalised image -> grid (homogeneous)
+    std::array<double, kMaxPatternEdges> weight{};
+    for (int i = 0; i < n; ++i) weight[static_cast<std::size_t>(i)] = pattern_edges_[static_cast<std::size_t>(i)].w;
+    bool have = false;
+    for (int iter = 0; iter < 3; ++iter) {
+      Eigen::Matrix<double, 9, 9> ata = Eigen::Matrix<double, 9, 9>::Zero();
+      int used = 0;
+      for (int i = 0; i < n; ++i) {
+        const PatternEdge& e = pattern_edges_[static_cast<std::size_t>(i)];
+        double w = weight[static_cast<std::size_t>(i)];
+        if (w <= 0) continue;
+        const Eigen::Vector3d p((e.x - mx) * scale, (e.y - my) * scale, 1);
+        if (have) {
+          const double denom = G.row(2).dot(p);
+          w /= denom * denom;  // algebraic to grid-unit residuals
+        }
+        Eigen::Matrix<double, 9, 1> row = Eigen::Matrix<double, 9, 1>::Zero();
+        row.segment<3>(e.axis * 3) = p;
+        row.segment<3>(6) = -e.value * p;
+        ata.noalias() += w * row * row.transpose();
+        ++used;
+      }
+      if (used < kMinPatternEdges) return false;
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(ata);
+      if (eig.info() != Eigen::Success) return false;
+      const Eigen::Matrix<double, 9, 1> g = eig.eigenvectors().col(0);
+      G << g(0), g(1), g(2), g(3), g(4), g(5), g(6), g(7), g(8);
+      have = true;
+      if (iter == 1) {
+        // Drop edges a fifth of a cell off the fit: a cell that is not what
+        // the code says (an occluder, a covered edge).
+        for (int i = 0; i < n; ++i) {
+          const PatternEdge& e = pattern_edges_[static_cast<std::size_t>(i)];
+          const Eigen::Vector3d p((e.x - mx) * scale, (e.y - my) * scale, 1);
+          const Eigen::Vector3d q = G * p;
+          if (std::abs(q(e.axis) / q(2) - e.value) > 0.2) weight[static_cast<std::size_t>(i)] = 0;
+        }
+      }
+    }
+    Eigen::Matrix3d denorm;
+    denorm << 1 / scale, 0, mx, 0, 1 / scale, my, 0, 0, 1;
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(G);
+    if (!lu.isInvertible()) return false;
+    grid_to_image = denorm * lu.inverse();
+    return true;
+  }
+
+  static Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
+    const Eigen::Vector3d q = M * Eigen::Vector3d(gx, gy, 1);
+    return {q(0) / q(2), q(1) / q(2)};
+  }
+
+  // Corners (and, with a camera, the pose) from the pattern's edges.
+  bool finish_by_pattern(int rotation, Detection& det) {
+    if (config_.camera) {
+      for (int i = 0; i < pattern_count_; ++i) {
+        auto& e = pattern_edges_[static_cast<std::size_t>(i)];
+        const Point2 p = config_.camera->pixel_to_normalized({e.x, e.y});
+        e.x = p.x;
+        e.y = p.y;
+      }
+    }
+    Eigen::Matrix3d M;
+    if (!fit_grid_map(M)) return false;
+    static constexpr std::array<Point2, 4> kInnerGrid{{{1.5, 1.5}, {8.5, 1.5}, {8.5, 8.5}, {1.5, 8.5}}};
+    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
+    Quad in{}, outq{};
+    std::array<Eigen::Vector2d, 4> model_order{};
+    for (int j = 0; j < 4; ++j) {
+      const auto q = static_cast<std::size_t>((j + rotation) % 4);
+      const Point2 pi = map_grid(M, kInnerGrid[q].x, kInnerGrid[q].y);
+      const Point2 po = map_grid(M, kOuterGrid[q].x, kOuterGrid[q].y);
+      model_order[static_cast<std::size_t>(j)] = {pi.x, pi.y};
+      if (config_.camera) {
+        in[static_cast<std::size_t>(j)] = config_.camera->normalized_to_pixel(pi);
+        outq[static_cast<std::size_t>(j)] = config_.camera->normalized_to_pixel(po);
+      } else {
+        in[static_cast<std::size_t>(j)] = pi;
+        outq[static_cast<std::size_t>(j)] = po;
+      }
+    }
+    det.inner_corners = in;
+    det.corners = outq;
+    if (config_.camera) {
+      det.pose = estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
+      if (!det.pose) return false;
     }
     const Point2 top = det.corners[1] - det.corners[0];
     const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
@@ -788,6 +1085,12 @@ class Frame8Detector final : public MarkerDetector {
 
   // --- 4. the code ----------------------------------------------------------
 
+  // Why a candidate was turned down (traced in debug builds); always false.
+  static bool reject([[maybe_unused]] int reason) {
+    F8_TRACE("  rejected at check %d\n", reason);
+    return false;
+  }
+
   struct CellSample {
     float mean = 0, lo = 0, hi = 0;  // over the points sampled in the cell
     bool valid = false;
@@ -834,7 +1137,7 @@ class Frame8Detector final : public MarkerDetector {
     std::array<std::array<CellSample, 8>, 4> cell{};
     for (int k = 0; k < 4; ++k) {
       corner[static_cast<std::size_t>(k)] = sample_cell(H, frame8::corner_cell(k), cell_px);
-      if (!corner[static_cast<std::size_t>(k)].valid) return false;
+      if (!corner[static_cast<std::size_t>(k)].valid) return reject(1);
     }
     int valid_cells = 0;
     for (int e = 0; e < 4; ++e) {
@@ -844,7 +1147,7 @@ class Frame8Detector final : public MarkerDetector {
         valid_cells += c.valid;
       }
     }
-    if (valid_cells < 24) return false;
+    if (valid_cells < 24) return reject(2);
 
     // Grey model: 2-means over the ring, seeded by the corners (three black, one white).
     int white_corner = 0;
@@ -875,18 +1178,20 @@ class Frame8Detector final : public MarkerDetector {
       for (const auto& edge : cell) {
         for (const auto& c : edge) add(c);
       }
-      if (nb == 0 || nw == 0) return false;
+      if (nb == 0 || nw == 0) return reject(3);
       black = sb / nb;
       white = sw / nw;
     }
     const double contrast = white - black;
     F8_TRACE("  grey model black %.1f white %.1f\n", black, white);
-    if (contrast < 3.0 * config_.frame8.threshold_offset || contrast < 20) return false;
+    if (contrast < 3.0 * config_.frame8.threshold_offset || contrast < 20) return reject(4);
     const double thr = 0.5 * (black + white);
     auto soft = [&](double v) { return std::clamp((v - thr) / (0.5 * contrast), -1.0, 1.0); };
     // A cell read clearly and, where resolved, one colour all over; otherwise
     // it is an erasure (an occluder's edge, or clutter that is no cell at all).
-    constexpr double kConfident = 0.3;
+    // Blur takes up to half the contrast of a lone cell under two pixels wide:
+    // there a weaker read still counts as a vote.
+    const double kConfident = cell_px >= kResolvedCells ? 0.3 : 0.1;
     auto clear = [&](const CellSample& c) {
       const double lo = soft(c.lo), hi = soft(c.hi);
       return c.valid && ((lo > kConfident && hi > kConfident) || (lo < -kConfident && hi < -kConfident));
@@ -896,8 +1201,9 @@ class Frame8Detector final : public MarkerDetector {
     // are never a marker: that is every dark square frame with a light inside.
     int white_corners = 0;
     for (const auto& c : corner) white_corners += soft(c.mean) > 0;
-    if (white_corners == 0 || white_corners > 2) return false;
-    if (!clear(corner[static_cast<std::size_t>(white_corner)])) return false;
+    F8_TRACE("  corners soft %.2f %.2f %.2f %.2f cell %.2f px\n", soft(corner[0].mean), soft(corner[1].mean), soft(corner[2].mean), soft(corner[3].mean), cell_px);
+    if (white_corners == 0 || white_corners > 2) return reject(5);
+    if (!clear(corner[static_cast<std::size_t>(white_corner)])) return reject(6);
     rotation = (white_corner + 3) % 4;
 
     // The bits: soft votes of the four edges, weighted by resolution.
@@ -905,6 +1211,7 @@ class Frame8Detector final : public MarkerDetector {
     std::array<double, 4> weight{};
     for (int e = 0; e < 4; ++e) weight[static_cast<std::size_t>(e)] = edge_weight(H, e);
     int id = 0, corrected = 0, erased = 0;
+    std::array<int, 4> outvoted{};  // per edge: its cells the other edges overruled
     double margin = 1.0;
     for (int b = 0; b < 8; ++b) {
       double sum = 0, wsum = 0;
@@ -914,7 +1221,7 @@ class Frame8Detector final : public MarkerDetector {
         sum += weight[static_cast<std::size_t>(e)] * soft(c.mean);
         wsum += weight[static_cast<std::size_t>(e)];
       }
-      if (wsum <= 0) return false;
+      if (wsum <= 0) return reject(7);
       const bool bit = sum > 0;
       int agree = 0, dissent = 0;
       for (int e = 0; e < 4; ++e) {
@@ -927,11 +1234,12 @@ class Frame8Detector final : public MarkerDetector {
           ++agree;
         } else {
           ++dissent;
+          ++outvoted[static_cast<std::size_t>(e)];
         }
       }
       F8_TRACE("  bit %d: sum %.2f / %.2f agree %d dissent %d\n", b, sum, wsum, agree, dissent);
       // At most one wrong edge per bit position is correctable; a second is detected.
-      if (dissent > 1 || agree < 1 || agree <= dissent) return false;
+      if (dissent > 1 || agree < 1 || agree <= dissent) return reject(8);
       corrected += dissent;
       margin = std::min(margin, std::abs(sum) / wsum);
       if (bit) id |= 1 << b;
@@ -940,26 +1248,40 @@ class Frame8Detector final : public MarkerDetector {
     // the edge before it, the first of the edge after it) never contradict
     // the code. A light blob that merely reaches the spot where C1 is sampled
     // (the diagonal neighbour of a light square in a checkered pattern)
-    // spills into both.
-    auto contradicts = [&](const CellSample& c, bool bit) {
-      return c.valid && (bit ? soft(c.mean) < -kConfident : soft(c.mean) > kConfident);
+    // spills into both. A neighbour that was itself outvoted, on an edge one
+    // colour from end to end, lies under the cover of that whole edge and
+    // says nothing.
+    constexpr double kContradiction = 0.3;
+    auto covered = [&](int edge) {
+      if (outvoted[static_cast<std::size_t>(edge)] == 0) return false;
+      const auto& cells = cell[static_cast<std::size_t>(edge)];
+      const bool light = soft(cells[0].mean) > 0;
+      return std::all_of(cells.begin(), cells.end(), [&](const CellSample& c) { return clear(c) && (soft(c.mean) > 0) == light; });
     };
-    if (contradicts(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0], id & 1) ||
-        contradicts(cell[static_cast<std::size_t>(white_corner)][7], (id >> 7) & 1)) {
-      return false;
+    auto contradicts = [&](int edge, const CellSample& c, bool bit) {
+      if (covered(edge)) return false;
+      return c.valid && (bit ? soft(c.mean) < -kContradiction : soft(c.mean) > kContradiction);
+    };
+    F8_TRACE("  C1 neighbours %.2f (bit0 %d) %.2f (bit7 %d)\n", soft(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0].mean), id & 1, soft(cell[static_cast<std::size_t>(white_corner)][7].mean), (id >> 7) & 1);
+    if (contradicts((white_corner + 3) % 4, cell[static_cast<std::size_t>((white_corner + 3) % 4)][0], id & 1) ||
+        contradicts(white_corner, cell[static_cast<std::size_t>(white_corner)][7], (id >> 7) & 1)) {
+      return reject(9);
     }
     // Where cells are resolved, more erasures than one edge's worth is not
     // a marker with an edge covered but something else.
-    if (cell_px >= kResolvedCells && erased > 8) return false;
-    if (margin < config_.frame8.min_margin) return false;
+    if (cell_px >= kResolvedCells && erased > 8) return reject(10);
+    if (margin < config_.frame8.min_margin) return reject(11);
     // Outvoting most of an edge (a covered edge) is only believable when the
     // other three read clearly.
-    if (corrected >= 4 && margin < kClearCode) return false;
+    if (corrected >= 4 && margin < kClearCode) return reject(12);
     // Ids 0 and 255 have no structure along the ring: a dark ring with one
     // light corner, or a light ring with three dark ones. Under about three
     // pixels a cell, the bowl of a printed letter looks exactly like that;
-    // these two are reported only where their cells can be verified.
-    if ((id == 0 || id == 255) && cell_px < kResolvedCells) return false;
+    // these two are reported only when asked for, and only where their cells
+    // can be verified.
+    if (id == 0 || id == 255) {
+      if (!config_.frame8.uniform_ids || cell_px < kResolvedCells) return reject(13);
+    }
     // Corners decide orientation. Without a clean 3:1 split (an edge covered
     // with its corners) the whitest corner still decides, as the contract
     // says, but only a clearly read code may rely on that.
@@ -967,8 +1289,41 @@ class Frame8Detector final : public MarkerDetector {
     for (int k = 0; k < 4; ++k) sorted[static_cast<std::size_t>(k)] = corner[static_cast<std::size_t>(k)].mean;
     std::sort(sorted.begin(), sorted.end());
     const double orientation_clarity = 0.5 * (soft(sorted[3]) - soft(sorted[2]));
-    if (orientation_clarity < config_.frame8.min_margin && margin < kClearCode) return false;
+    if (orientation_clarity < config_.frame8.min_margin && margin < kClearCode) return reject(14);
     margin = std::min(margin, std::max(orientation_clarity, 0.0));
+
+    // The line must be there on every side: across it, from the hole's edge
+    // out to the ring, the profile dips well under the white cells' level.
+    // A light bar between two dark strokes (a sliver quad whose long sides
+    // face plain background) has no such dip along its long sides. Where
+    // cells are unresolved the blur lifts the half-cell line towards the
+    // white of its neighbours, so the bar there is lower: it follows the
+    // line's width in pixels on that side, which foreshortening narrows.
+    for (int side = 0; side < 4; ++side) {
+      static constexpr std::array<std::array<Point2, 2>, 4> kAcrossMid{
+          {{{{5, 1.5}, {5, 1.0}}}, {{{8.5, 5}, {9.0, 5}}}, {{{5, 8.5}, {5, 9.0}}}, {{{1.5, 5}, {1.0, 5}}}}};
+      const auto& across_mid = kAcrossMid[static_cast<std::size_t>(side)];
+      const double line_px = distance(grid_point(H, across_mid[0].x, across_mid[0].y), grid_point(H, across_mid[1].x, across_mid[1].y));
+      const double line_ceiling = std::clamp(0.8 - 0.9 * (line_px - 0.6), -kConfident, 0.8);
+      int dark = 0, total = 0;
+      for (int k = 0; k < 7; ++k) {
+        const double along = kInnerLo + 0.5 + k;
+        float darkest = 255;
+        bool any = false;
+        for (const double across : {1.6, 1.45, 1.3, 1.15, 1.0, 0.85}) {
+          const std::array<Point2, 4> g{{{along, across}, {10 - across, along}, {10 - along, 10 - across}, {across, 10 - along}}};
+          const Point2 p = grid_point(H, g[static_cast<std::size_t>(side)].x, g[static_cast<std::size_t>(side)].y);
+          float v = 0;
+          if (!sample(full_, p.x, p.y, v)) continue;
+          darkest = std::min(darkest, v);
+          any = true;
+        }
+        if (!any) continue;
+        ++total;
+        dark += soft(darkest) < line_ceiling;
+      }
+      if (total < 4 || dark < 0.5 * total) return reject(18);
+    }
 
     // The line must be dark where it is resolved, all around and at each of
     // its four corners: a light square among the bits of a checkered pattern
@@ -979,9 +1334,10 @@ class Frame8Detector final : public MarkerDetector {
       for (const Point2& g : kLineCorners) {
         float v = 0;
         const Point2 p = grid_point(H, g.x, g.y);
-        if (!sample(full_, p.x, p.y, v) || soft(v) > -kConfident) return false;
+        if (!sample(full_, p.x, p.y, v) || soft(v) > -kConfident) return reject(15);
       }
       int dark = 0, total = 0;
+      double line_sum = 0;
       for (int k = 0; k < 7; ++k) {
         const double along = kInnerLo + 0.5 + k;
         const std::array<Point2, 4> probes{{{along, 1.25}, {8.75, along}, {10 - along, 8.75}, {1.25, 10 - along}}};
@@ -991,9 +1347,14 @@ class Frame8Detector final : public MarkerDetector {
           if (!sample(full_, p.x, p.y, v)) continue;
           ++total;
           dark += v < thr;
+          line_sum += v;
         }
       }
-      if (total < 14 || dark < 0.75 * total) return false;
+      if (total < 14 || dark < 0.75 * total) return reject(16);
+      // The line and the black cells are the same ink. A thin dark outline
+      // around a light patch, read against a mid-grey surround taken for
+      // "black" cells, is not.
+      if (std::abs(line_sum / total - black) > 0.3 * contrast) return reject(17);
     }
 
     det.family = Family::frame8;
@@ -1023,7 +1384,8 @@ class Frame8Detector final : public MarkerDetector {
       const Point2 centre = 0.25 * (out[i].corners[0] + out[i].corners[1] + out[i].corners[2] + out[i].corners[3]);
       const double a = area(out[i].corners);
       for (std::size_t j = 0; j < out.size(); ++j) {
-        if (j != i && area(out[j].corners) > a && inside(out[j].corners, centre)) {
+        // A cell is a seventh of the hole's side: its "marker" is tiny beside the real one.
+        if (j != i && a < 0.1 * area(out[j].corners) && inside(out[j].corners, centre)) {
           out.erase(out.begin() + static_cast<std::ptrdiff_t>(i));
           break;
         }
@@ -1032,11 +1394,20 @@ class Frame8Detector final : public MarkerDetector {
   }
 
   static constexpr int kMaxEdgePoints = 48;
+  // collect_edge_points() without a code: the step's centroid everywhere, or
+  // each point classified by its own profile.
+  static constexpr int kNoCode = -1;
+  static constexpr int kClassifyByProfile = -2;
   // Below this many pixels per cell the black line (half a cell) is thin
   // against a typical blur, and the edges are measured a second time.
-  static constexpr double kThinLineCells = 4.0;
+  static constexpr double kThinLineCells = 8.0;
   // From this many pixels per cell, a cell is sampled at four points.
   static constexpr double kResolvedCells = 3.0;
+  static constexpr double kMinSideRatio = 0.13;  // cos(82.5 deg)
+  // From this many pixels per cell, the corners come from the whole pattern.
+  static constexpr double kPatternCells = 2.5;
+  static constexpr int kMinPatternEdges = 16;
+  static constexpr int kMaxPatternEdges = 384;
 
   DetectorConfig config_;
   GreyView full_{};
@@ -1056,6 +1427,8 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<Point2> points_, hull_;
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
   std::array<int, 4> edge_count_{};
+  std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};
+  int pattern_count_ = 0;
 };
 
 }  // namespace

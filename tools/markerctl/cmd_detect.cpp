@@ -31,6 +31,7 @@ struct DetectOptions {
   int decimate = 0;
   int threshold_offset = markerd::Frame8Options{}.threshold_offset;
   double min_margin = markerd::Frame8Options{}.min_margin;
+  bool uniform_ids = false;
   bool verbose = false;
   std::vector<std::string> images;
 };
@@ -109,6 +110,7 @@ int run_detect(const DetectOptions& o) {
   config.frame8.decimate = o.decimate;
   config.frame8.threshold_offset = o.threshold_offset;
   config.frame8.min_margin = o.min_margin;
+  config.frame8.uniform_ids = o.uniform_ids;
   if (!o.camera.empty()) {
     config.marker_size_m = parse_length_m(o.size, BareUnit::metre, "--size");
     if (!(config.marker_size_m > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
@@ -189,6 +191,8 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->add_option("--min-margin", o->min_margin, "frame8: least decoding margin (0..1)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
+  app->add_flag("--uniform-ids", o->uniform_ids,
+                "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
   app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
   app->add_option("images", o->images, "Image files (PNG, JPEG, PGM, BMP, TIFF, ...)")->type_name("IMAGE")->required();
   commands.push_back({app, [o] { return run_detect(*o); }});

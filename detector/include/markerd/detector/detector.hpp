@@ -33,6 +33,11 @@ struct Frame8Options {
   double min_hole_side_px = 5.0;
   // Least decoding margin (0..1) that a detection must reach.
   double min_margin = 0.12;
+  // Report ids 0 and 255. Their rings have no structure: a dark square frame
+  // with one light corner reads as 0, a light outline with three dark
+  // corners as 255, and cluttered scenes hold such shapes (measured: about
+  // one cluttered frame in a hundred gives a 0). Off unless a rig uses them.
+  bool uniform_ids = false;
 };
 
 struct DetectorConfig {

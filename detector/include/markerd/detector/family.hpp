@@ -19,6 +19,10 @@ struct FamilyInfo {
   // they need one white cell of quiet zone outside it.
   int size_cells;
   int quiet_zone_cells;
+  // The ids a detector reports with its default options: frame8 leaves out
+  // 0 and 255, whose rings have no structure (see Frame8Options::uniform_ids).
+  int first_default_id;
+  int last_default_id;
 };
 
 std::span<const FamilyInfo> all_families();
