@@ -6,7 +6,7 @@
 namespace markerd {
 
 // Every marker family the project detects, prints and renders. frame8 is the
-// thesis's frame marker (FRAME_MARKER.md); the others are comparison peers.
+// thesis's frame marker (docs/frame-marker.md); the others are comparison peers.
 enum class Family { frame8, aruco4x4_50, tag36h11 };
 
 struct FamilyInfo {

@@ -1,5 +1,5 @@
 #pragma once
-// The frame8 code (FRAME_MARKER.md): 36 ring cells on a 10 x 10 grid, the
+// The frame8 code (docs/frame-marker.md): 36 ring cells on a 10 x 10 grid, the
 // 8-bit id repeated on every edge, read clockwise, corners C0 C2 C3 black and
 // C1 white.
 

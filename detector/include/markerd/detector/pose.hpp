@@ -1,9 +1,10 @@
 #pragma once
 // Planar pose of a square marker: IPPE (Collins and Bartoli, 2014) from four
-// corners, both solutions kept, each polished by Gauss-Newton on the pixel
-// reprojection error through the full distortion model. Written with Eigen
-// because OpenCV 4.6's SOLVEPNP_IPPE_SQUARE is wrong for double-precision
-// points and for markers exactly on the principal point's row (see
+// corners, both solutions kept, each polished by Levenberg-Marquardt on the
+// pixel reprojection error through the full distortion model. Written with
+// Eigen because OpenCV 4.6's SOLVEPNP_IPPE_SQUARE returns wrong rotations near
+// a half turn (a marker facing the camera and turned only in yaw, the rig's
+// ground truth) and NaN for a frontal on-axis marker in float (see
 // tests/test_pose.cpp).
 
 #include <Eigen/Core>
