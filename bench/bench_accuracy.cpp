@@ -33,8 +33,6 @@ using markerd::Family;
 
 constexpr double kGoodRate = 0.9;
 
-markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
-
 // "start:stop:step", stop included when the steps land on it (to within
 // rounding, so 0.3:3.0:0.1 ends at 3.0).
 std::vector<double> parse_range(const std::string& text, const char* what) {
@@ -186,7 +184,7 @@ int main(int argc, char** argv) {
   // Times are of one thread, as the daemon runs a detector per worker.
   cv::setNumThreads(1);
 
-  markerd::CameraModel camera = thesis_camera();
+  markerd::CameraModel camera = markerd::CameraModel::thesis_640x480();
   if (!camera_path.empty()) {
     try {
       camera = markerd::CameraModel::load(camera_path);

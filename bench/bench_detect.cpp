@@ -32,8 +32,6 @@ namespace {
 
 using markerd::Family;
 
-markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
-
 constexpr int kFrames = 20;
 constexpr double kMarkerSize = 0.08;
 
@@ -185,7 +183,7 @@ int main(int argc, char** argv) {
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
 
   // Cameras live as long as the registered benchmarks that capture them.
-  static const markerd::CameraModel small = thesis_camera();
+  static const markerd::CameraModel small = markerd::CameraModel::thesis_640x480();
   static const markerd::CameraModel large = small.scaled_to(1920, 1440);
   const std::vector<std::pair<std::string, const markerd::CameraModel*>> resolutions = {
       {"640x480", &small}, {"1920x1440", &large}};

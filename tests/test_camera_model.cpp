@@ -68,23 +68,9 @@ void expect_load_error(const fs::path& file, const std::string& key) {
   }
 }
 
-CameraModel thesis() {
-  CameraModel c;
-  c.width = 640;
-  c.height = 480;
-  c.fx = 516;
-  c.fy = 515;
-  c.cx = 319;
-  c.cy = 238;
-  c.dist[0] = 0.3495;
-  c.dist[1] = -2.2549;
-  c.dist[4] = 4.9959;
-  return c;
-}
-
 // Moderate lenses with every term of OpenCV's model in use.
 CameraModel with_coefficients(int n) {
-  CameraModel c = thesis();
+  CameraModel c = CameraModel::thesis_640x480();
   const std::array<double, 12> all = {-0.28, 0.11, 0.0012, -0.0007, -0.021, 0.05,
                                       -0.012, 0.003, 0.0015, -0.0004, 0.0009, 0.0002};
   c.dist = {};
@@ -109,6 +95,15 @@ TEST(CameraModel, LoadsTheThesisCamera) {
   const std::array<double, 12> expect = {0.3495, -2.2549, 0, 0, 4.9959, 0, 0, 0, 0, 0, 0, 0};
   EXPECT_EQ(c.dist, expect);
   EXPECT_TRUE(c.has_distortion());
+  // The built-in thesis camera, used where no file is given, is this file.
+  const CameraModel builtin = CameraModel::thesis_640x480();
+  EXPECT_EQ(builtin.width, c.width);
+  EXPECT_EQ(builtin.height, c.height);
+  EXPECT_EQ(builtin.fx, c.fx);
+  EXPECT_EQ(builtin.fy, c.fy);
+  EXPECT_EQ(builtin.cx, c.cx);
+  EXPECT_EQ(builtin.cy, c.cy);
+  EXPECT_EQ(builtin.dist, c.dist);
 }
 
 TEST(CameraModel, MissingFile) {
@@ -170,7 +165,7 @@ TEST(CameraModel, SaveLoadRoundTrip) {
 
 TEST(CameraModel, DistortionAgreesWithProjectPoints) {
   for (int n : {5, 8, 12}) {
-    const CameraModel c = n == 5 ? thesis() : with_coefficients(n);
+    const CameraModel c = n == 5 ? CameraModel::thesis_640x480() : with_coefficients(n);
     std::vector<cv::Point3d> pts;
     for (double x = -0.7; x <= 0.7001; x += 0.05) {
       for (double y = -0.55; y <= 0.5501; y += 0.05) pts.emplace_back(x, y, 1.0);
@@ -195,7 +190,7 @@ TEST(CameraModel, UndistortAgreesWithOpenCvAndRoundTrips) {
   // (distorted radius above about 0.75): there, even 100000 iterations leave
   // it 69 px off when its answer is projected back. Where it converges (its
   // own round trip closes) we must agree with it; everywhere we must close.
-  const CameraModel c = thesis();
+  const CameraModel c = CameraModel::thesis_640x480();
   std::vector<cv::Point2d> px;
   for (int y = 0; y < c.height; y += 4) {
     for (int x = 0; x < c.width; x += 4) px.emplace_back(x, y);
@@ -272,7 +267,7 @@ TEST(CameraModel, UndistortRoundTripsForRichModels) {
 }
 
 TEST(CameraModel, ScaledToKeepsPixelCentresConsistent) {
-  const CameraModel small = thesis();
+  const CameraModel small = CameraModel::thesis_640x480();
   const CameraModel big = small.scaled_to(1920, 1440);
   EXPECT_EQ(big.width, 1920);
   EXPECT_EQ(big.height, 1440);

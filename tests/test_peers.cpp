@@ -21,8 +21,6 @@
 namespace markerd {
 namespace {
 
-CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
-
 Scene scene_of(Family family, int id, double roll_deg = 0, double yaw_deg = 10, std::uint64_t seed = 7) {
   Scene s;
   s.family = family;
@@ -87,7 +85,7 @@ const Detection* only(const std::vector<Detection>& found, int id) {
 constexpr double kArucoDefaultTolerance = 1.2;
 
 TEST(Aruco, FindsIdsWithCornersInOrder) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(Family::aruco4x4_50);
   EXPECT_EQ(det->family(), Family::aruco4x4_50);
   std::vector<Detection> found;
@@ -113,7 +111,7 @@ TEST(Aruco, FindsIdsWithCornersInOrder) {
 // the renderer's truth, in the same order. So the defaults' error above is
 // their quantisation, not a convention or an order the peer gets wrong.
 TEST(Aruco, RefinedCornersMatchTheTruthInOrder) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const auto dictionary = cv::aruco::getPredefinedDictionary(cv::aruco::DICT_4X4_50);
   const auto params = cv::aruco::DetectorParameters::create();
   params->cornerRefinementMethod = cv::aruco::CORNER_REFINE_SUBPIX;
@@ -142,7 +140,7 @@ TEST(Aruco, RefinedCornersMatchTheTruthInOrder) {
 }
 
 TEST(Aruco, CornerOrderFollowsInPlaneRotation) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(Family::aruco4x4_50);
   std::vector<Detection> found;
   for (double roll : {90.0, 180.0, -90.0, 35.0}) {
@@ -157,7 +155,7 @@ TEST(Aruco, CornerOrderFollowsInPlaneRotation) {
 }
 
 TEST(AprilTag, FindsIdsWithCornersInOrderAfterTheHalfPixelShift) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(Family::tag36h11);
   EXPECT_EQ(det->family(), Family::tag36h11);
   std::vector<Detection> found;
@@ -194,7 +192,7 @@ TEST(AprilTag, FindsIdsWithCornersInOrderAfterTheHalfPixelShift) {
 }
 
 TEST(AprilTag, CornerOrderFollowsInPlaneRotation) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(Family::tag36h11);
   std::vector<Detection> found;
   std::vector<int> turns;
@@ -217,7 +215,7 @@ TEST(AprilTag, CornerOrderFollowsInPlaneRotation) {
 class Peers : public ::testing::TestWithParam<Family> {};
 
 TEST_P(Peers, NothingOnClutter) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(GetParam());
   std::vector<Detection> found;
   for (std::uint64_t seed = 1; seed <= 20; ++seed) {
@@ -230,7 +228,7 @@ TEST_P(Peers, NothingOnClutter) {
 }
 
 TEST_P(Peers, PoseWithACamera) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(GetParam(), cam);
   const Scene s = scene_of(GetParam(), 5, 20, 25);
   std::vector<Detection> found;
@@ -244,7 +242,7 @@ TEST_P(Peers, PoseWithACamera) {
 }
 
 TEST_P(Peers, BorrowedAndCopiedViewsAgree) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(GetParam());
   const GreyImage image = render_scene(cam, scene_of(GetParam(), 9));
   std::vector<Detection> direct, padded, flipped;
@@ -274,7 +272,7 @@ TEST_P(Peers, RejectsEmptyAndMissizedImages) {
   EXPECT_THROW(det->detect(GreyView{}, found), DetectorError);
   EXPECT_THROW(det->detect(GreyImage{}, found), DetectorError);
 
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto with_camera = make(GetParam(), cam);
   EXPECT_THROW(with_camera->detect(GreyImage(320, 240, 128), found), DetectorError);
   with_camera->detect(GreyImage(640, 480, 128), found);
@@ -287,14 +285,14 @@ TEST_P(Peers, RejectsAnotherFamilyOrAHalfPoseConfig) {
   EXPECT_THROW(GetParam() == Family::aruco4x4_50 ? make_aruco_detector(config) : make_apriltag_detector(config),
                DetectorError);
   config.family = GetParam();
-  config.camera = thesis_camera();
+  config.camera = CameraModel::thesis_640x480();
   EXPECT_THROW(GetParam() == Family::aruco4x4_50 ? make_aruco_detector(config) : make_apriltag_detector(config),
                DetectorError);
 }
 
 // evaluate_point on a peer: the counting, the errors and the seeding.
 TEST_P(Peers, EvaluatePointCountsAndRepeats) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   auto det = make(GetParam(), cam);
   EvalSettings settings;
   settings.scene.family = GetParam();

@@ -32,10 +32,8 @@ constexpr double kSide = 0.08;
 
 double deg(double d) { return d * kPi / 180; }
 
-CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
-
 CameraModel pinhole_camera() {
-  CameraModel c = thesis_camera();
+  CameraModel c = CameraModel::thesis_640x480();
   c.dist = {};
   return c;
 }
@@ -102,7 +100,7 @@ double median(std::vector<double> v) {
 // Our estimator, noise-free.
 
 TEST(Pose, NoiseFreeSweepThroughTheThesisDistortion) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const double distances[] = {0.2, 0.3, 0.5, 1.0, 2.0, 3.5, 5.0};
   const double yaws[] = {-80, -55, -20, 0, 10, 45, 80};
   const double pitches[] = {-80, -40, 0, 25, 80};
@@ -146,7 +144,7 @@ TEST(Pose, NoiseFreeSweepThroughTheThesisDistortion) {
 }
 
 TEST(Pose, NormalizedEntryAgreesWithPixelEntry) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const MarkerPose truth = turned(0.7, 35, -20, 10, 0.1, -0.15);
   const Quad q = corners_px(cam, truth);
   std::array<Vector2d, 4> n;
@@ -172,7 +170,7 @@ Quad symmetric_corners(const CameraModel& cam, const MarkerPose& pose) {
 }
 
 TEST(Pose, OnAxisFrontalMarkerExactlySymmetric) {
-  for (const CameraModel& cam : {thesis_camera(), pinhole_camera()}) {
+  for (const CameraModel& cam : {CameraModel::thesis_640x480(), pinhole_camera()}) {
     for (double d : {0.2, 0.5, 1.0, 3.0}) {
       for (double yaw : {0.0, 30.0, -60.0}) {
         const MarkerPose truth = turned(d, yaw);
@@ -220,7 +218,7 @@ TEST(Pose, IppeSquareGivesBothSolutionsOneOfThemExact) {
 // Noise, ambiguity, degenerate input.
 
 TEST(Pose, CornerNoiseAtOneMetre) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const MarkerPose truth = turned(1.0, 0);
   const Quad clean = corners_px(cam, truth);
   std::mt19937_64 rng(20240611);
@@ -256,7 +254,7 @@ TEST(Pose, PolishMinimizesThePixelErrorThroughTheDistortion) {
   // With noisy corners near the image edge (strong distortion), the returned
   // pose is a local minimum of the RMS pixel error: no small rotation or
   // translation lowers it, and it is no worse than IPPE's own answer.
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   std::mt19937_64 rng(99);
   std::normal_distribution<double> noise(0.0, 0.5);
   for (int trial = 0; trial < 20; ++trial) {
@@ -293,7 +291,7 @@ TEST(Pose, PolishMinimizesThePixelErrorThroughTheDistortion) {
 }
 
 TEST(Pose, ReprojectionErrorIsThePixelRms) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const MarkerPose truth = turned(0.5, 20, 10, 5);
   Quad q = corners_px(cam, truth);
   q[1].x += 2.0;  // one corner off by 2 px cannot be absorbed by the pose
@@ -310,7 +308,7 @@ TEST(Pose, ReprojectionErrorIsThePixelRms) {
 }
 
 TEST(Pose, SmallFrontalMarkerIsAmbiguous) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   // 1 m yaw 5 deg: the flip has no local minimum of its own there (polishing
   // slides it into the best); it must still be reported, and flagged.
   for (const MarkerPose& truth :
@@ -330,7 +328,7 @@ TEST(Pose, SmallFrontalMarkerIsAmbiguous) {
 }
 
 TEST(Pose, SlantedCloseMarkerIsNotAmbiguous) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   for (const MarkerPose& truth : {turned(0.3, 60), turned(0.3, -60), turned(0.3, 0, 60, 45), turned(0.3, 10)}) {
     const auto est = estimate_square_pose(cam, corners_px(cam, truth), kSide);
     ASSERT_TRUE(est.has_value());
@@ -343,7 +341,7 @@ TEST(Pose, SlantedCloseMarkerIsNotAmbiguous) {
 }
 
 TEST(Pose, DegenerateInputGivesNothing) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const double nan = std::numeric_limits<double>::quiet_NaN();
   const double inf = std::numeric_limits<double>::infinity();
   const Quad good = corners_px(cam, turned(1.0, 20));
@@ -446,7 +444,7 @@ TEST(Pose, RvecAndQuaternionAgreeWithOpenCvRodrigues) {
 }
 
 TEST(Pose, ProjectAgreesWithOpenCvProjectPoints) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const MarkerPose pose = turned(0.8, 25, -15, 40, 0.1, -0.05);
   const Vector3d rv = pose.rvec();
   const cv::Matx33d k(cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1);
@@ -618,7 +616,7 @@ TEST(OpenCv46IppeSquare, SymmetricCornersAloneAreNotTheTrigger) {
 
 TEST(Pose, RightAtAndNearAHalfTurn) {
   // Where OpenCV 4.6 fails: rotations at and within 1e-9 .. 1e-3 rad of pi.
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   for (double eps : {0.0, 1e-9, 1e-7, 1e-5, 1e-3}) {
     for (double yaw : {0.0, 23.0, -52.0}) {
       const MarkerPose truth = make_pose(kFacing * rot_y(deg(yaw)) * rot_z(eps), Vector3d(0.03, -0.02, 0.6));

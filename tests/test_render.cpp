@@ -30,8 +30,6 @@
 namespace markerd {
 namespace {
 
-CameraModel thesis_camera() { return CameraModel::thesis_640x480(); }
-
 CameraModel pinhole_camera() {
   CameraModel c;
   c.width = 640;
@@ -128,7 +126,7 @@ TEST(ProjectMarkerCorners, FacingMarkerIsUprightAroundTheCentre) {
 }
 
 TEST(ProjectMarkerCorners, MatchOpenCvProjectPoints) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const cv::Matx33d k(cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1);
   const std::vector<double> dist(cam.dist.begin(), cam.dist.begin() + 5);
   const std::vector<MarkerPose> poses = {facing_pose(0.4, 0),         facing_pose(0.6, 35, 10, 20, 0.05, -0.03),
@@ -164,7 +162,7 @@ TEST(ProjectMarkerCorners, MatchOpenCvProjectPoints) {
 // ------------------------------------------------------------------ images
 
 TEST(RenderScene, DeterministicPerSeed) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   Scene s;
   s.pose = facing_pose(0.4, 20, 5, 10);
   s.noise_sigma = 3;
@@ -189,7 +187,7 @@ TEST(RenderScene, DeterministicPerSeed) {
 TEST(RenderScene, ClutterSpreadsGreyLevels) {
   Scene s;
   s.seed = 7;
-  const GreyImage bg = render_background(thesis_camera(), s);
+  const GreyImage bg = render_background(CameraModel::thesis_640x480(), s);
   std::vector<int> hist(256);
   for (int i = 0; i < bg.width() * bg.height(); ++i) ++hist[bg.data()[i]];
   int dark = 0, light = 0, distinct = 0;
@@ -202,7 +200,7 @@ TEST(RenderScene, ClutterSpreadsGreyLevels) {
   EXPECT_GT(light, 1000);
   EXPECT_GT(distinct, 150);
   s.clutter = false;
-  const GreyImage flat = render_background(thesis_camera(), s);
+  const GreyImage flat = render_background(CameraModel::thesis_640x480(), s);
   EXPECT_EQ(*std::min_element(flat.data(), flat.data() + 640 * 480), 128);
   EXPECT_EQ(*std::max_element(flat.data(), flat.data() + 640 * 480), 128);
 }
@@ -214,7 +212,7 @@ struct CellCase {
 };
 
 TEST(RenderScene, Frame8CellsMatchTheCodeAtTheirProjectedCentres) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   const std::vector<CellCase> cases = {
       {165, facing_pose(0.3, 0), true},
       {0, facing_pose(0.3, 30, 0, 0, 0.03, 0.02), true},
@@ -292,7 +290,7 @@ TEST(RenderScene, EdgePixelIsTheAreaMix) {
 // a pixel. The hole's left edge (white hole right of the black line) is read
 // back from the straddling pixel's grey level along many rows.
 TEST(RenderScene, EdgesFollowTheDistortedProjection) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   for (const auto& pose : {facing_pose(0.3, 8, 0, 2, -0.12, -0.08), facing_pose(0.3, -10, 5, -3, -0.1, 0.07)}) {
     Scene s;
     s.pose = pose;
@@ -331,7 +329,7 @@ TEST(RenderScene, EdgesFollowTheDistortedProjection) {
 }
 
 TEST(RenderScene, CutHoleShowsTheBackground) {
-  const CameraModel cam = thesis_camera();
+  const CameraModel cam = CameraModel::thesis_640x480();
   Scene s;
   s.id = 77;
   s.cut_hole = true;

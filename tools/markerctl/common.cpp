@@ -148,10 +148,8 @@ void check_id(markerd::Family family, int id, std::string_view option) {
   }
 }
 
-markerd::CameraModel thesis_camera() { return markerd::CameraModel::thesis_640x480(); }
-
 markerd::CameraModel load_camera(const std::string& path) {
-  if (path.empty()) return thesis_camera();
+  if (path.empty()) return markerd::CameraModel::thesis_640x480();
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) throw runtime_error("--camera", fmt::format("{}: no such file", path));
   try {

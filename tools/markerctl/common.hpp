@@ -74,9 +74,7 @@ markerd::Family parse_family(std::string_view name, std::string_view option = "-
 std::string family_names();  // "frame8, aruco4x4_50, tag36h11"
 void check_id(markerd::Family family, int id, std::string_view option = "--id");
 
-// The camera of the thesis (docs/frame-marker.md): 640x480, fx 516, fy 515,
-// cx 319, cy 238, k1 0.3495, k2 -2.2549, p1 0, p2 0, k3 4.9959.
-markerd::CameraModel thesis_camera();
+// How help texts name CameraModel::thesis_640x480() (docs/frame-marker.md).
 inline constexpr const char* thesis_camera_text =
     "640x480, fx 516, fy 515, cx 319, cy 238, distortion k1 0.3495, k2 -2.2549, p1 0, p2 0, k3 4.9959";
 // From a calibration file, or the thesis camera when `path` is empty.
