@@ -97,6 +97,34 @@ inline Point2 grid_point(const Homography& H, double gx, double gy) {
   return H.map((gx - kInnerLo) / kInnerSide, (gy - kInnerLo) / kInnerSide);
 }
 
+inline Point2 grid_point(const Homography& H, Point2 g) { return grid_point(H, g.x, g.y); }
+
+// The same map as a 3x3 matrix on homogeneous grid coordinates.
+Eigen::Matrix3d grid_map(const Homography& H) {
+  Eigen::Matrix3d unit_to_image;
+  unit_to_image << H.a, H.b, H.c, H.d, H.e, H.f, H.g, H.h, 1;
+  Eigen::Matrix3d grid_to_unit;
+  grid_to_unit << 1 / kInnerSide, 0, -kInnerLo / kInnerSide, 0, 1 / kInnerSide, -kInnerLo / kInnerSide, 0, 0, 1;
+  return unit_to_image * grid_to_unit;
+}
+
+inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
+  const Eigen::Vector3d q = M * Eigen::Vector3d(gx, gy, 1);
+  return {q(0) / q(2), q(1) / q(2)};
+}
+
+// The grid point `in` cells in from the outer edge on a side (0 top, 1
+// right, 2 bottom, 3 left), `along` cells along it in the clockwise reading
+// order: one description of a position for all four sides.
+inline Point2 side_point(int side, double along, double in) {
+  switch (side) {
+    case 0: return {along, in};
+    case 1: return {frame8::grid - in, along};
+    case 2: return {frame8::grid - along, frame8::grid - in};
+    default: return {in, frame8::grid - along};
+  }
+}
+
 inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
 
 // Bilinear sample; false outside the image.
@@ -772,20 +800,36 @@ class Frame8Detector final : public MarkerDetector {
       return finish_by_pattern(rotation, det);
     }
 
-    // Report in the marker's own order: corner j is quad corner (j + rotation) % 4.
-    std::array<Point2, 4> outer{};
-    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
-    for (int i = 0; i < 4; ++i) outer[static_cast<std::size_t>(i)] = grid_point(H, kOuterGrid[static_cast<std::size_t>(i)].x, kOuterGrid[static_cast<std::size_t>(i)].y);
+    if (!config_.camera) return report(grid_map(H), rotation, det);
+    return refit_undistorted(rotation, det);
+  }
+
+  // Fills the corners from a map of grid coordinates to the image (without a
+  // camera) or to undistorted normalized coordinates (with one), and the
+  // pose with a camera. Corner j of the marker is quad corner
+  // (j + rotation) % 4.
+  bool report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const {
+    static constexpr std::array<Point2, 4> kInnerGrid{{{kInnerLo, kInnerLo},
+                                                       {frame8::grid - kInnerLo, kInnerLo},
+                                                       {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
+                                                       {kInnerLo, frame8::grid - kInnerLo}}};
+    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
+    Quad in{}, outq{};
+    std::array<Eigen::Vector2d, 4> model_order{};
+    for (int j = 0; j < 4; ++j) {
+      const auto q = static_cast<std::size_t>((j + rotation) % 4);
+      const auto jj = static_cast<std::size_t>(j);
+      const Point2 inner = map_grid(grid_to_image, kInnerGrid[q].x, kInnerGrid[q].y);
+      const Point2 outer = map_grid(grid_to_image, kOuterGrid[q].x, kOuterGrid[q].y);
+      model_order[jj] = {inner.x, inner.y};
+      in[jj] = config_.camera ? config_.camera->normalized_to_pixel(inner) : inner;
+      outq[jj] = config_.camera ? config_.camera->normalized_to_pixel(outer) : outer;
+    }
+    det.inner_corners = in;
+    det.corners = outq;
     if (config_.camera) {
-      if (!refit_undistorted(rotation, det)) return false;
-    } else {
-      Quad in{}, outq{};
-      for (int j = 0; j < 4; ++j) {
-        in[static_cast<std::size_t>(j)] = inner[static_cast<std::size_t>((j + rotation) % 4)];
-        outq[static_cast<std::size_t>(j)] = outer[static_cast<std::size_t>((j + rotation) % 4)];
-      }
-      det.inner_corners = in;
-      det.corners = outq;
+      det.pose = estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
+      if (!det.pose) return false;
     }
     const Point2 top = det.corners[1] - det.corners[0];
     const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
@@ -853,74 +897,53 @@ class Frame8Detector final : public MarkerDetector {
   // different colours. The outer edge is left out: what lies beyond it is
   // unknown.
   int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px) {
-    std::array<std::uint8_t, 100> colour{};  // quad-oriented, row major; 2 = not a ring cell
-    colour.fill(2);
-    for (int k = 0; k < 4; ++k) {
-      const frame8::Cell c = frame8::corner_cell(k);
-      colour[static_cast<std::size_t>(c.row * 10 + c.col)] = k == (rotation + 1) % 4 ? 1 : 0;
-    }
-    for (int e = 0; e < 4; ++e) {
-      for (int b = 0; b < 8; ++b) {
-        const frame8::Cell c = frame8::data_cell(e, b);
-        colour[static_cast<std::size_t>(c.row * 10 + c.col)] = static_cast<std::uint8_t>((id >> b) & 1);
-      }
-    }
-    auto at = [&](int col, int row) { return colour[static_cast<std::size_t>(row * 10 + col)]; };
+    const auto cells = frame8::ring_cells(id);
+    // White at a grid point of the quad: turned back into the marker's own
+    // grid, where the marker's corner j sits at the quad's corner j + rotation.
+    auto white_at = [&](Point2 g) {
+      for (int r = 0; r < rotation; ++r) g = {g.y, frame8::grid - g.x};
+      const int col = std::clamp(static_cast<int>(g.x), 0, frame8::grid - 1);
+      const int row = std::clamp(static_cast<int>(g.y), 0, frame8::grid - 1);
+      return cells[static_cast<std::size_t>(row * frame8::grid + col)] == 1;
+    };
+    static constexpr std::array<Point2, 4> kOutward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
     // Points per cell along an edge: about one per 1.5 px.
     const int per_cell = std::clamp(static_cast<int>(cell_px / 1.5), 1, 4);
     pattern_count_ = 0;
-    auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis, double value) {
+    auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis) {
       if (pattern_count_ >= kMaxPatternEdges) return;
       double off = 0, strength = 0;
       if (!locate_edge(H, g, normal, half, dip, off, strength)) return;
       const Point2 p = grid_point(H, g.x + off * normal.x, g.y + off * normal.y);
-      pattern_edges_[static_cast<std::size_t>(pattern_count_++)] = {p.x, p.y, strength, axis, value};
+      pattern_edges_[static_cast<std::size_t>(pattern_count_++)] = {p.x, p.y, strength, axis, axis == 1 ? g.y : g.x};
     };
-    for (int k = 1; k <= 8; ++k) {  // the seven cells of each side of the hole, ring cells 1..8
-      for (int j = 0; j < per_cell; ++j) {
-        const double along = k + (j + 0.5) / per_cell;
-        if (along < 1.5 + 0.2 || along > 8.5 - 0.2) continue;  // clear of the line's corners
-        // Side by side: top (ring row 0), right (col 9), bottom (row 9), left (col 0).
-        const std::array<std::pair<int, int>, 4> beyond{{{k, 0}, {9, k}, {k, 9}, {0, k}}};
-        const std::array<Point2, 4> edge_point{{{along, 1.5}, {8.5, along}, {along, 8.5}, {1.5, along}}};
-        const std::array<Point2, 4> line_centre{{{along, 1.25}, {8.75, along}, {along, 8.75}, {1.25, along}}};
-        const std::array<Point2, 4> outward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
-        for (int side = 0; side < 4; ++side) {
-          const auto [col, row] = beyond[static_cast<std::size_t>(side)];
-          // Two cells meet at the integer positions; their colours may differ.
-          const double frac = along - std::floor(along);
-          if (frac < 0.15 || frac > 0.85) continue;
-          const bool white = at(col, row) == 1;
-          const int axis = side % 2 == 0 ? 1 : 0;
-          const auto si = static_cast<std::size_t>(side);
-          if (white) {
-            add(line_centre[si], outward[si], 0.65, true, axis, axis == 1 ? line_centre[si].y : line_centre[si].x);
+    for (int side = 0; side < 4; ++side) {
+      const int axis = side % 2 == 0 ? 1 : 0;  // the coordinate that is constant along the side
+      const Point2 outward = kOutward[static_cast<std::size_t>(side)];
+      // The hole's edge, beside ring cells 1..8 of the side.
+      for (int k = 1; k <= 8; ++k) {
+        for (int j = 0; j < per_cell; ++j) {
+          const double along = k + (j + 0.5) / per_cell;
+          if (along < kInnerLo + 0.2 || along > frame8::grid - kInnerLo - 0.2) continue;  // clear of the line's corners
+          const double frac = along - k;
+          if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
+          if (white_at(side_point(side, along, 0.5))) {
+            add(side_point(side, along, 1.25), outward, 0.65, true, axis);
           } else {
-            add(edge_point[si], outward[si], 0.45, false, axis, axis == 1 ? edge_point[si].y : edge_point[si].x);
+            add(side_point(side, along, kInnerLo), outward, 0.45, false, axis);
           }
         }
       }
-    }
-    // Boundaries between neighbouring ring cells of different colours, across the ring.
-    for (int k = 0; k < 9; ++k) {
-      const std::array<std::array<std::pair<int, int>, 2>, 4> pairs{{{{{k, 0}, {k + 1, 0}}},
-                                                                      {{{9, k}, {9, k + 1}}},
-                                                                      {{{k, 9}, {k + 1, 9}}},
-                                                                      {{{0, k}, {0, k + 1}}}}};
-      for (int side = 0; side < 4; ++side) {
-        const auto& pr = pairs[static_cast<std::size_t>(side)];
-        const int a = at(pr[0].first, pr[0].second), b = at(pr[1].first, pr[1].second);
-        if (a == b) continue;
-        const bool horizontal_ring = side % 2 == 0;  // the cells sit side by side along x
+      // Boundaries between neighbouring ring cells of different colours, across the ring.
+      for (int boundary = 1; boundary < frame8::grid; ++boundary) {
+        const bool before_white = white_at(side_point(side, boundary - 0.5, 0.5));
+        if (before_white == white_at(side_point(side, boundary + 0.5, 0.5))) continue;
         // The normal points from the white cell to the black one.
-        const double sign = a == 1 ? 1.0 : -1.0;
-        const Point2 normal = horizontal_ring ? Point2{sign, 0} : Point2{0, sign};
-        const double boundary = k + 1;
+        const Point2 forward = side_point(side, boundary + 1, 0) - side_point(side, boundary, 0);
+        const Point2 normal = before_white ? forward : Point2{-forward.x, -forward.y};
         for (int j = 0; j < per_cell; ++j) {
-          const double across = 0.15 + 0.7 * (j + 0.5) / per_cell;  // within the ring's width, clear of its edges
-          const double ring_lo = (side == 0 || side == 3) ? 0.0 : 9.0;
-          const Point2 g = horizontal_ring ? Point2{boundary, ring_lo + across} : Point2{ring_lo + across, boundary};
-          add(g, normal, 0.45, false, horizontal_ring ? 0 : 1, boundary);
+          const double in = 0.15 + 0.7 * (j + 0.5) / per_cell;  // within the ring's width, clear of its edges
+          add(side_point(side, boundary, in), normal, 0.45, false, 1 - axis);
         }
       }
     }
@@ -992,11 +1015,6 @@ class Frame8Detector final : public MarkerDetector {
     return true;
   }
 
-  static Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
-    const Eigen::Vector3d q = M * Eigen::Vector3d(gx, gy, 1);
-    return {q(0) / q(2), q(1) / q(2)};
-  }
-
   // Corners (and, with a camera, the pose) from the pattern's edges.
   bool finish_by_pattern(int rotation, Detection& det) {
     if (config_.camera) {
@@ -1008,34 +1026,7 @@ class Frame8Detector final : public MarkerDetector {
       }
     }
     Eigen::Matrix3d M;
-    if (!fit_grid_map(M)) return false;
-    static constexpr std::array<Point2, 4> kInnerGrid{{{1.5, 1.5}, {8.5, 1.5}, {8.5, 8.5}, {1.5, 8.5}}};
-    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
-    Quad in{}, outq{};
-    std::array<Eigen::Vector2d, 4> model_order{};
-    for (int j = 0; j < 4; ++j) {
-      const auto q = static_cast<std::size_t>((j + rotation) % 4);
-      const Point2 pi = map_grid(M, kInnerGrid[q].x, kInnerGrid[q].y);
-      const Point2 po = map_grid(M, kOuterGrid[q].x, kOuterGrid[q].y);
-      model_order[static_cast<std::size_t>(j)] = {pi.x, pi.y};
-      if (config_.camera) {
-        in[static_cast<std::size_t>(j)] = config_.camera->normalized_to_pixel(pi);
-        outq[static_cast<std::size_t>(j)] = config_.camera->normalized_to_pixel(po);
-      } else {
-        in[static_cast<std::size_t>(j)] = pi;
-        outq[static_cast<std::size_t>(j)] = po;
-      }
-    }
-    det.inner_corners = in;
-    det.corners = outq;
-    if (config_.camera) {
-      det.pose = estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
-      if (!det.pose) return false;
-    }
-    const Point2 top = det.corners[1] - det.corners[0];
-    const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
-    det.quarter_turns = ((quarter % 4) + 4) % 4;
-    return true;
+    return fit_grid_map(M) && report(M, rotation, det);
   }
 
   // With a camera: fit the same edge points in undistorted normalized
@@ -1065,22 +1056,7 @@ class Frame8Detector final : public MarkerDetector {
       }
     }
     Homography Hn;
-    if (!Homography::from_unit_square(inner_n, Hn)) return false;
-    static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {10, 0}, {10, 10}, {0, 10}}};
-    Quad in{}, outq{};
-    std::array<Eigen::Vector2d, 4> model_order{};
-    for (int j = 0; j < 4; ++j) {
-      const int q = (j + rotation) % 4;
-      const Point2 n_in = inner_n[static_cast<std::size_t>(q)];
-      const Point2 g = kOuterGrid[static_cast<std::size_t>(q)];
-      in[static_cast<std::size_t>(j)] = cam.normalized_to_pixel(n_in);
-      outq[static_cast<std::size_t>(j)] = cam.normalized_to_pixel(grid_point(Hn, g.x, g.y));
-      model_order[static_cast<std::size_t>(j)] = {n_in.x, n_in.y};
-    }
-    det.inner_corners = in;
-    det.corners = outq;
-    det.pose = estimate_square_pose_normalized(cam, model_order, config_.marker_size_m * frame8::hole_fraction);
-    return det.pose.has_value();
+    return Homography::from_unit_square(inner_n, Hn) && report(grid_map(Hn), rotation, det);
   }
 
   // --- 4. the code ----------------------------------------------------------
@@ -1300,10 +1276,7 @@ class Frame8Detector final : public MarkerDetector {
     // white of its neighbours, so the bar there is lower: it follows the
     // line's width in pixels on that side, which foreshortening narrows.
     for (int side = 0; side < 4; ++side) {
-      static constexpr std::array<std::array<Point2, 2>, 4> kAcrossMid{
-          {{{{5, 1.5}, {5, 1.0}}}, {{{8.5, 5}, {9.0, 5}}}, {{{5, 8.5}, {5, 9.0}}}, {{{1.5, 5}, {1.0, 5}}}}};
-      const auto& across_mid = kAcrossMid[static_cast<std::size_t>(side)];
-      const double line_px = distance(grid_point(H, across_mid[0].x, across_mid[0].y), grid_point(H, across_mid[1].x, across_mid[1].y));
+      const double line_px = distance(grid_point(H, side_point(side, 5, kInnerLo)), grid_point(H, side_point(side, 5, frame8::line_outer)));
       const double line_ceiling = std::clamp(0.8 - 0.9 * (line_px - 0.6), -kConfident, 0.8);
       int dark = 0, total = 0;
       for (int k = 0; k < 7; ++k) {
@@ -1311,8 +1284,7 @@ class Frame8Detector final : public MarkerDetector {
         float darkest = 255;
         bool any = false;
         for (const double across : {1.6, 1.45, 1.3, 1.15, 1.0, 0.85}) {
-          const std::array<Point2, 4> g{{{along, across}, {10 - across, along}, {10 - along, 10 - across}, {across, 10 - along}}};
-          const Point2 p = grid_point(H, g[static_cast<std::size_t>(side)].x, g[static_cast<std::size_t>(side)].y);
+          const Point2 p = grid_point(H, side_point(side, along, across));
           float v = 0;
           if (!sample(full_, p.x, p.y, v)) continue;
           darkest = std::min(darkest, v);
@@ -1340,10 +1312,9 @@ class Frame8Detector final : public MarkerDetector {
       double line_sum = 0;
       for (int k = 0; k < 7; ++k) {
         const double along = kInnerLo + 0.5 + k;
-        const std::array<Point2, 4> probes{{{along, 1.25}, {8.75, along}, {10 - along, 8.75}, {1.25, 10 - along}}};
-        for (const Point2& g : probes) {
+        for (int side = 0; side < 4; ++side) {
           float v = 0;
-          const Point2 p = grid_point(H, g.x, g.y);
+          const Point2 p = grid_point(H, side_point(side, along, 1.25));
           if (!sample(full_, p.x, p.y, v)) continue;
           ++total;
           dark += v < thr;
