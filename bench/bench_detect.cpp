@@ -45,7 +45,7 @@ markerd::Scene scene_for(Family family, int i) {
   markerd::Scene s;
   s.family = family;
   const auto& info = markerd::family_info(family);
-  s.id = info.first_default_id + (37 * i + 11) % (info.last_default_id - info.first_default_id + 1);
+  s.id = info.first_default_id + (37 * i + 11) % info.default_id_count();
   s.marker_size_m = kMarkerSize;
   const double t = static_cast<double>(i) / (kFrames - 1);
   const double distance = 0.3 + t * (2.5 - 0.3);

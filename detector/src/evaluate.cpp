@@ -50,7 +50,7 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
     throw std::invalid_argument("evaluate_point: the scene shows another family than the detector reads");
   }
   const FamilyInfo& family = family_info(settings.scene.family);
-  const int id_count = family.last_default_id - family.first_default_id + 1;
+  const int id_count = family.default_id_count();
 
   std::uint64_t h = mix(0, settings.seed);
   h = mix(h, std::bit_cast<std::uint64_t>(point.distance_m));

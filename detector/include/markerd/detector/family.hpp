@@ -23,6 +23,7 @@ struct FamilyInfo {
   // 0 and 255, whose rings have no structure (see Frame8Options::uniform_ids).
   int first_default_id;
   int last_default_id;
+  [[nodiscard]] constexpr int default_id_count() const { return last_default_id - first_default_id + 1; }
 };
 
 std::span<const FamilyInfo> all_families();
