@@ -170,6 +170,9 @@ int main(int argc, char** argv) {
   app.add_option("--noise", noise, "sensor noise sigma, grey levels")->check(CLI::NonNegativeNumber)->capture_default_str();
   app.add_option("--blur", blur, "blur sigma, pixels")->check(CLI::NonNegativeNumber)->capture_default_str();
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
+  bool model_small_cells = false;
+  app.add_flag("--model-small-cells", model_small_cells,
+               "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
   std::vector<double> distances, yaw_at, yaws;
   try {
@@ -215,6 +218,9 @@ int main(int argc, char** argv) {
              100 * size_m);
   fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, clutter, lens distortion, supersampling {}\n", noise,
              blur, settings.scene.supersample);
+  if (model_small_cells) {
+    fmt::print("- frame8 reads cells under 3 px with the ring model, told the blur sigma above\n");
+  }
   fmt::print("- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
              "random ids, seed {}\n",
              frames, settings.position_jitter_px, settings.roll_jitter_deg, seed);
@@ -232,6 +238,8 @@ int main(int argc, char** argv) {
       config.family = info.family;
       config.camera = camera;
       config.marker_size_m = size_m;
+      config.frame8.model_small_cells = model_small_cells;
+      config.frame8.blur_sigma_px = blur;
       auto detector = markerd::make_detector(config);
       const auto run = [&](double d, double yaw) {
         if (progress) std::fprintf(stderr, "\r%s: %.2f m, %.0f deg   ", std::string(info.name).c_str(), d, yaw);

@@ -44,6 +44,7 @@
 #include <emmintrin.h>
 #endif
 
+#include "frame8_ring_model.hpp"
 #include "markerd/detector/frame8.hpp"
 
 #ifdef FRAME8_DEBUG
@@ -83,6 +84,9 @@ struct Homography {
     out.f = q[0].y;
     return true;
   }
+  // From a map of grid coordinates (see grid_map() below).
+  static Homography from_grid_map(const Eigen::Matrix3d& grid_to_image);
+
   [[nodiscard]] Point2 map(double u, double v) const {
     const double w = g * u + h * v + 1;
     return {(a * u + b * v + c) / w, (d * u + e * v + f) / w};
@@ -106,6 +110,18 @@ Eigen::Matrix3d grid_map(const Homography& H) {
   Eigen::Matrix3d grid_to_unit;
   grid_to_unit << 1 / kInnerSide, 0, -kInnerLo / kInnerSide, 0, 1 / kInnerSide, -kInnerLo / kInnerSide, 0, 0, 1;
   return unit_to_image * grid_to_unit;
+}
+
+Homography Homography::from_grid_map(const Eigen::Matrix3d& grid_to_image) {
+  Eigen::Matrix3d unit_to_grid;
+  unit_to_grid << kInnerSide, 0, kInnerLo, 0, kInnerSide, kInnerLo, 0, 0, 1;
+  Eigen::Matrix3d m = grid_to_image * unit_to_grid;
+  m /= m(2, 2);
+  Homography h;
+  h.a = m(0, 0), h.b = m(0, 1), h.c = m(0, 2);
+  h.d = m(1, 0), h.e = m(1, 1), h.f = m(1, 2);
+  h.g = m(2, 0), h.h = m(2, 1);
+  return h;
 }
 
 inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
@@ -206,6 +222,9 @@ class Frame8Detector final : public MarkerDetector {
     }
     if (config_.frame8.threshold_offset < 1 || config_.frame8.threshold_offset > 100) {
       throw DetectorError("frame8: threshold_offset must be 1..100 grey levels");
+    }
+    if (!(config_.frame8.blur_sigma_px >= 0 && config_.frame8.blur_sigma_px <= 5)) {
+      throw DetectorError("frame8: blur_sigma_px must be 0..5 pixels");
     }
   }
 
@@ -772,20 +791,28 @@ class Frame8Detector final : public MarkerDetector {
     Homography H;
     if (!Homography::from_unit_square(inner, H)) return false;
     int rotation = 0;
-    if (!decode(H, cell_px, det, rotation)) {
-      if (!have_fallback || !Homography::from_unit_square(step_only, H) || !decode(H, cell_px, det, rotation)) {
+    bool by_model = false;
+    if (const int sampled = decode(H, cell_px, det, rotation, nullptr); sampled != kRead) {
+      Homography step_H;
+      int step_sampled = kNoContrast;
+      if (have_fallback && Homography::from_unit_square(step_only, step_H) &&
+          (step_sampled = decode(step_H, cell_px, det, rotation, nullptr)) == kRead) {
+        H = step_H;
+        inner = step_only;
+      } else if (read_by_model(H, cell_px, std::max(sampled, step_sampled), det, rotation)) {
+        by_model = true;
+      } else {
         return false;
       }
-      inner = step_only;
     }
-    if (cell_px < kThinLineCells) {
+    if (cell_px < kThinLineCells && !by_model) {
       // Measure again knowing which cells are white, then read again.
       std::array<Point2, 4> second{};
       Homography H2;
       Detection det2;
       int rotation2 = 0;
       if (refine_sides(inner, det.id, cell_px, second) && Homography::from_unit_square(second, H2) &&
-          decode(H2, cell_px, det2, rotation2)) {
+          decode(H2, cell_px, det2, rotation2, nullptr) == kRead) {
         inner = second;
         H = H2;
         det = det2;
@@ -1061,10 +1088,14 @@ class Frame8Detector final : public MarkerDetector {
 
   // --- 4. the code ----------------------------------------------------------
 
-  // Why a candidate was turned down (traced in debug builds); always false.
-  static bool reject([[maybe_unused]] int reason) {
-    F8_TRACE("  rejected at check %d\n", reason);
-    return false;
+  // What decode() made of a candidate: read, or the check that turned it
+  // down (traced in debug builds).
+  static constexpr int kRead = 0;
+  static constexpr int kNoContrast = 4;  // the last check before the code itself
+  static constexpr int kC1Contradicted = 9;
+  static int reject(int check) {
+    F8_TRACE("  rejected at check %d\n", check);
+    return check;
   }
 
   struct CellSample {
@@ -1108,18 +1139,61 @@ class Frame8Detector final : public MarkerDetector {
     return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
   }
 
-  bool decode(const Homography& H, double cell_px, Detection& det, int& rotation) const {
+  // The code under H: from samples at the cells, and where cells are too
+  // small to sample, from the blur model of the whole ring.
+  // Reads cells too small to sample from the blur model of the ring, given
+  // why reading them from samples failed (`sampled`); with the map moved to
+  // where the model fits best, H follows it.
+  bool read_by_model(Homography& H, double cell_px, int sampled, Detection& det, int& rotation) {
+    // The model costs a few hundred microseconds: only for small cells, and
+    // only for what has a ring of dark and light cells (clutter mostly
+    // fails on contrast already).
+    if (!config_.frame8.model_small_cells || cell_px >= kResolvedCells || sampled <= kNoContrast) return false;
+    Eigen::Matrix3d M = grid_map(H);
+    // First the levels where the quad puts the cells (a tenth of the cost):
+    // enough when the quad is right, and to turn away what has no line.
+    if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, false, levels_)) return false;
+    const int unaligned = decode(H, cell_px, det, rotation, &levels_);
+    if (unaligned == kRead) return true;
+    // A light cell beside C1 that the code says is dark is the mark of a
+    // light patch in a checkered surround, not of a ring a fraction of a
+    // cell off: not worth moving the map for.
+    if (unaligned <= kNoContrast || unaligned == kC1Contradicted) return false;
+    if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return false;
+#ifdef FRAME8_DEBUG
+    F8_TRACE("  model rms %.1f line %.0f %.0f %.0f %.0f hole %.0f\n", levels_.rms_residual, levels_.line[0], levels_.line[1], levels_.line[2], levels_.line[3], levels_.hole);
+    for (int e = 0; e < 4; ++e) {
+      F8_TRACE("   edge %d:", e);
+      for (int b = 7; b >= 0; --b) { const auto c = frame8::data_cell(e, b); F8_TRACE(" %4.0f", levels_.cell[static_cast<std::size_t>(c.row * 10 + c.col)]); }
+      const auto k = frame8::corner_cell(e); F8_TRACE("  corner %4.0f\n", levels_.cell[static_cast<std::size_t>(k.row * 10 + k.col)]);
+    }
+#endif
+    const Homography aligned = Homography::from_grid_map(M);
+    if (decode(aligned, cell_px, det, rotation, &levels_) != kRead) return false;
+    H = aligned;
+    return true;
+  }
+
+  // Decides the code from the ring cells' grey levels: sampled in the image,
+  // or fitted by the ring model when `model` is given.
+  int decode(const Homography& H, double cell_px, Detection& det, int& rotation,
+             const frame8::RingModel::Levels* model) const {
+    auto level = [&](frame8::Cell c) {
+      if (!model) return sample_cell(H, c, cell_px);
+      const float v = model->cell[static_cast<std::size_t>(c.row * frame8::grid + c.col)];
+      return CellSample{v, v, v, true};
+    };
     std::array<CellSample, 4> corner{};
     std::array<std::array<CellSample, 8>, 4> cell{};
     for (int k = 0; k < 4; ++k) {
-      corner[static_cast<std::size_t>(k)] = sample_cell(H, frame8::corner_cell(k), cell_px);
+      corner[static_cast<std::size_t>(k)] = level(frame8::corner_cell(k));
       if (!corner[static_cast<std::size_t>(k)].valid) return reject(1);
     }
     int valid_cells = 0;
     for (int e = 0; e < 4; ++e) {
       for (int b = 0; b < 8; ++b) {
         auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
-        c = sample_cell(H, frame8::data_cell(e, b), cell_px);
+        c = level(frame8::data_cell(e, b));
         valid_cells += c.valid;
       }
     }
@@ -1241,7 +1315,7 @@ class Frame8Detector final : public MarkerDetector {
     F8_TRACE("  C1 neighbours %.2f (bit0 %d) %.2f (bit7 %d)\n", soft(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0].mean), id & 1, soft(cell[static_cast<std::size_t>(white_corner)][7].mean), (id >> 7) & 1);
     if (contradicts((white_corner + 3) % 4, cell[static_cast<std::size_t>((white_corner + 3) % 4)][0], id & 1) ||
         contradicts(white_corner, cell[static_cast<std::size_t>(white_corner)][7], (id >> 7) & 1)) {
-      return reject(9);
+      return reject(kC1Contradicted);
     }
     // Where cells are resolved, more erasures than one edge's worth is not
     // a marker with an edge covered but something else.
@@ -1276,6 +1350,11 @@ class Frame8Detector final : public MarkerDetector {
     // white of its neighbours, so the bar there is lower: it follows the
     // line's width in pixels on that side, which foreshortening narrows.
     for (int side = 0; side < 4; ++side) {
+      if (model) {
+        // The model measured the line's own level, free of the blur.
+        if (soft(model->line[static_cast<std::size_t>(side)]) > -kClearLine) return reject(19);
+        continue;
+      }
       const double line_px = distance(grid_point(H, side_point(side, 5, kInnerLo)), grid_point(H, side_point(side, 5, frame8::line_outer)));
       const double line_ceiling = std::clamp(0.8 - 0.9 * (line_px - 0.6), -kConfident, 0.8);
       int dark = 0, total = 0;
@@ -1332,7 +1411,7 @@ class Frame8Detector final : public MarkerDetector {
     det.id = id;
     det.bits_corrected = corrected;
     det.margin = margin;
-    return true;
+    return kRead;
   }
 
   static bool inside(const Quad& q, Point2 p) {
@@ -1376,9 +1455,11 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr double kResolvedCells = 3.0;
   static constexpr double kMinSideRatio = 0.13;  // cos(82.5 deg)
   // From this many pixels per cell, the corners come from the whole pattern.
-  static constexpr double kPatternCells = 2.5;
+  static constexpr double kPatternCells = 1.0;
   static constexpr int kMinPatternEdges = 16;
   static constexpr int kMaxPatternEdges = 384;
+  // How dark (soft level, -1 = black) the ring model must find the line.
+  static constexpr double kClearLine = 0.5;
 
   DetectorConfig config_;
   GreyView full_{};
@@ -1400,6 +1481,8 @@ class Frame8Detector final : public MarkerDetector {
   std::array<int, 4> edge_count_{};
   std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};
   int pattern_count_ = 0;
+  frame8::RingModel ring_model_;
+  frame8::RingModel::Levels levels_;
 };
 
 }  // namespace

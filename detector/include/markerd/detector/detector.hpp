@@ -38,6 +38,17 @@ struct Frame8Options {
   // corners as 255, and cluttered scenes hold such shapes (measured: about
   // one cluttered frame in a hundred gives a 0). Off unless a rig uses them.
   bool uniform_ids = false;
+  // Read cells under about three pixels, where sampling fails, by fitting a
+  // model of the blurred ring to the pixels (levels and map together).
+  // Measured: 90% detection to 2.6-2.8 m instead of 2.3 m, but every
+  // candidate with small cells that fails the sampled read pays a fit of a
+  // few hundred microseconds, and clutter (or the white cells of a near
+  // marker) supplies several per frame: about 3 ms per frame instead of 0.9.
+  // Off until candidates are screened more cheaply.
+  bool model_small_cells = false;
+  // The camera's blur as a Gaussian sigma in pixels, on top of each pixel's
+  // own area, for that model; a focused lens is about 0.5 to 1.
+  double blur_sigma_px = 0.6;
 };
 
 struct DetectorConfig {

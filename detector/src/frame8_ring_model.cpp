@@ -1,0 +1,383 @@
+#include "frame8_ring_model.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/LU>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <numbers>
+#include <utility>
+
+#include "markerd/detector/frame8.hpp"
+
+namespace markerd::frame8 {
+namespace {
+
+// Beyond this many pixels across, cells are several pixels wide and sampling
+// them is better and cheaper.
+constexpr int kMaxSidePx = 72;
+// A pixel whose footprint lies more than this much outside the marker says
+// more about the background than about the ring.
+constexpr double kMaxOutside = 0.5;
+// Pull of every level towards the mean grey, against the few combinations
+// that the pixels leave undetermined (an outside strip barely touched).
+constexpr double kRidge = 0.02;
+// Steps of the map per alignment; it converges in three or four.
+constexpr int kAlignIterations = 4;
+
+// The lines of the printed pattern along each grid axis, between -inf and
+// +inf: every region is a rectangle between two of them on each axis.
+constexpr std::array<double, 15> kLines{-1e9, 0, 1, line_inner, 2, 3, 4, 5, 6, 7, 8, grid - line_inner, 9, 10, 1e9};
+static_assert(kLines[3] == 1.5 && kLines[11] == 8.5);
+constexpr int line_index(double v) {
+  for (int i = 0; i < static_cast<int>(kLines.size()); ++i) {
+    if (kLines[static_cast<std::size_t>(i)] == v) return i;
+  }
+  return -1;
+}
+
+struct Rect {
+  int x0, x1, y0, y1;  // indices into kLines
+};
+
+// The rectangle of every region, in the order of RingModel's regions. The
+// line's corners go with the top and bottom sides.
+constexpr std::array<Rect, RingModel::kRegions> make_rects() {
+  std::array<Rect, RingModel::kRegions> rects{};
+  for (int row = 0; row < grid; ++row) {
+    for (int col = 0; col < grid; ++col) {
+      const int r = RingModel::ring_region(col, row);
+      if (r < 0) continue;
+      rects[static_cast<std::size_t>(r)] = {line_index(col), line_index(col + 1), line_index(row), line_index(row + 1)};
+    }
+  }
+  const int o = line_index(0), i1 = line_index(1), i15 = line_index(1.5), i85 = line_index(8.5), i9 = line_index(9),
+            t = line_index(10), lo = 0, hi = static_cast<int>(kLines.size()) - 1;
+  rects[RingModel::kLine + 0] = {i1, i9, i1, i15};
+  rects[RingModel::kLine + 1] = {i85, i9, i15, i85};
+  rects[RingModel::kLine + 2] = {i1, i9, i85, i9};
+  rects[RingModel::kLine + 3] = {i1, i15, i15, i85};
+  rects[RingModel::kHole] = {i15, i85, i15, i85};
+  rects[RingModel::kOutside + 0] = {lo, hi, lo, o};
+  rects[RingModel::kOutside + 1] = {t, hi, o, t};
+  rects[RingModel::kOutside + 2] = {lo, hi, t, hi};
+  rects[RingModel::kOutside + 3] = {lo, o, o, t};
+  return rects;
+}
+constexpr std::array<Rect, RingModel::kRegions> kRects = make_rects();
+
+// The standard normal distribution and density, tabulated: a pixel needs
+// thirty of each, and erfc costs more than the rest of the pixel's work.
+struct NormalTable {
+  static constexpr double kRange = 8;
+  static constexpr int kPerUnit = 64;
+  static constexpr int kSize = static_cast<int>(2 * kRange * kPerUnit) + 2;
+  std::array<double, kSize> cdf{}, pdf{};
+  NormalTable() {
+    for (int i = 0; i < kSize; ++i) {
+      const double z = -kRange + static_cast<double>(i) / kPerUnit;
+      cdf[static_cast<std::size_t>(i)] = 0.5 * std::erfc(-z / std::numbers::sqrt2);
+      pdf[static_cast<std::size_t>(i)] = std::exp(-0.5 * z * z) / std::sqrt(2 * std::numbers::pi);
+    }
+  }
+  void at(double z, double& c, double& p) const {
+    if (z <= -kRange) {
+      c = p = 0;
+      return;
+    }
+    if (z >= kRange) {
+      c = 1;
+      p = 0;
+      return;
+    }
+    const double f = (z + kRange) * kPerUnit;
+    const auto i = static_cast<std::size_t>(f);
+    const double t = f - static_cast<double>(i);
+    c = cdf[i] + t * (cdf[i + 1] - cdf[i]);
+    p = pdf[i] + t * (pdf[i + 1] - pdf[i]);
+  }
+};
+
+const NormalTable& normal_table() {
+  static const NormalTable table;
+  return table;
+}
+
+}  // namespace
+
+bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image) {
+  double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
+  for (const auto& [gx, gy] : {std::pair{0, 0}, std::pair{grid, 0}, std::pair{grid, grid}, std::pair{0, grid}}) {
+    const Eigen::Vector3d p = grid_to_image * Eigen::Vector3d(gx, gy, 1);
+    if (!(p(2) > 0)) return false;
+    x0 = std::min(x0, p(0) / p(2));
+    x1 = std::max(x1, p(0) / p(2));
+    y0 = std::min(y0, p(1) / p(2));
+    y1 = std::max(y1, p(1) / p(2));
+  }
+  if (!(x1 - x0 <= kMaxSidePx && y1 - y0 <= kMaxSidePx)) return false;
+  // Pixels whose footprint reaches the marker; most of those on the rim
+  // are dropped again as mostly outside.
+  px0_ = static_cast<int>(std::floor(x0));
+  px1_ = static_cast<int>(std::ceil(x1));
+  py0_ = static_cast<int>(std::floor(y0));
+  py1_ = static_cast<int>(std::ceil(y1));
+  if (px0_ < 0 || py0_ < 0 || px1_ >= image.width || py1_ >= image.height) return false;
+  cx_ = 0.5 * (x0 + x1);
+  cy_ = 0.5 * (y0 + y1);
+  scale_ = std::max(1.0, 0.5 * std::max(x1 - x0, y1 - y0));
+  Eigen::Matrix3d from_centred;
+  from_centred << scale_, 0, cx_, 0, scale_, cy_, 0, 0, 1;
+  Eigen::FullPivLU<Eigen::Matrix3d> lu(grid_to_image);
+  if (!lu.isInvertible()) return false;
+  to_grid_ = lu.inverse() * from_centred;
+  if (std::abs(to_grid_(2, 2)) < 1e-12) return false;
+  to_grid_ /= to_grid_(2, 2);
+  blur_map_ = to_grid_;
+  // The pixels the fit uses, decided once: a set that changed with the map
+  // would change the sum being minimised under the steps that minimise it.
+  const int width = px1_ - px0_ + 1;
+  inside_.assign(static_cast<std::size_t>(width) * (py1_ - py0_ + 1), 1);
+  for (int py = py0_; py <= py1_; ++py) {
+    for (int px = px0_; px <= px1_; ++px) {
+      double gx = 0, gy = 0, w = 0;
+      const int n = coverage(px, py, false, gx, gy, w);
+      double outside = 0;
+      for (int a = 0; a < n; ++a) {
+        const int r = touched_[static_cast<std::size_t>(a)];
+        if (r >= kOutside) outside += cover_[static_cast<std::size_t>(r)];
+      }
+      inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = n > 0 && outside <= kMaxOutside;
+    }
+  }
+  return true;
+}
+
+Eigen::Matrix3d RingModel::grid_to_image() const {
+  Eigen::Matrix3d from_centred;
+  from_centred << scale_, 0, cx_, 0, scale_, cy_, 0, 0, 1;
+  return from_centred * to_grid_.inverse();
+}
+
+int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, double& w) {
+  if (!inside_[static_cast<std::size_t>(py - py0_) * (px1_ - px0_ + 1) + (px - px0_)]) return 0;
+  const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
+  const Eigen::Vector3d g = to_grid_ * Eigen::Vector3d(u, v, 1);
+  w = g(2);
+  if (!(w > 0)) return 0;
+  gx = g(0) / w;
+  gy = g(1) / w;
+  // The footprint is a Gaussian in the image; through the local map it is
+  // a Gaussian in the grid too, and (for the rotations, yaw and tilt of a
+  // marker in front of a camera) one whose axes are near the grid's: its
+  // share of a rectangle is then a product along the two axes.
+  // Its width comes from the map the fit started with: held fixed, the
+  // model's slopes below are its exact derivatives.
+  const Eigen::Vector3d g0 = blur_map_ * Eigen::Vector3d(u, v, 1);
+  const double w0 = g0(2), gx0 = g0(0) / w0, gy0 = g0(1) / w0;
+  const double j00 = (blur_map_(0, 0) - gx0 * blur_map_(2, 0)) / w0 / scale_;
+  const double j01 = (blur_map_(0, 1) - gx0 * blur_map_(2, 1)) / w0 / scale_;
+  const double j10 = (blur_map_(1, 0) - gy0 * blur_map_(2, 0)) / w0 / scale_;
+  const double j11 = (blur_map_(1, 1) - gy0 * blur_map_(2, 1)) / w0 / scale_;
+  const double sx = sigma_ * std::hypot(j00, j01), sy = sigma_ * std::hypot(j10, j11);
+  const NormalTable& table = normal_table();
+  std::array<double, kLines.size()> fx{}, fy{}, dx{}, dy{};
+  for (std::size_t k = 0; k < kLines.size(); ++k) {
+    double c = 0, p = 0;
+    table.at((kLines[k] - gx) / sx, c, p);
+    fx[k] = c;
+    dx[k] = -p / sx;  // d/dgx of Phi((line - gx) / sx)
+    table.at((kLines[k] - gy) / sy, c, p);
+    fy[k] = c;
+    dy[k] = -p / sy;
+  }
+  int n = 0;
+  for (int r = 0; r < kRegions; ++r) {
+    const Rect& q = kRects[static_cast<std::size_t>(r)];
+    const auto x0 = static_cast<std::size_t>(q.x0), x1 = static_cast<std::size_t>(q.x1);
+    const auto y0 = static_cast<std::size_t>(q.y0), y1 = static_cast<std::size_t>(q.y1);
+    const double mx = fx[x1] - fx[x0], my = fy[y1] - fy[y0];
+    const double c = mx * my;
+    const double sxr = slopes ? (dx[x1] - dx[x0]) * my : 0, syr = slopes ? mx * (dy[y1] - dy[y0]) : 0;
+    if (c < 1e-5 && std::abs(sxr) < 1e-5 && std::abs(syr) < 1e-5) continue;
+    cover_[static_cast<std::size_t>(r)] = c;
+    slope_x_[static_cast<std::size_t>(r)] = sxr;
+    slope_y_[static_cast<std::size_t>(r)] = syr;
+    touched_[static_cast<std::size_t>(n++)] = r;
+  }
+  return n;
+}
+
+bool RingModel::solve_levels(const GreyView& image) {
+  // Normal equations of: pixel = sum over regions of coverage * level.
+  using Matrix = Eigen::Matrix<double, kRegions, kRegions>;
+  Matrix ata = Matrix::Zero();
+  Vector atb = Vector::Zero();
+  double btb = 0, b_sum = 0;
+  int used = 0;
+  for (int py = py0_; py <= py1_; ++py) {
+    const std::uint8_t* row = image.row(py);
+    for (int px = px0_; px <= px1_; ++px) {
+      double gx = 0, gy = 0, w = 0;
+      const int n = coverage(px, py, false, gx, gy, w);
+      if (n == 0) continue;
+      const double b = row[px];
+      for (int a = 0; a < n; ++a) {
+        const int ra = touched_[static_cast<std::size_t>(a)];
+        const double ca = cover_[static_cast<std::size_t>(ra)];
+        atb(ra) += ca * b;
+        for (int c = 0; c < n; ++c) {
+          const int rc = touched_[static_cast<std::size_t>(c)];
+          ata(ra, rc) += ca * cover_[static_cast<std::size_t>(rc)];
+        }
+      }
+      btb += b * b;
+      b_sum += b;
+      ++used;
+    }
+  }
+  if (used < 2 * kRegions) return false;
+  const double prior = b_sum / used;
+  Matrix regularised = ata;
+  Vector rhs = atb;
+  for (int r = 0; r < kRegions; ++r) {
+    regularised(r, r) += kRidge;
+    rhs(r) += kRidge * prior;
+  }
+  const Eigen::LDLT<Matrix> solver(regularised);
+  if (solver.info() != Eigen::Success) return false;
+  level_ = solver.solve(rhs);
+  const double sse = btb - 2 * level_.dot(atb) + level_.dot(ata * level_);
+  rms_ = std::sqrt(std::max(0.0, sse) / used);
+  return true;
+}
+
+bool RingModel::align_step(const GreyView& image, double& moved) {
+  // Gauss-Newton over the levels and the map together: apart, the two trade
+  // against each other (a line drawn thinner and darker) and creep.
+  // Parameters: the levels, then the eight free entries of the map from
+  // centred pixels to the grid (the ninth is 1).
+  constexpr int kParams = kRegions + 8;
+  using Matrix = Eigen::Matrix<double, kParams, kParams>;
+  using Params = Eigen::Matrix<double, kParams, 1>;
+  Matrix jtj = Matrix::Zero();
+  Params jte = Params::Zero();
+  std::array<double, kRegions + 8> jrow{};
+  std::array<int, kRegions + 8> index{};
+  double b_sum = 0;
+  int used = 0;
+  for (int py = py0_; py <= py1_; ++py) {
+    const std::uint8_t* row = image.row(py);
+    for (int px = px0_; px <= px1_; ++px) {
+      double gx = 0, gy = 0, w = 0;
+      const int n = coverage(px, py, true, gx, gy, w);
+      if (n == 0) continue;
+      double model = 0, dgx = 0, dgy = 0;
+      for (int a = 0; a < n; ++a) {
+        const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
+        model += level_(static_cast<int>(r)) * cover_[r];
+        dgx += level_(static_cast<int>(r)) * slope_x_[r];
+        dgy += level_(static_cast<int>(r)) * slope_y_[r];
+        index[static_cast<std::size_t>(a)] = static_cast<int>(r);
+        jrow[static_cast<std::size_t>(a)] = cover_[r];
+      }
+      const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
+      const double radial = dgx * gx + dgy * gy;
+      const std::array<double, 8> geometry{dgx * u, dgx * v, dgx, dgy * u, dgy * v, dgy, -radial * u, -radial * v};
+      for (int k = 0; k < 8; ++k) {
+        index[static_cast<std::size_t>(n + k)] = kRegions + k;
+        jrow[static_cast<std::size_t>(n + k)] = geometry[static_cast<std::size_t>(k)] / w;
+      }
+      const double e = row[px] - model;
+      for (int a = 0; a < n + 8; ++a) {
+        const int ia = index[static_cast<std::size_t>(a)];
+        const double ja = jrow[static_cast<std::size_t>(a)];
+        jte(ia) += ja * e;
+        for (int c = 0; c < n + 8; ++c) jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
+      }
+      b_sum += row[px];
+      ++used;
+    }
+  }
+  if (used < 2 * kRegions) return false;
+  const double prior = b_sum / used;
+  for (int r = 0; r < kRegions; ++r) {
+    jtj(r, r) += kRidge;
+    jte(r) += kRidge * (prior - level_(r));
+  }
+  // Levenberg's damping keeps a step within what the linearisation holds.
+  for (int k = kRegions; k < kParams; ++k) jtj(k, k) *= 1.0 + 1e-3;
+  const Eigen::LDLT<Matrix> solver(jtj);
+  if (solver.info() != Eigen::Success) return false;
+  const Params d = solver.solve(jte);
+  if (!d.allFinite()) return false;
+  level_ += d.head<kRegions>();
+  const Eigen::Matrix3d before = grid_to_image();
+  to_grid_(0, 0) += d(kRegions + 0);
+  to_grid_(0, 1) += d(kRegions + 1);
+  to_grid_(0, 2) += d(kRegions + 2);
+  to_grid_(1, 0) += d(kRegions + 3);
+  to_grid_(1, 1) += d(kRegions + 4);
+  to_grid_(1, 2) += d(kRegions + 5);
+  to_grid_(2, 0) += d(kRegions + 6);
+  to_grid_(2, 1) += d(kRegions + 7);
+  const Eigen::Matrix3d after = grid_to_image();
+  moved = 0;
+  for (const auto& [gx, gy] : {std::pair{0, 0}, std::pair{grid, 0}, std::pair{grid, grid}, std::pair{0, grid}}) {
+    const Eigen::Vector3d a = before * Eigen::Vector3d(gx, gy, 1), b = after * Eigen::Vector3d(gx, gy, 1);
+    moved = std::max(moved, std::hypot(a(0) / a(2) - b(0) / b(2), a(1) / a(2) - b(1) / b(2)));
+  }
+  return std::isfinite(moved);
+}
+
+double RingModel::predicted(int px, int py) {
+  if (px < px0_ || px > px1_ || py < py0_ || py > py1_) return std::numeric_limits<double>::quiet_NaN();
+  double gx = 0, gy = 0, w = 0;
+  const int n = coverage(px, py, false, gx, gy, w);
+  if (n == 0) return std::numeric_limits<double>::quiet_NaN();
+  double model = 0;
+  for (int a = 0; a < n; ++a) {
+    const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
+    model += level_(static_cast<int>(r)) * cover_[r];
+  }
+  return model;
+}
+
+bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out) {
+  // A pixel's square convolved with the blur: close to a Gaussian whose
+  // variance is the sum of the two.
+  sigma_ = std::sqrt(1.0 / 12 + blur_sigma_px * blur_sigma_px);
+  if (!prepare(image, grid_to_image) || !solve_levels(image)) return false;
+  if (align) {
+    const Eigen::Matrix3d start = to_grid_;
+    const Vector start_level = level_;
+    const double start_rms = rms_;
+    for (int iter = 0; iter < kAlignIterations; ++iter) {
+      double moved = 0;
+      if (!align_step(image, moved)) return false;
+      if (moved < 0.01) break;
+    }
+    if (!solve_levels(image)) return false;
+    if (rms_ > start_rms) {
+      // The steps wandered off: keep where it started.
+      to_grid_ = start;
+      level_ = start_level;
+      rms_ = start_rms;
+    }
+    grid_to_image = this->grid_to_image();
+  }
+
+  for (int row = 0; row < grid; ++row) {
+    for (int col = 0; col < grid; ++col) {
+      const int r = ring_region(col, row);
+      out.cell[static_cast<std::size_t>(row * grid + col)] = r >= 0 ? static_cast<float>(level_(r)) : 0.0F;
+    }
+  }
+  for (int s = 0; s < 4; ++s) out.line[static_cast<std::size_t>(s)] = static_cast<float>(level_(kLine + s));
+  out.hole = static_cast<float>(level_(kHole));
+  out.rms_residual = rms_;
+  return true;
+}
+
+}  // namespace markerd::frame8

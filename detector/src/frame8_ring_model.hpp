@@ -1,0 +1,96 @@
+#pragma once
+// Reading a frame8 ring whose cells are too small to sample.
+//
+// Under about three pixels a cell, the blur of the lens and the pixel's own
+// area mix every cell with its neighbours: the grey at a cell's centre is as
+// much its neighbours' colour as its own, and thresholding it fails first on
+// the lone cell between two of the other colour. But the mixing is known:
+// each pixel is the printed pattern integrated over the pixel's square and
+// the blur's Gaussian (together close to one Gaussian), so it is a linear
+// combination of the unknown grey levels of the regions it overlaps (the 36 ring cells, the line on each
+// side, the hole, and whatever lies beyond each side). The model solves for
+// those levels by least squares over every pixel of the marker: a
+// deconvolution with a handful of unknowns, well posed down to cells about
+// a pixel and a half wide.
+
+#include <Eigen/Core>
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include "markerd/detector/image.hpp"
+
+namespace markerd::frame8 {
+
+class RingModel {
+ public:
+  static constexpr int kRingRegions = 36;
+  // Regions: the ring cells (in grid order, see ring_region()), the line
+  // beside each side (top, right, bottom, left), the hole, and the outside
+  // beyond each side.
+  static constexpr int kLine = kRingRegions;
+  static constexpr int kHole = kLine + 4;
+  static constexpr int kOutside = kHole + 1;
+  static constexpr int kRegions = kOutside + 4;
+
+  struct Levels {
+    std::array<float, 100> cell{};  // grey level of each ring cell, row * 10 + col; others unused
+    std::array<float, 4> line{};    // the line along each side
+    float hole = 0;
+    double rms_residual = 0;  // grey levels, over the pixels used
+  };
+
+  // Fits the levels to the pixels covered by the marker whose grid
+  // coordinates (0..10 across, y down) map to image pixels through
+  // grid_to_image, with a Gaussian blur of blur_sigma_px on top of each
+  // pixel's square; with `align`, also moves grid_to_image (a homography)
+  // to where the model fits the pixels best, alternating the levels (linear)
+  // with Gauss-Newton steps of the map. False when the marker leaves the
+  // image or is too large for this model to be the right tool (its cells are
+  // then sampled).
+  bool fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out);
+
+  // The grey the last fit predicts at a pixel of its footprint (NaN outside
+  // it): the model itself, for the tests.
+  [[nodiscard]] double predicted(int px, int py);
+
+  // Index of a ring cell's region, -1 for a cell that is not on the ring.
+  static constexpr int ring_region(int col, int row) {
+    if (col < 0 || row < 0 || col >= 10 || row >= 10) return -1;
+    if (row == 0) return col;                 // 0..9
+    if (row == 9) return 26 + col;            // 26..35
+    if (col == 0) return 10 + 2 * (row - 1);  // 10, 12, .. 24
+    if (col == 9) return 11 + 2 * (row - 1);  // 11, 13, .. 25
+    return -1;
+  }
+
+ private:
+  using Vector = Eigen::Matrix<double, kRegions, 1>;
+
+  // Pixels of the footprint, and the map from (centred) pixels to the grid.
+  bool prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image);
+  bool solve_levels(const GreyView& image);
+  // One Gauss-Newton step of the map for the current levels; false when it
+  // cannot be taken. `moved` is the largest displacement it makes, pixels.
+  bool align_step(const GreyView& image, double& moved);
+  // Each region's share of the pixel's footprint (cover_), and its slope
+  // along the grid's axes (slope_x_, slope_y_) when `slopes`; the pixel's
+  // grid coordinates in gx, gy, and the map's denominator in w. Returns the
+  // number of regions touched (listed in touched_), 0 for a pixel that lies
+  // mostly outside the marker.
+  int coverage(int px, int py, bool slopes, double& gx, double& gy, double& w);
+  [[nodiscard]] Eigen::Matrix3d grid_to_image() const;
+
+  double sigma_ = 0.6;  // the footprint's Gaussian, pixels
+  int px0_ = 0, py0_ = 0, px1_ = 0, py1_ = 0;
+  double cx_ = 0, cy_ = 0, scale_ = 1;  // centred pixel coordinates: (x - cx) / scale
+  Eigen::Matrix3d to_grid_ = Eigen::Matrix3d::Identity();  // centred pixel -> grid
+  Eigen::Matrix3d blur_map_ = Eigen::Matrix3d::Identity();  // to_grid_ as prepared: the footprint's width
+  std::vector<std::uint8_t> inside_;  // per pixel of the box: used by the fit
+  std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
+  std::array<int, kRegions> touched_{};
+  Vector level_ = Vector::Zero();
+  double rms_ = 0;
+};
+
+}  // namespace markerd::frame8
