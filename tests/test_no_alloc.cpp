@@ -93,6 +93,18 @@ TEST(NoAllocation, Frame8WithPose) {
   EXPECT_EQ(allocations_in_steady_state(*det, frames(cam)), 0);
 }
 
+// The far frames and the white cells of the near markers (small light
+// squares in a dark surround) send candidates through the ring model.
+TEST(NoAllocation, Frame8WithTheRingModel) {
+  const CameraModel cam = CameraModel::thesis_640x480();
+  DetectorConfig cfg;
+  cfg.camera = cam;
+  cfg.marker_size_m = 0.08;
+  cfg.frame8.model_small_cells = true;
+  auto det = make_detector(cfg);
+  EXPECT_EQ(allocations_in_steady_state(*det, frames(cam)), 0);
+}
+
 TEST(NoAllocation, Frame8AtHighResolution) {
   const CameraModel cam = CameraModel::thesis_640x480().scaled_to(1920, 1440);
   auto det = make_detector(DetectorConfig{});
