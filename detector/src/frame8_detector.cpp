@@ -1139,8 +1139,6 @@ class Frame8Detector final : public MarkerDetector {
     return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
   }
 
-  // The code under H: from samples at the cells, and where cells are too
-  // small to sample, from the blur model of the whole ring.
   // Reads cells too small to sample from the blur model of the ring, given
   // why reading them from samples failed (`sampled`); with the map moved to
   // where the model fits best, H follows it.

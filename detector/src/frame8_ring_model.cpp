@@ -99,6 +99,9 @@ struct NormalTable {
   }
 };
 
+// The marker's outer corners in grid coordinates.
+constexpr std::array<std::pair<int, int>, 4> kOuterCorners{{{0, 0}, {grid, 0}, {grid, grid}, {0, grid}}};
+
 const NormalTable& normal_table() {
   static const NormalTable table;
   return table;
@@ -108,7 +111,7 @@ const NormalTable& normal_table() {
 
 bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image) {
   double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
-  for (const auto& [gx, gy] : {std::pair{0, 0}, std::pair{grid, 0}, std::pair{grid, grid}, std::pair{0, grid}}) {
+  for (const auto& [gx, gy] : kOuterCorners) {
     const Eigen::Vector3d p = grid_to_image * Eigen::Vector3d(gx, gy, 1);
     if (!(p(2) > 0)) return false;
     x0 = std::min(x0, p(0) / p(2));
@@ -127,19 +130,21 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
   cx_ = 0.5 * (x0 + x1);
   cy_ = 0.5 * (y0 + y1);
   scale_ = std::max(1.0, 0.5 * std::max(x1 - x0, y1 - y0));
-  Eigen::Matrix3d from_centred;
-  from_centred << scale_, 0, cx_, 0, scale_, cy_, 0, 0, 1;
   Eigen::FullPivLU<Eigen::Matrix3d> lu(grid_to_image);
   if (!lu.isInvertible()) return false;
-  to_grid_ = lu.inverse() * from_centred;
+  to_grid_ = lu.inverse() * from_centred();
   if (std::abs(to_grid_(2, 2)) < 1e-12) return false;
   to_grid_ /= to_grid_(2, 2);
   blur_map_ = to_grid_;
   // The pixels the fit uses, decided once: a set that changed with the map
   // would change the sum being minimised under the steps that minimise it.
+  // Their mean grey is the levels' prior.
   const int width = px1_ - px0_ + 1;
   inside_.assign(static_cast<std::size_t>(width) * (py1_ - py0_ + 1), 1);
+  double sum = 0;
+  int used = 0;
   for (int py = py0_; py <= py1_; ++py) {
+    const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
       const int n = coverage(px, py, false, gx, gy, w);
@@ -148,16 +153,27 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
         const int r = touched_[static_cast<std::size_t>(a)];
         if (r >= kOutside) outside += cover_[static_cast<std::size_t>(r)];
       }
-      inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = n > 0 && outside <= kMaxOutside;
+      const bool inside = n > 0 && outside <= kMaxOutside;
+      inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = inside;
+      if (inside) {
+        sum += row[px];
+        ++used;
+      }
     }
   }
+  if (used < 2 * kRegions) return false;
+  prior_ = sum / used;
   return true;
 }
 
+Eigen::Matrix3d RingModel::from_centred() const {
+  Eigen::Matrix3d m;
+  m << scale_, 0, cx_, 0, scale_, cy_, 0, 0, 1;
+  return m;
+}
+
 Eigen::Matrix3d RingModel::grid_to_image() const {
-  Eigen::Matrix3d from_centred;
-  from_centred << scale_, 0, cx_, 0, scale_, cy_, 0, 0, 1;
-  return from_centred * to_grid_.inverse();
+  return from_centred() * to_grid_.inverse();
 }
 
 int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, double& w) {
@@ -214,7 +230,7 @@ bool RingModel::solve_levels(const GreyView& image) {
   using Matrix = Eigen::Matrix<double, kRegions, kRegions>;
   Matrix ata = Matrix::Zero();
   Vector atb = Vector::Zero();
-  double btb = 0, b_sum = 0;
+  double btb = 0;
   int used = 0;
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
@@ -233,17 +249,15 @@ bool RingModel::solve_levels(const GreyView& image) {
         }
       }
       btb += b * b;
-      b_sum += b;
       ++used;
     }
   }
-  if (used < 2 * kRegions) return false;
-  const double prior = b_sum / used;
+  if (used == 0) return false;
   Matrix regularised = ata;
   Vector rhs = atb;
   for (int r = 0; r < kRegions; ++r) {
     regularised(r, r) += kRidge;
-    rhs(r) += kRidge * prior;
+    rhs(r) += kRidge * prior_;
   }
   const Eigen::LDLT<Matrix> solver(regularised);
   if (solver.info() != Eigen::Success) return false;
@@ -265,8 +279,6 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   Params jte = Params::Zero();
   std::array<double, kRegions + 8> jrow{};
   std::array<int, kRegions + 8> index{};
-  double b_sum = 0;
-  int used = 0;
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
@@ -296,15 +308,11 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
         jte(ia) += ja * e;
         for (int c = 0; c < n + 8; ++c) jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
       }
-      b_sum += row[px];
-      ++used;
     }
   }
-  if (used < 2 * kRegions) return false;
-  const double prior = b_sum / used;
   for (int r = 0; r < kRegions; ++r) {
     jtj(r, r) += kRidge;
-    jte(r) += kRidge * (prior - level_(r));
+    jte(r) += kRidge * (prior_ - level_(r));
   }
   // Levenberg's damping keeps a step within what the linearisation holds.
   for (int k = kRegions; k < kParams; ++k) jtj(k, k) *= 1.0 + 1e-3;
@@ -324,24 +332,11 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   to_grid_(2, 1) += d(kRegions + 7);
   const Eigen::Matrix3d after = grid_to_image();
   moved = 0;
-  for (const auto& [gx, gy] : {std::pair{0, 0}, std::pair{grid, 0}, std::pair{grid, grid}, std::pair{0, grid}}) {
+  for (const auto& [gx, gy] : kOuterCorners) {
     const Eigen::Vector3d a = before * Eigen::Vector3d(gx, gy, 1), b = after * Eigen::Vector3d(gx, gy, 1);
     moved = std::max(moved, std::hypot(a(0) / a(2) - b(0) / b(2), a(1) / a(2) - b(1) / b(2)));
   }
   return std::isfinite(moved);
-}
-
-double RingModel::predicted(int px, int py) {
-  if (px < px0_ || px > px1_ || py < py0_ || py > py1_) return std::numeric_limits<double>::quiet_NaN();
-  double gx = 0, gy = 0, w = 0;
-  const int n = coverage(px, py, false, gx, gy, w);
-  if (n == 0) return std::numeric_limits<double>::quiet_NaN();
-  double model = 0;
-  for (int a = 0; a < n; ++a) {
-    const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
-    model += level_(static_cast<int>(r)) * cover_[r];
-  }
-  return model;
 }
 
 bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out) {

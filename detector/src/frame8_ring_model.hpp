@@ -50,10 +50,6 @@ class RingModel {
   // then sampled).
   bool fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out);
 
-  // The grey the last fit predicts at a pixel of its footprint (NaN outside
-  // it): the model itself, for the tests.
-  [[nodiscard]] double predicted(int px, int py);
-
   // Index of a ring cell's region, -1 for a cell that is not on the ring.
   static constexpr int ring_region(int col, int row) {
     if (col < 0 || row < 0 || col >= 10 || row >= 10) return -1;
@@ -67,7 +63,8 @@ class RingModel {
  private:
   using Vector = Eigen::Matrix<double, kRegions, 1>;
 
-  // Pixels of the footprint, and the map from (centred) pixels to the grid.
+  // Pixels of the footprint, the map from (centred) pixels to the grid, and
+  // the pixels the fit uses with their mean grey.
   bool prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image);
   bool solve_levels(const GreyView& image);
   // One Gauss-Newton step of the map for the current levels; false when it
@@ -80,6 +77,7 @@ class RingModel {
   // mostly outside the marker.
   int coverage(int px, int py, bool slopes, double& gx, double& gy, double& w);
   [[nodiscard]] Eigen::Matrix3d grid_to_image() const;
+  [[nodiscard]] Eigen::Matrix3d from_centred() const;  // centred pixel -> pixel
 
   double sigma_ = 0.6;  // the footprint's Gaussian, pixels
   int px0_ = 0, py0_ = 0, px1_ = 0, py1_ = 0;
@@ -87,6 +85,7 @@ class RingModel {
   Eigen::Matrix3d to_grid_ = Eigen::Matrix3d::Identity();  // centred pixel -> grid
   Eigen::Matrix3d blur_map_ = Eigen::Matrix3d::Identity();  // to_grid_ as prepared: the footprint's width
   std::vector<std::uint8_t> inside_;  // per pixel of the box: used by the fit
+  double prior_ = 0;                  // their mean grey, which every level is pulled towards
   std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
   std::array<int, kRegions> touched_{};
   Vector level_ = Vector::Zero();
