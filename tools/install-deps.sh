@@ -16,6 +16,11 @@ packages=(
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
+  # peers for the rig's tests: a serial line pair for Modbus RTU, a Modbus
+  # server this project did not write (for Debian's /usr/bin/python3)
+  socat python3-pymodbus
+  # hardware-in-the-loop tests: Debian's kernel under qemu, a busybox initramfs
+  qemu-system-x86 busybox-static cpio
 )
 
 if [[ $(id -u) -ne 0 ]]; then

@@ -1,0 +1,109 @@
+#pragma once
+// An Axis is one thing that moves (the rail, the turntable) in user units (mm,
+// degrees). It owns a Drive (the backend) and adds what is the same for every
+// backend: unit conversion, soft limits, the homed requirement, backlash
+// compensation (the final approach always from one side), retries within a
+// deadband for closed-loop drives, settling, and the fail-safe rules. Commands
+// are asynchronous: they are checked and started, and status() tells how
+// they go.
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <thread>
+
+#include "markerd/rig/drive.hpp"
+
+namespace markerd::rig {
+
+// A command the axis refuses (not homed, outside the soft limits, in fault,
+// e-stop active), naming the axis and the reason.
+class AxisError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct HomingSettings {
+  int direction = -1;  // search direction: -1 towards min, +1 towards max
+  HomingSteps::Switch target = HomingSteps::Switch::home;
+  double search_velocity = 0;  // user units / s (0: a quarter of max_velocity)
+  double latch_velocity = 0;   // user units / s (0: a twentieth of max_velocity)
+  double backoff = 0;          // user units moved off the switch before the slow latch
+  double home_offset = 0;      // user position assigned where the switch latched
+  std::chrono::milliseconds timeout{60000};
+};
+
+struct AxisSettings {
+  std::string name;             // "rail", "turntable"
+  std::string unit;             // "mm", "deg": used in messages only
+  double units_per_step = 0;    // user units per motor step (> 0)
+  double min_position = 0;      // soft limits, user units
+  double max_position = 0;
+  double max_velocity = 0;      // user units / s (> 0)
+  double acceleration = 0;      // user units / s^2 (> 0)
+  // Backlash compensation: when > 0, every move ends with an approach of this
+  // length from the side of approach_direction (+1: from below, -1: from above).
+  double backlash = 0;
+  int approach_direction = +1;
+  // Closed-loop drives: after a move, if |actual - target| exceeds the deadband,
+  // the move is reissued, at most max_retries times, then the axis faults.
+  // 0 disables the check (open-loop steppers report their commanded position).
+  double retry_deadband = 0;
+  int max_retries = 2;
+  std::chrono::milliseconds settle_time{200};  // in position this long = settled
+  HomingSettings homing;
+};
+
+enum class AxisState : std::uint8_t { disabled, idle, moving, homing, stopping, fault };
+const char* to_string(AxisState state);
+
+struct AxisStatus {
+  AxisState state = AxisState::disabled;
+  bool homed = false;
+  bool settled = false;   // idle, in position, for at least settle_time
+  double position = 0;    // user units
+  double target = 0;      // the last commanded target, user units
+  DriveInputs inputs;
+  std::string fault;      // the cause, when state == fault
+  std::chrono::steady_clock::time_point updated{};  // when this was read from the drive
+};
+
+class Axis {
+ public:
+  Axis(AxisSettings settings, std::unique_ptr<Drive> drive);  // validates settings (AxisError)
+  ~Axis();  // emergency stop, then joins its thread
+  Axis(const Axis&) = delete;
+  Axis& operator=(const Axis&) = delete;
+
+  [[nodiscard]] const AxisSettings& settings() const { return settings_; }
+  [[nodiscard]] const Drive& drive() const { return *drive_; }
+
+  void enable();
+  void disable();
+  void home();                    // async
+  void move_to(double position);  // async; AxisError when refused
+  void stop();                    // controlled; the axis stays enabled and homed
+  void emergency_stop() noexcept; // disables at once; an open-loop axis loses its home
+  void clear_fault();             // resets the drive's alarm; the axis must be homed again if it lost its reference
+
+  [[nodiscard]] AxisStatus status() const;
+  // Blocks until the axis is settled (true), in fault or stopped (false), or the
+  // timeout passes (false).
+  bool wait_settled(std::chrono::milliseconds timeout) const;
+
+ private:
+  AxisSettings settings_;
+  std::unique_ptr<Drive> drive_;
+  // The implementation's supervisor thread and state (src/axis.cpp).
+  mutable std::mutex mutex_;
+  mutable std::condition_variable changed_;
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::jthread supervisor_;
+};
+
+}  // namespace markerd::rig

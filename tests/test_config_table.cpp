@@ -1,0 +1,69 @@
+#include <gtest/gtest.h>
+
+#include <fstream>
+
+#include "markerd/rig/config_table.hpp"
+
+using markerd::ConfigError;
+using markerd::ConfigTable;
+
+namespace {
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "(no error)";
+}
+
+const char* kText = R"(# a rig
+[rig.rail]
+max_velocity = 50
+acceleration = 20.5
+name = "rail"
+
+[rig.turntable]
+max_velocity = "fast"
+)";
+
+}  // namespace
+
+TEST(ConfigTable, ReadsTypedValuesAndIntegersAsNumbers) {
+  const auto root = ConfigTable::parse(kText, "rig.toml");
+  const auto rail = root.table("rig").table("rail");
+  EXPECT_EQ(rail.key_path(), "rig.rail");
+  EXPECT_DOUBLE_EQ(rail.required<double>("max_velocity"), 50);
+  EXPECT_EQ(rail.required<int>("max_velocity"), 50);
+  EXPECT_DOUBLE_EQ(rail.required<double>("acceleration"), 20.5);
+  EXPECT_EQ(rail.required<std::string>("name"), "rail");
+  EXPECT_EQ(rail.optional<int>("retries", 3), 3);
+  EXPECT_FALSE(rail.maybe<double>("backlash").has_value());
+}
+
+TEST(ConfigTable, ErrorsNameFileLineAndKey) {
+  const auto root = ConfigTable::parse(kText, "rig.toml");
+  const auto turntable = root.table("rig").table("turntable");
+  EXPECT_EQ(error_of([&] { (void)turntable.required<double>("max_velocity"); }),
+            "rig.toml:8: rig.turntable.max_velocity: must be a number");
+  const auto rail = root.table("rig").table("rail");
+  EXPECT_EQ(error_of([&] { (void)rail.required<int>("acceleration"); }),
+            "rig.toml:4: rig.rail.acceleration: must be an integer");
+  EXPECT_EQ(error_of([&] { (void)rail.required<double>("backlash"); }),
+            "rig.toml:2: [rig.rail]: missing key 'rig.rail.backlash' (a number)");
+  EXPECT_EQ(error_of([&] { rail.allow_only({"max_velocity", "acceleration"}); }),
+            "rig.toml:5: rig.rail.name: unknown key (known here: max_velocity, acceleration)");
+  EXPECT_EQ(error_of([&] { rail.fail("acceleration", "must be > 0"); }),
+            "rig.toml:4: rig.rail.acceleration: must be > 0");
+  EXPECT_EQ(error_of([&] { (void)root.table("camera"); }), "rig.toml: missing table [camera]");
+}
+
+TEST(ConfigTable, SyntaxErrorsAndMissingFilesAreConfigErrors) {
+  EXPECT_EQ(error_of([] { (void)ConfigTable::parse("a = \n", "x.toml"); }).rfind("x.toml:1:", 0), 0u);
+  const auto missing = error_of([] { (void)ConfigTable::load_file("/nonexistent/rig.toml"); });
+  EXPECT_EQ(missing.rfind("/nonexistent/rig.toml", 0), 0u) << missing;
+  const std::string path = testing::TempDir() + "/config_table.toml";
+  std::ofstream(path) << kText;
+  EXPECT_EQ(ConfigTable::load_file(path).table("rig").table("rail").required<std::string>("name"), "rail");
+}
