@@ -214,6 +214,14 @@ bool fit_line(EdgePoint* pts, int n, double reject, Line& line) {
   return dropped ? fit(line) : true;
 }
 
+// The size of a cell in pixels: the mean over the quad, and across its
+// narrow direction (a marker turned far has cells of a pixel one way and
+// of four the other).
+struct CellSize {
+  double narrow;
+  double mean;
+};
+
 class Frame8Detector final : public MarkerDetector {
  public:
   explicit Frame8Detector(const DetectorConfig& config) : config_(config) {
@@ -242,8 +250,21 @@ class Frame8Detector final : public MarkerDetector {
     make_working_image();
     threshold_and_runs();
     label_components();
-    for (int r = 0; r < static_cast<int>(runs_.size()); ++r) {
-      if (runs_[static_cast<std::size_t>(r)].parent == r) consider_component(r, out);
+    // Largest first: a marker's light cells and hole are components inside
+    // it, and once the marker is read they need no look (a white ring cell of
+    // a near marker is a light square with black neighbours, and with small
+    // cells of its own it would cost the ring model a fit).
+    roots_.clear();
+    for (std::int32_t r = 0; r < static_cast<std::int32_t>(runs_.size()); ++r) {
+      if (runs_[static_cast<std::size_t>(r)].parent == r) roots_.push_back(r);
+    }
+    auto box_area = [&](std::int32_t r) {
+      const Component& c = components_[static_cast<std::size_t>(r)];
+      return static_cast<std::int64_t>(c.x1 - c.x0) * (c.y1 - c.y0 + 1);
+    };
+    std::sort(roots_.begin(), roots_.end(), [&](std::int32_t a, std::int32_t b) { return box_area(a) > box_area(b); });
+    for (const std::int32_t r : roots_) {
+      if (!inside_detection(components_[static_cast<std::size_t>(r)], out)) consider_component(r, out);
     }
     remove_nested(out);
   }
@@ -636,19 +657,40 @@ class Frame8Detector final : public MarkerDetector {
     const Point2 b = q[static_cast<std::size_t>((side + 1) % 4)];
     const double len = distance(a, b);
     const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
-    const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
+    double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
+    // The short ends of a sliver (a marker turned far) come out of the
+    // blurred, thresholded hole round, and the quad's corners cut across
+    // them: the side found there is askew. Probed along the long sides
+    // instead, the points land on the true end whatever its coarse slant.
+    // Its corners, blurred round, would pull the few points such an end has:
+    // those are taken from its middle half only.
+    double t_first = 0.12, t_span = 0.76;
+    int count = std::clamp(static_cast<int>(len / 1.5), 4, kMaxEdgePoints);
+    {
+      const Point2 prev = q[static_cast<std::size_t>((side + 3) % 4)];
+      const Point2 next = q[static_cast<std::size_t>((side + 2) % 4)];
+      const Point2 along_long = (a - prev) + (b - next);
+      const double long_len = 0.5 * (distance(a, prev) + distance(b, next));
+      if (len < kSliverEnd * long_len) {
+        const double l = std::hypot(along_long.x, along_long.y);
+        nx = along_long.x / l;
+        ny = along_long.y / l;
+        t_first = 0.25;
+        t_span = 0.5;
+        count = std::max(count, 6);
+      }
+    }
     // A cell's size across this side, at either end: foreshortening makes it
     // differ from side to side and along a side.
     const double cell_a = distance(q[static_cast<std::size_t>((side + 3) % 4)], a) / kInnerSide;
     const double cell_b = distance(b, q[static_cast<std::size_t>((side + 2) % 4)]) / kInnerSide;
     constexpr double step = 0.5;
-    const int count = std::clamp(static_cast<int>(len / 1.5), 4, kMaxEdgePoints);
     EdgePoint* pts = edge_points_[static_cast<std::size_t>(side)].data();
     int used = 0;
     std::array<float, 64> profile{};
     for (int k = 0; k < count; ++k) {
       // Stay clear of the corners, where the line turns.
-      const double t = 0.12 + 0.76 * (k + 0.5) / count;
+      const double t = t_first + t_span * (k + 0.5) / count;
       const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
       const double cell_px = (1 - t) * cell_a + t * cell_b;
       bool white_beyond = false;
@@ -733,6 +775,7 @@ class Frame8Detector final : public MarkerDetector {
     for (int side = 0; side < 4; ++side) {
       auto& n = edge_count_[static_cast<std::size_t>(side)];
       n = collect_edge_points(from, side, id);
+      F8_TRACE("  side %d: %d edge points\n", side, n);
       if (n < 3) return false;
       if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px),
                     lines[static_cast<std::size_t>(side)])) {
@@ -745,6 +788,7 @@ class Frame8Detector final : public MarkerDetector {
         return false;
       }
       if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) > 2.0 * cell_px + 2 * decimate_) {
+        F8_TRACE("  corner %d moved %.1f px\n", i, distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]));
         return false;
       }
     }
@@ -787,19 +831,27 @@ class Frame8Detector final : public MarkerDetector {
       shortest = std::min(shortest, len);
       longest = std::max(longest, len);
     }
+    F8_TRACE("  inner (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) sides %.1f..%.1f\n", inner[0].x, inner[0].y, inner[1].x, inner[1].y, inner[2].x, inner[2].y, inner[3].x, inner[3].y, shortest, longest);
     if (shortest < kMinSideRatio * longest) return false;
+    // Whether cells are resolved is decided by their narrow side: a marker
+    // turned far shows cells of a pixel across beside cells of four. Its two
+    // short sides are opposite each other; one short side alone is no such
+    // marker, and says nothing of the cells.
+    std::array<double, 4> side_len{};
+    for (int i = 0; i < 4; ++i) side_len[static_cast<std::size_t>(i)] = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+    const CellSize cell_size{std::min(side_len[0] + side_len[2], side_len[1] + side_len[3]) / (2 * kInnerSide), cell_px};
     Homography H;
     if (!Homography::from_unit_square(inner, H)) return false;
     int rotation = 0;
     bool by_model = false;
-    if (const int sampled = decode(H, cell_px, det, rotation, nullptr); sampled != kRead) {
+    if (const int sampled = decode(H, cell_size, det, rotation, nullptr); sampled != kRead) {
       Homography step_H;
       int step_sampled = kNoContrast;
       if (have_fallback && Homography::from_unit_square(step_only, step_H) &&
-          (step_sampled = decode(step_H, cell_px, det, rotation, nullptr)) == kRead) {
+          (step_sampled = decode(step_H, cell_size, det, rotation, nullptr)) == kRead) {
         H = step_H;
         inner = step_only;
-      } else if (read_by_model(H, cell_px, std::max(sampled, step_sampled), det, rotation)) {
+      } else if (read_by_model(H, cell_size, std::max(sampled, step_sampled), det, rotation)) {
         by_model = true;
       } else {
         return false;
@@ -812,7 +864,7 @@ class Frame8Detector final : public MarkerDetector {
       Detection det2;
       int rotation2 = 0;
       if (refine_sides(inner, det.id, cell_px, second) && Homography::from_unit_square(second, H2) &&
-          decode(H2, cell_px, det2, rotation2, nullptr) == kRead) {
+          decode(H2, cell_size, det2, rotation2, nullptr) == kRead) {
         inner = second;
         H = H2;
         det = det2;
@@ -1142,16 +1194,16 @@ class Frame8Detector final : public MarkerDetector {
   // Reads cells too small to sample from the blur model of the ring, given
   // why reading them from samples failed (`sampled`); with the map moved to
   // where the model fits best, H follows it.
-  bool read_by_model(Homography& H, double cell_px, int sampled, Detection& det, int& rotation) {
+  bool read_by_model(Homography& H, CellSize cell_size, int sampled, Detection& det, int& rotation) {
     // The model costs a few hundred microseconds: only for small cells, and
     // only for what has a ring of dark and light cells (clutter mostly
     // fails on contrast already).
-    if (!config_.frame8.model_small_cells || cell_px >= kResolvedCells || sampled <= kNoContrast) return false;
+    if (!config_.frame8.model_small_cells || cell_size.narrow >= kResolvedCells || sampled <= kNoContrast) return false;
     Eigen::Matrix3d M = grid_map(H);
     // First the levels where the quad puts the cells (a tenth of the cost):
     // enough when the quad is right, and to turn away what has no line.
     if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, false, levels_)) return false;
-    const int unaligned = decode(H, cell_px, det, rotation, &levels_);
+    const int unaligned = decode(H, cell_size, det, rotation, &levels_);
     if (unaligned == kRead) return true;
     // A light cell beside C1 that the code says is dark is the mark of a
     // light patch in a checkered surround, not of a ring a fraction of a
@@ -1167,17 +1219,17 @@ class Frame8Detector final : public MarkerDetector {
     }
 #endif
     const Homography aligned = Homography::from_grid_map(M);
-    if (decode(aligned, cell_px, det, rotation, &levels_) != kRead) return false;
+    if (decode(aligned, cell_size, det, rotation, &levels_) != kRead) return false;
     H = aligned;
     return true;
   }
 
   // Decides the code from the ring cells' grey levels: sampled in the image,
   // or fitted by the ring model when `model` is given.
-  int decode(const Homography& H, double cell_px, Detection& det, int& rotation,
+  int decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
              const frame8::RingModel::Levels* model) const {
     auto level = [&](frame8::Cell c) {
-      if (!model) return sample_cell(H, c, cell_px);
+      if (!model) return sample_cell(H, c, cell_size.narrow);
       const float v = model->cell[static_cast<std::size_t>(c.row * frame8::grid + c.col)];
       return CellSample{v, v, v, true};
     };
@@ -1239,7 +1291,7 @@ class Frame8Detector final : public MarkerDetector {
     // it is an erasure (an occluder's edge, or clutter that is no cell at all).
     // Blur takes up to half the contrast of a lone cell under two pixels wide:
     // there a weaker read still counts as a vote.
-    const double kConfident = cell_px >= kResolvedCells ? 0.3 : 0.1;
+    const double kConfident = cell_size.narrow >= kResolvedCells ? 0.3 : 0.1;
     auto clear = [&](const CellSample& c) {
       const double lo = soft(c.lo), hi = soft(c.hi);
       return c.valid && ((lo > kConfident && hi > kConfident) || (lo < -kConfident && hi < -kConfident));
@@ -1249,7 +1301,7 @@ class Frame8Detector final : public MarkerDetector {
     // are never a marker: that is every dark square frame with a light inside.
     int white_corners = 0;
     for (const auto& c : corner) white_corners += soft(c.mean) > 0;
-    F8_TRACE("  corners soft %.2f %.2f %.2f %.2f cell %.2f px\n", soft(corner[0].mean), soft(corner[1].mean), soft(corner[2].mean), soft(corner[3].mean), cell_px);
+    F8_TRACE("  corners soft %.2f %.2f %.2f %.2f cell %.2f px\n", soft(corner[0].mean), soft(corner[1].mean), soft(corner[2].mean), soft(corner[3].mean), cell_size.narrow);
     if (white_corners == 0 || white_corners > 2) return reject(5);
     if (!clear(corner[static_cast<std::size_t>(white_corner)])) return reject(6);
     rotation = (white_corner + 3) % 4;
@@ -1258,6 +1310,17 @@ class Frame8Detector final : public MarkerDetector {
     constexpr double kClearCode = 0.35;
     std::array<double, 4> weight{};
     for (int e = 0; e < 4; ++e) weight[static_cast<std::size_t>(e)] = edge_weight(H, e);
+    // The two short edges of a marker turned far have cells of about a
+    // pixel along them, blurred into each other, while its two long edges
+    // read cleanly: then the short ones have no vote. Only for that shape: a
+    // lone short edge is no turned marker, and must keep its say.
+    for (int e = 0; e < 2; ++e) {
+      const auto s0 = static_cast<std::size_t>(e), s1 = static_cast<std::size_t>(e + 2);
+      const auto l0 = static_cast<std::size_t>(e + 1), l1 = static_cast<std::size_t>((e + 3) % 4);
+      if (weight[s0] < kVotingEdge && weight[s1] < kVotingEdge && weight[l0] >= 1.0 && weight[l1] >= 1.0) {
+        weight[s0] = weight[s1] = 0.0;
+      }
+    }
     int id = 0, corrected = 0, erased = 0;
     std::array<int, 4> outvoted{};  // per edge: its cells the other edges overruled
     double margin = 1.0;
@@ -1274,7 +1337,7 @@ class Frame8Detector final : public MarkerDetector {
       int agree = 0, dissent = 0;
       for (int e = 0; e < 4; ++e) {
         const auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
-        if (!clear(c)) {
+        if (!clear(c) || weight[static_cast<std::size_t>(e)] == 0.0) {
           ++erased;
           continue;  // an erasure, not a vote
         }
@@ -1317,7 +1380,7 @@ class Frame8Detector final : public MarkerDetector {
     }
     // Where cells are resolved, more erasures than one edge's worth is not
     // a marker with an edge covered but something else.
-    if (cell_px >= kResolvedCells && erased > 8) return reject(10);
+    if (cell_size.mean >= kResolvedCells && erased > 8) return reject(10);
     if (margin < config_.frame8.min_margin) return reject(11);
     // Outvoting most of an edge (a covered edge) is only believable when the
     // other three read clearly.
@@ -1328,7 +1391,7 @@ class Frame8Detector final : public MarkerDetector {
     // these two are reported only when asked for, and only where their cells
     // can be verified.
     if (id == 0 || id == 255) {
-      if (!config_.frame8.uniform_ids || cell_px < kResolvedCells) return reject(13);
+      if (!config_.frame8.uniform_ids || cell_size.narrow < kResolvedCells) return reject(13);
     }
     // Corners decide orientation. Without a clean 3:1 split (an edge covered
     // with its corners) the whitest corner still decides, as the contract
@@ -1337,7 +1400,8 @@ class Frame8Detector final : public MarkerDetector {
     for (int k = 0; k < 4; ++k) sorted[static_cast<std::size_t>(k)] = corner[static_cast<std::size_t>(k)].mean;
     std::sort(sorted.begin(), sorted.end());
     const double orientation_clarity = 0.5 * (soft(sorted[3]) - soft(sorted[2]));
-    if (orientation_clarity < config_.frame8.min_margin && margin < kClearCode) return reject(14);
+    // A covered edge is one leniency already: it does not get a second.
+    if (orientation_clarity < config_.frame8.min_margin && (margin < kClearCode || corrected >= 4)) return reject(14);
     margin = std::min(margin, std::max(orientation_clarity, 0.0));
 
     // The line must be there on every side: across it, from the hole's edge
@@ -1378,7 +1442,9 @@ class Frame8Detector final : public MarkerDetector {
     // its four corners: a light square among the bits of a checkered pattern
     // reads as id 0 when a diagonal neighbour lands on C1, but that neighbour
     // also covers the line's corner.
-    if (cell_px >= kResolvedCells) {
+    // A marker turned far keeps a line of a pixel or more across its narrow
+    // direction, enough to be checked.
+    if (cell_size.mean >= kResolvedCells && cell_size.narrow >= kCheckedLineCells) {
       static constexpr std::array<Point2, 4> kLineCorners{{{1.25, 1.25}, {8.75, 1.25}, {8.75, 8.75}, {1.25, 8.75}}};
       for (const Point2& g : kLineCorners) {
         float v = 0;
@@ -1410,6 +1476,15 @@ class Frame8Detector final : public MarkerDetector {
     det.bits_corrected = corrected;
     det.margin = margin;
     return kRead;
+  }
+
+  [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const {
+    const double d = decimate_;
+    const Point2 centre{(c.x0 + c.x1 - 1) * 0.5 * d + (d - 1) / 2, (c.y0 + c.y1) * 0.5 * d + (d - 1) / 2};
+    for (const Detection& det : found) {
+      if (inside(det.corners, centre)) return true;
+    }
+    return false;
   }
 
   static bool inside(const Quad& q, Point2 p) {
@@ -1451,7 +1526,15 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr double kThinLineCells = 8.0;
   // From this many pixels per cell, a cell is sampled at four points.
   static constexpr double kResolvedCells = 3.0;
-  static constexpr double kMinSideRatio = 0.13;  // cos(82.5 deg)
+  // From this many pixels per cell across, the line's darkness is checked.
+  static constexpr double kCheckedLineCells = 2.0;
+  // Perspective shortens one end of a far-turned marker below the cosine of
+  // its turn: 0.12 at 80 degrees, seen from 0.5 m.
+  static constexpr double kMinSideRatio = 0.13;
+  // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
+  static constexpr double kVotingEdge = 0.38;
+  // A side shorter than this fraction of its neighbours is a sliver's end.
+  static constexpr double kSliverEnd = 0.35;
   // From this many pixels per cell, the corners come from the whole pattern.
   static constexpr double kPatternCells = 1.0;
   static constexpr int kMinPatternEdges = 16;
@@ -1473,6 +1556,7 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<Run> runs_;
   std::vector<std::int32_t> row_first_;
   std::vector<Component> components_;
+  std::vector<std::int32_t> roots_;
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_;
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
