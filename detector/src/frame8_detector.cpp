@@ -1199,6 +1199,7 @@ class Frame8Detector final : public MarkerDetector {
     // only for what has a ring of dark and light cells (clutter mostly
     // fails on contrast already).
     if (!config_.frame8.model_small_cells || cell_size.narrow >= kResolvedCells || sampled <= kNoContrast) return false;
+    F8_TRACE("  model fit, sampled check %d, narrow cell %.2f px\n", sampled, cell_size.narrow);
     Eigen::Matrix3d M = grid_map(H);
     // First the levels where the quad puts the cells (a tenth of the cost):
     // enough when the quad is right, and to turn away what has no line.
@@ -1209,6 +1210,7 @@ class Frame8Detector final : public MarkerDetector {
     // light patch in a checkered surround, not of a ring a fraction of a
     // cell off: not worth moving the map for.
     if (unaligned <= kNoContrast || unaligned == kC1Contradicted) return false;
+    F8_TRACE("  model alignment, unaligned check %d\n", unaligned);
     if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return false;
 #ifdef FRAME8_DEBUG
     F8_TRACE("  model rms %.1f line %.0f %.0f %.0f %.0f hole %.0f\n", levels_.rms_residual, levels_.line[0], levels_.line[1], levels_.line[2], levels_.line[3], levels_.hole);
