@@ -10,8 +10,10 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -58,6 +60,15 @@ struct AxisSettings {
   HomingSettings homing;
 };
 
+// What is wrong with a set of settings: `key` is the setting's name in the
+// config's axis table ("max_velocity", "homing.backoff", "settle_ms"), so
+// that the config loader and the Axis constructor report the same rule.
+struct AxisSettingsProblem {
+  std::string key;
+  std::string message;
+};
+[[nodiscard]] std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& settings);
+
 enum class AxisState : std::uint8_t { disabled, idle, moving, homing, stopping, fault };
 const char* to_string(AxisState state);
 
@@ -95,15 +106,37 @@ class Axis {
   // timeout passes (false).
   bool wait_settled(std::chrono::milliseconds timeout) const;
 
+  // Called with every changed status (the rig's snapshot follows its axes
+  // through this). It runs on the thread that changed the status, with the
+  // axis's status lock held: it must be brief, must not block and must not
+  // call back into this axis. An empty function removes the listener.
+  void set_status_listener(std::function<void(const AxisStatus&)> listener);
+
  private:
   AxisSettings settings_;
   std::unique_ptr<Drive> drive_;
   // The implementation's supervisor thread and state (src/axis.cpp).
+  // mutex_ guards the published status (Impl::published) and the listener;
+  // it is never held during a drive command, so status() never waits on I/O.
   mutable std::mutex mutex_;
   mutable std::condition_variable changed_;
   struct Impl;
   std::unique_ptr<Impl> impl_;
   std::jthread supervisor_;
+
+  // Supervisor and command helpers (src/axis.cpp); they run with
+  // Impl::command_mutex held.
+  void run(const std::stop_token& stop);
+  void step();
+  void publish(const DriveStatus& drive_status, std::chrono::steady_clock::time_point now);
+  void begin_move(double target, const DriveStatus& drive_status);
+  void start_leg(std::int64_t target_steps, std::int64_t from_steps);
+  void finish_move(const DriveStatus& drive_status, std::chrono::steady_clock::time_point now);
+  enum class FaultAction { none, stop, disable };
+  void enter_fault(std::string cause, FaultAction action);
+  [[nodiscard]] DriveStatus read_drive_for_command();
+  [[noreturn]] void refuse(std::string_view command, std::string_view reason) const;
+  [[noreturn]] void drive_failed(std::string_view command, const DriveError& error);
 };
 
 }  // namespace markerd::rig
