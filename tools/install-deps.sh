@@ -19,6 +19,9 @@ packages=(
   # peers for the rig's tests: a serial line pair for Modbus RTU, a Modbus
   # server this project did not write (for Debian's /usr/bin/python3)
   socat python3-pymodbus
+  # pymodbus 3.0's server module imports pyserial and serial_asyncio (its
+  # Recommends, which --no-install-recommends leaves out)
+  python3-serial python3-serial-asyncio
   # hardware-in-the-loop tests: Debian's kernel under qemu, a busybox initramfs
   qemu-system-x86 busybox-static cpio
 )
