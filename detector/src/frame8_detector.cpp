@@ -1339,7 +1339,8 @@ class Frame8Detector final : public MarkerDetector {
       int agree = 0, dissent = 0;
       for (int e = 0; e < 4; ++e) {
         const auto& c = cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
-        if (!clear(c) || weight[static_cast<std::size_t>(e)] == 0.0) {
+        if (weight[static_cast<std::size_t>(e)] == 0.0) continue;  // an edge without a vote
+        if (!clear(c)) {
           ++erased;
           continue;  // an erasure, not a vote
         }
@@ -1532,7 +1533,7 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr double kCheckedLineCells = 2.0;
   // Perspective shortens one end of a far-turned marker below the cosine of
   // its turn: 0.12 at 80 degrees, seen from 0.5 m.
-  static constexpr double kMinSideRatio = 0.13;
+  static constexpr double kMinSideRatio = 0.1;
   // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
   static constexpr double kVotingEdge = 0.38;
   // A side shorter than this fraction of its neighbours is a sliver's end.

@@ -14,9 +14,10 @@
 namespace markerd::frame8 {
 namespace {
 
-// Beyond this many pixels across, cells are several pixels wide and sampling
-// them is better and cheaper.
-constexpr int kMaxSidePx = 72;
+// Beyond a box of this many pixels, cells are several pixels wide and
+// sampling them is better and cheaper. An area, not a side: a marker turned
+// far is a tall sliver whose cells are a pixel wide however tall it is.
+constexpr double kMaxBoxPx = 72.0 * 72.0;
 // A pixel whose footprint lies more than this much outside the marker says
 // more about the background than about the ring.
 constexpr double kMaxOutside = 0.5;
@@ -119,7 +120,7 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
     y0 = std::min(y0, p(1) / p(2));
     y1 = std::max(y1, p(1) / p(2));
   }
-  if (!(x1 - x0 <= kMaxSidePx && y1 - y0 <= kMaxSidePx)) return false;
+  if (!((x1 - x0) * (y1 - y0) <= kMaxBoxPx)) return false;
   // Pixels whose footprint reaches the marker; most of those on the rim
   // are dropped again as mostly outside.
   px0_ = static_cast<int>(std::floor(x0));
