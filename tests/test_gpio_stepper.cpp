@@ -8,6 +8,8 @@
 // absolute latency: the machine running them is shared and loaded.
 
 #include <gtest/gtest.h>
+#include <spdlog/sinks/base_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <atomic>
@@ -270,6 +272,62 @@ TEST_F(GpioStepper, EStopInputDisablesAtOnceAndAlarms) {
   d.enable(true);
   EXPECT_FALSE(gpio.level("ENABLE"));
   EXPECT_EQ(pulses(), stopped);
+}
+
+// A log sink that reads the drive's status on the thread that logs, at the
+// moment the e-stop's alarm is logged: the earliest the fault is announced.
+class StatusAtAlarmLog : public spdlog::sinks::base_sink<std::mutex> {
+ public:
+  std::atomic<const GpioStepperDrive*> drive{nullptr};
+
+  [[nodiscard]] std::vector<DriveStatus> seen() {
+    const std::lock_guard lock(mutex_);
+    return seen_;
+  }
+
+ protected:
+  void sink_it_(const spdlog::details::log_msg& msg) override {
+    const std::string_view text(msg.payload.data(), msg.payload.size());
+    const GpioStepperDrive* d = drive.load();
+    if (d != nullptr && msg.level == spdlog::level::err && text.find("e-stop input active at step") != text.npos) {
+      seen_.push_back(d->status());
+    }
+  }
+  void flush_() override {}
+
+ private:
+  std::vector<DriveStatus> seen_;  // under the sink's mutex_
+};
+
+// The e-stop disables the driver, then raises the alarm; status() must never
+// show the step between (disabled, no alarm: a drive merely switched off).
+// The alarm is logged after both are published, so a status read from the
+// log line itself, on the input thread, sees what every later reader sees.
+TEST_F(GpioStepper, EStopPublishesDisabledAndAlarmTogether) {
+  auto sink = std::make_shared<StatusAtAlarmLog>();
+  auto& d = make_enabled();
+  // Attached while no other thread logs (the drive is idle), detached the same way.
+  const auto logger = spdlog::default_logger();
+  logger->sinks().push_back(sink);
+  sink->drive = &d;
+  struct Detach {
+    std::unique_ptr<GpioStepperDrive>& drive;
+    std::shared_ptr<spdlog::logger> logger;
+    ~Detach() {
+      drive.reset();  // its threads are joined: nothing logs any more
+      logger->sinks().pop_back();
+    }
+  } detach{drive, logger};
+  d.start_move(100000, 1000, 5000);
+  ASSERT_TRUE(eventually([&] { return d.status().position_steps >= 20; }));
+  gpio.set_level("ESTOP", false);
+  ASSERT_TRUE(eventually([&] { return !sink->seen().empty(); }));
+  ASSERT_TRUE(idle());
+  const DriveStatus at_log = sink->seen().front();
+  EXPECT_FALSE(at_log.enabled);
+  EXPECT_FALSE(at_log.homed);
+  EXPECT_TRUE(at_log.alarm) << "disabled by the e-stop, but its alarm not yet published";
+  EXPECT_NE(at_log.alarm_cause.find("e-stop input active"), std::string::npos) << at_log.alarm_cause;
 }
 
 TEST_F(GpioStepper, EmergencyStopFromAnyThreadDisablesImmediately) {

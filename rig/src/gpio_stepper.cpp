@@ -311,7 +311,7 @@ GpioStepperDrive::GpioStepperDrive(std::string axis_name, GpioStepperSettings se
     channel->active = with_name([&] { return channel->line->get(); });
     inputs_[i] = std::move(channel);
   }
-  if (input_active(estop)) raise_alarm("e-stop input active at start");
+  if (input_active(estop)) raise_alarm("e-stop input active at start", AlarmAction::none);
 
   if (settings_.rt_priority > 0) lock_memory_once();
   shutdown_fd_ = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
@@ -344,24 +344,50 @@ bool GpioStepperDrive::input_active(Input input) const {
   return inputs_[input] != nullptr && inputs_[input]->active.load(std::memory_order_acquire);
 }
 
-void GpioStepperDrive::raise_alarm(std::string cause) {
+// The fault's consequences (the enable line inactive first: fail safe; home
+// lost) and the alarm are published together, under alarm_mutex_, so that
+// status() never shows a drive disabled by a fault without its alarm. The
+// log lines follow, outside the locks.
+void GpioStepperDrive::raise_alarm(std::string cause, AlarmAction action) {
+  std::optional<std::string> disable_failure;
+  {
+    const std::lock_guard lock(alarm_mutex_);
+    if (action == AlarmAction::disable) {
+      disable_failure = switch_off(true);
+    } else if (action == AlarmAction::lose_home) {
+      homed_.store(false);
+    }
+    if (!alarm_.load()) {  // the first cause is the one to act on
+      alarm_cause_ = cause;
+      alarm_.store(true);
+    }
+  }
+  if (disable_failure) spdlog::critical("{}: cannot disable the driver: {}", name_, *disable_failure);
   spdlog::error("{}: {}", name_, cause);
-  const std::lock_guard lock(alarm_mutex_);
-  if (alarm_.load()) return;  // the first cause is the one to act on
-  alarm_cause_ = std::move(cause);
-  alarm_.store(true);
 }
 
-void GpioStepperDrive::disable_now(bool lose_home) noexcept {
+std::optional<std::string> GpioStepperDrive::switch_off(bool lose_home) noexcept {
   const std::lock_guard lock(enable_mutex_);
   abort_.store(true);
+  std::optional<std::string> failure;
   try {
     enable_line_->set(false);
   } catch (const std::exception& e) {
-    spdlog::critical("{}: cannot disable the driver: {}", name_, e.what());
+    failure = e.what();
   }
   enabled_.store(false);
   if (lose_home) homed_.store(false);
+  return failure;
+}
+
+void GpioStepperDrive::disable_now(bool lose_home) noexcept {
+  std::optional<std::string> failure;
+  {
+    // Disabled and home lost appear together in status().
+    const std::lock_guard lock(alarm_mutex_);
+    failure = switch_off(lose_home);
+  }
+  if (failure) spdlog::critical("{}: cannot disable the driver: {}", name_, *failure);
 }
 
 void GpioStepperDrive::emergency_stop() noexcept {
@@ -493,11 +519,12 @@ void GpioStepperDrive::reset_alarm() {
 DriveStatus GpioStepperDrive::status() const {
   DriveStatus s;
   s.position_steps = position_.load();
-  s.enabled = enabled_.load();
   s.busy = busy_.load();
-  s.homed = homed_.load();
   {
+    // Under the lock that disables and alarms: a fault is seen whole.
     const std::lock_guard lock(alarm_mutex_);
+    s.enabled = enabled_.load();
+    s.homed = homed_.load();
     s.alarm = alarm_.load();
     s.alarm_cause = alarm_cause_;
   }
@@ -547,14 +574,13 @@ void GpioStepperDrive::run(const Command& command) {
     move.accel_steps_per_s2 = command.accel_steps_per_s2;
     if (run_segment(move) == End::limit) {
       // At speed, an abrupt stop may lose steps: the position is no longer trusted.
-      homed_.store(false);
       const Input ahead = move.direction > 0 ? limit_max : limit_min;
       raise_alarm(fmt::format("{} tripped at step {} while moving towards it: stopped at once, home lost",
-                              input_key(ahead), position_.load()));
+                              input_key(ahead), position_.load()),
+                  AlarmAction::lose_home);
     }
   } catch (const std::exception& e) {
-    disable_now(true);
-    raise_alarm(fmt::format("{}; drive disabled", e.what()));
+    raise_alarm(fmt::format("{}; drive disabled", e.what()), AlarmAction::disable);
   }
 }
 
@@ -733,8 +759,8 @@ GpioStepperDrive::End GpioStepperDrive::run_segment(const Segment& segment) {
 void GpioStepperDrive::on_input_active(Input input) {
   spdlog::info("{}: {} active at step {}", name_, input_key(input), position_.load());
   if (input == estop) {
-    disable_now(true);
-    raise_alarm(fmt::format("e-stop input active at step {}: drive disabled, home lost", position_.load()));
+    raise_alarm(fmt::format("e-stop input active at step {}: drive disabled, home lost", position_.load()),
+                AlarmAction::disable);
   }
 }
 
@@ -801,8 +827,8 @@ void GpioStepperDrive::input_thread_main(const std::stop_token& stop) {
   } catch (const std::exception& e) {
     // Without its inputs the axis cannot stop at its limits: stop for good.
     inputs_failed_.store(true);
-    disable_now(true);
-    raise_alarm(fmt::format("input monitoring failed ({}): drive disabled until restarted", e.what()));
+    raise_alarm(fmt::format("input monitoring failed ({}): drive disabled until restarted", e.what()),
+                AlarmAction::disable);
   }
 }
 

@@ -444,8 +444,13 @@ TEST_F(GpioStepperHil, EStopInputDisablesTheDriver) {
 
   sim_->pull("ESTOP", false);  // the normally-closed loop opens
   ASSERT_TRUE(wait_until([&] { return !driver_enabled(); })) << "the e-stop did not disable the driver";
-  // The driver is disabled first and the alarm raised after it.
-  ASSERT_TRUE(wait_until([&] { return !drive->status().busy && drive->status().alarm; }));
+  // The alarm is published with the disable: a status read once the driver
+  // saw its enable drop already shows it (the step thread ends within its
+  // sleep slice, so busy may still be set).
+  const DriveStatus at_disable = drive->status();
+  EXPECT_TRUE(at_disable.alarm) << "disabled by the e-stop without its alarm";
+  EXPECT_FALSE(at_disable.enabled);
+  ASSERT_TRUE(wait_idle(*drive));
   const DriveStatus stopped = drive->status();
   EXPECT_FALSE(stopped.enabled);
   EXPECT_TRUE(stopped.alarm);

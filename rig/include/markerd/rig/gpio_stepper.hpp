@@ -102,7 +102,12 @@ class GpioStepperDrive final : public Drive {
   End run_segment(const Segment& segment);
   bool sleep_until(std::int64_t due_ns) const;
   void set_direction(int direction);
-  void raise_alarm(std::string cause);
+  // What a fault does besides latching its alarm, in the same step as seen by status().
+  enum class AlarmAction : std::uint8_t { none, lose_home, disable };
+  void raise_alarm(std::string cause, AlarmAction action = AlarmAction::none);
+  // Enable inactive, steps aborted; the line's error, if writing it failed.
+  // Callers hold alarm_mutex_.
+  std::optional<std::string> switch_off(bool lose_home) noexcept;
   void disable_now(bool lose_home) noexcept;
   void check_can_move(int direction, double steps_per_s, const char* what) const;
   void on_input_active(Input input);
@@ -138,6 +143,10 @@ class GpioStepperDrive final : public Drive {
   mutable std::mutex enable_mutex_;
   std::atomic<std::int64_t> enabled_at_ns_{0};  // when enable went active: motion waits for the settle time
 
+  // Guards the alarm, and makes every change of enabled_/homed_ by a disable
+  // or a fault one step for status(), which reads them under it: a fault
+  // shows disabled (or home lost) and its alarm together. Taken before
+  // enable_mutex_.
   mutable std::mutex alarm_mutex_;
   std::string alarm_cause_;  // under alarm_mutex_
 
