@@ -7,10 +7,13 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 #include <string>
 #include <unistd.h>
 
+#include "markerd/rig/modbus_drive_sim.hpp"
 #include "markerd/rig/rig_config.hpp"
+#include "modbus/peers.hpp"
 
 using namespace markerd::rig;
 using markerd::ConfigError;
@@ -197,28 +200,31 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
   }
 }
 
-TEST_F(RigConfigFile, BackendsNotYetBuiltInAreNamedAtTheirLine) {
-  const std::string gpio_rail = "backend = \"sim\"\nunit = \"mm\"";
-  std::string text = kBase;
-  text.replace(text.find(gpio_rail), gpio_rail.size(), "backend = \"gpio\"\nunit = \"mm\"");
-  text.replace(text.find("[rig.rail.sim]"), 14, "[rig.rail.gpio]");
-  std::ofstream(path_) << text;
-  try {
-    load_rig_config(path_);
-    FAIL() << "no error";
-  } catch (const ConfigError& e) {
-    EXPECT_EQ(std::string(e.what()), path_.string() + ":8: rig.rail.backend: the 'gpio' backend is not built into this loader yet");
-  }
+TEST_F(RigConfigFile, EachAxisTableBelongsToItsBackend) {
   {
     const auto [error, where] = error_with("backend = \"sim\"", "backend = \"steam\"");
     EXPECT_EQ(error, where + ": rig.rail.backend: unknown backend 'steam' (known: sim, gpio, modbus)");
   }
-  // The table of another backend than the one chosen is a mistake too.
+  // The table of another backend than the one chosen is a mistake, whichever backend.
   {
     const auto [error, where] = error_with("[rig.rail.sim]", "[rig.rail.modbus]\nunit_id = 1\n[rig.rail.sim]");
     EXPECT_EQ(error, where + ": rig.rail.modbus: unknown key (known here: backend, unit, units_per_step, min_position, "
                     "max_position, max_velocity, acceleration, backlash, approach_direction, retry_deadband, "
                     "max_retries, settle_ms, homing, sim)");
+  }
+  {
+    const std::string sim_rail = "backend = \"sim\"\nunit = \"mm\"";
+    std::string text = kBase;
+    text.replace(text.find(sim_rail), sim_rail.size(), "backend = \"gpio\"\nunit = \"mm\"");
+    std::ofstream(path_) << text;
+    try {
+      load_rig_config(path_);
+      FAIL() << "no error";
+    } catch (const ConfigError& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(path_.string() + ":22: rig.rail.sim: unknown key (known here: backend,", 0), 0u)
+          << e.what();
+      EXPECT_NE(std::string(e.what()).find("homing, gpio)"), std::string::npos) << e.what();
+    }
   }
 }
 
@@ -226,4 +232,221 @@ TEST_F(RigConfigFile, MisspelledTablesAndSyntaxErrorsAreReported) {
   EXPECT_NE(error_with("[rig.turntable]", "[rig.turntabel]").error.find("rig.turntabel: unknown key"), std::string::npos);
   const auto [syntax, where] = error_with("acceleration = 60.0", "acceleration = ");
   EXPECT_EQ(syntax.rfind(where + ":", 0), 0U) << syntax;
+}
+
+// ---------------------------------------------------------------- every backend through the loader
+
+namespace {
+
+const std::filesystem::path kSourceDir = MARKERD_SOURCE_DIR;
+
+std::string read_text(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+void replace_once(std::string& text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  ASSERT_NE(at, std::string::npos) << from;
+  text.replace(at, from.size(), to);
+}
+
+// Shipped configs rewritten by a test, in a directory of their own; their
+// relative map paths made absolute.
+class WrittenConfig : public testing::Test {
+ protected:
+  void SetUp() override { dir_ = std::make_unique<markerd::test::TempDir>(); }
+
+  std::filesystem::path write(std::string text) {
+    while (text.find("map = \"drives/") != std::string::npos) {
+      replace_once(text, "map = \"drives/", "map = \"" + (kSourceDir / "config/drives/").string());
+    }
+    const auto path = dir_->path() / "rig.toml";
+    std::ofstream(path) << text;
+    return path;
+  }
+
+  // The ConfigError of `text`, and "file:N" for the line holding `marker`.
+  std::pair<std::string, std::string> error_at(const std::string& text, const std::string& marker) {
+    const auto path = write(text);
+    std::string rewritten = read_text(path);
+    const auto at = rewritten.find(marker);
+    EXPECT_NE(at, std::string::npos) << marker;
+    const auto line = 1 + std::count(rewritten.begin(), rewritten.begin() + static_cast<std::ptrdiff_t>(at), '\n');
+    std::string error = "(no error)";
+    try {
+      (void)load_rig_config(path);
+    } catch (const ConfigError& e) {
+      error = e.what();
+    }
+    return {error, fmt::format("{}:{}", path.string(), line)};
+  }
+
+  std::unique_ptr<markerd::test::TempDir> dir_;
+};
+
+}  // namespace
+
+TEST(RigConfig, EveryShippedConfigLoads) {
+  const RigConfig sim = load_rig_config(kSourceDir / "config/rig-sim.toml");
+  EXPECT_TRUE(std::holds_alternative<SimDriveSettings>(sim.rail.drive));
+  EXPECT_TRUE(sim.buses.empty());
+
+  const RigConfig gpio = load_rig_config(kSourceDir / "config/rig-gpio.toml");
+  const auto& rail_gpio = std::get<GpioStepperSettings>(gpio.rail.drive);
+  const auto& turntable_gpio = std::get<GpioStepperSettings>(gpio.turntable.drive);
+  EXPECT_EQ(rail_gpio.step.chip, "gpiochip0");
+  EXPECT_EQ(rail_gpio.step.line, "GPIO17");
+  EXPECT_EQ(rail_gpio.consumer, "markerd-rail");
+  EXPECT_EQ(turntable_gpio.estop->line, "GPIO19");
+  EXPECT_DOUBLE_EQ(1.0 / gpio.rail.axis.units_per_step * 10, 400);  // the thesis rail: 400 steps per cm
+  EXPECT_TRUE(gpio.buses.empty());
+
+  const RigConfig rtu = load_rig_config(kSourceDir / "config/rig-modbus-rtu.toml");
+  ASSERT_EQ(rtu.buses.size(), 1u);
+  EXPECT_EQ(rtu.buses.at("rtu0").device, "/dev/ttyUSB0");
+  const auto& rail_rtu = std::get<ModbusAxisSettings>(rtu.rail.drive);
+  const auto& turntable_rtu = std::get<ModbusAxisSettings>(rtu.turntable.drive);
+  EXPECT_EQ(rail_rtu.drive.bus, "rtu0");
+  EXPECT_EQ(turntable_rtu.drive.bus, "rtu0");  // two drives on one line, by unit id
+  EXPECT_EQ(rail_rtu.drive.unit_id, 1);
+  EXPECT_EQ(turntable_rtu.drive.unit_id, 2);
+  EXPECT_EQ(rail_rtu.map.source, (kSourceDir / "config/drives/generic.toml").string());
+  EXPECT_EQ(rail_rtu.map.target_position.address, 0x0000);
+
+  const RigConfig tcp = load_rig_config(kSourceDir / "config/rig-modbus-tcp.toml");
+  ASSERT_EQ(tcp.buses.size(), 2u);
+  EXPECT_EQ(tcp.buses.at("rail").transport, ModbusTransport::tcp);
+  EXPECT_EQ(tcp.buses.at("turntable").host, "192.168.10.22");
+  EXPECT_EQ(std::get<ModbusAxisSettings>(tcp.turntable.drive).drive.bus, "turntable");
+}
+
+TEST(RigConfig, TheGpioRigNamesTheMissingChip) {
+  if (std::filesystem::exists("/dev/gpiochip0")) GTEST_SKIP() << "this machine has a gpiochip0";
+  const RigConfig config = load_rig_config(kSourceDir / "config/rig-gpio.toml");
+  try {
+    (void)make_rig(config);
+    FAIL() << "a rig without its GPIO chip";
+  } catch (const DriveError& e) {
+    const std::string error = e.what();
+    EXPECT_EQ(error.rfind("rail (gpio gpiochip0): GPIO chip 'gpiochip0' (/dev/gpiochip0): No such file or directory", 0),
+              0u)
+        << error;
+  }
+}
+
+TEST_F(WrittenConfig, TheModbusTcpRigHomesAndMovesBothAxes) {
+  // One simulated drive server per bus, as the config has one drive (or
+  // gateway) per connection, on the shared simulated clock at 20x.
+  const auto clock = std::make_shared<SimClock>(20.0);
+  const auto unit = [](double start_steps) {
+    ModbusSimUnit u;
+    u.unit_id = 1;
+    u.map = load_register_map(kSourceDir / "config/drives/generic.toml");
+    u.start_position_steps = start_steps;
+    return u;
+  };
+  ModbusDriveSim rail_drive({unit(30000)}, ModbusSimTcp{}, clock);
+  ModbusDriveSim turntable_drive({unit(-800)}, ModbusSimTcp{}, clock);
+  rail_drive.start();
+  turntable_drive.start();
+
+  std::string text = read_text(kSourceDir / "config/rig-modbus-tcp.toml");
+  replace_once(text, "host = \"192.168.10.21\"\nport = 502", fmt::format("host = \"127.0.0.1\"\nport = {}", rail_drive.port()));
+  replace_once(text, "host = \"192.168.10.22\"\nport = 502",
+               fmt::format("host = \"127.0.0.1\"\nport = {}", turntable_drive.port()));
+  // Timeouts for a loaded machine running sanitizers.
+  while (text.find("response_timeout_ms = 100") != std::string::npos) {
+    replace_once(text, "response_timeout_ms = 100", "response_timeout_ms = 500");
+  }
+  const RigConfig config = load_rig_config(write(text));
+  const std::unique_ptr<Rig> rig = make_rig(config);
+  ASSERT_EQ(rig->devices().buses.size(), 2u);
+  EXPECT_EQ(rig->sim_clock(), nullptr) << "no simulated axis in this rig";
+
+  for (Axis* axis : {&rig->rail(), &rig->turntable()}) {
+    axis->enable();
+    axis->home();
+    ASSERT_TRUE(axis->wait_settled(std::chrono::seconds(60))) << axis->settings().name << ": " << axis->status().fault;
+    EXPECT_TRUE(axis->status().homed);
+  }
+  rig->rail().move_to(250.0);
+  rig->turntable().move_to(30.0);
+  ASSERT_TRUE(rig->rail().wait_settled(std::chrono::seconds(60))) << rig->rail().status().fault;
+  ASSERT_TRUE(rig->turntable().wait_settled(std::chrono::seconds(60))) << rig->turntable().status().fault;
+  EXPECT_NEAR(rig->rail().status().position, 250.0, 0.05);
+  EXPECT_NEAR(rig->turntable().status().position, 30.0, 0.05);
+  // What the drives did, seen from the servers.
+  EXPECT_EQ(rail_drive.state(1).target_steps, 25000);  // 250 mm at 0.01 mm per step
+  EXPECT_EQ(turntable_drive.state(1).target_steps, 833);  // 30 deg at 0.036 deg per step
+  EXPECT_EQ(rail_drive.state(1).homings, 1);
+  EXPECT_EQ(turntable_drive.state(1).homings, 1);
+  const RigSnapshot snapshot = rig->snapshot();
+  EXPECT_NEAR(rig->ground_truth(snapshot).distance_m, 0.55, 1e-3);
+}
+
+TEST_F(WrittenConfig, BusesAndModbusAxesAreCheckedTogether) {
+  const std::string rtu = read_text(kSourceDir / "config/rig-modbus-rtu.toml");
+  {
+    std::string text = rtu;
+    replace_once(text, "bus = \"rtu0\"\nunit_id = 2", "bus = \"rtu1\"\nunit_id = 2");
+    const auto [error, where] = error_at(text, "bus = \"rtu1\"");
+    EXPECT_EQ(error, where + ": rig.turntable.modbus.bus: no bus 'rtu1' (buses in [rig.buses]: rtu0)");
+  }
+  {
+    std::string text = rtu;
+    replace_once(text, "[rig.rail]", "[rig.buses.spare]\ntype = \"tcp\"\nhost = \"10.0.0.9\"\n\n[rig.rail]");
+    const auto [error, where] = error_at(text, "[rig.buses.spare]");
+    EXPECT_EQ(error, where + ": rig.buses.spare: no axis uses bus 'spare' (check the bus keys of [rig.rail.modbus] "
+                             "and [rig.turntable.modbus], or remove the bus)");
+  }
+  {
+    std::string text = rtu;
+    replace_once(text, "bus = \"rtu0\"\nunit_id = 2", "bus = \"rtu0\"\nunit_id = 1");
+    const auto [error, table_at] = error_at(text, "[rig.turntable.modbus]");
+    const auto colon = table_at.rfind(':');
+    const std::string where = fmt::format("{}:{}", table_at.substr(0, colon), std::stoi(table_at.substr(colon + 1)) + 2);
+    EXPECT_EQ(error, where + ": rig.turntable.modbus.unit_id: unit 1 on bus 'rtu0' is the rail's drive already "
+                             "(drives sharing a bus need their own unit ids)");
+  }
+  {
+    // A mistake in the drive's map is a config error too, naming the map's line.
+    const auto map = dir_->path() / "broken-map.toml";
+    std::string map_text = read_text(kSourceDir / "config/drives/generic.toml");
+    replace_once(map_text, "[velocity]\naddress = 0x0002", "[velocity]\naddress = 0x0002\nsacle = 2");
+    std::ofstream(map) << map_text;
+    std::string text = rtu;
+    replace_once(text, "map = \"drives/generic.toml\"", fmt::format("map = \"{}\"", map.string()));
+    const auto [error, where] = error_at(text, "[rig.geometry]");
+    (void)where;
+    EXPECT_NE(error.find(map.string() + ":"), std::string::npos) << error;
+    EXPECT_NE(error.find("velocity.sacle: unknown key"), std::string::npos) << error;
+  }
+}
+
+TEST_F(WrittenConfig, GpioAxesAreCheckedAgainstTheirLines) {
+  const std::string gpio = read_text(kSourceDir / "config/rig-gpio.toml");
+  {
+    std::string text = gpio;
+    replace_once(text, "max_velocity = 50.0 ", "max_velocity = 70.0 ");
+    const auto [error, where] = error_at(text, "max_velocity = 70.0");
+    EXPECT_EQ(error, where + ": rig.rail.max_velocity: 70 mm/s is 2800 steps/s at 0.025 mm per step, above the GPIO "
+                             "stepper's max_step_rate of 2500 steps/s in [rig.rail.gpio]");
+  }
+  {
+    std::string text = gpio;
+    replace_once(text, "home = { line = \"GPIO16\", active_low = true }", "");
+    const auto [error, where] = error_at(text, "switch = \"home\"\nsearch_velocity = 5.0");
+    EXPECT_EQ(error, where + ": rig.turntable.homing.switch: homing on home needs the home input, and "
+                             "[rig.turntable.gpio] has no home line");
+  }
+  {
+    std::string text = gpio;
+    replace_once(text, "estop = { line = \"GPIO19\" }", "estop = { line = \"GPIO26\" }");
+    const auto [error, where] = error_at(text, "estop = { line = \"GPIO26\" }                       # pin 35");
+    EXPECT_EQ(error, where + ": rig.turntable.gpio.estop.line: line 'GPIO26' of gpiochip0 is also the rail's estop "
+                             "line (a GPIO line has one user: wire a shared switch to one input per axis)");
+  }
 }

@@ -21,9 +21,8 @@ AxisSnapshot snapshot_of(const AxisStatus& s) {
 
 }  // namespace
 
-Rig::Rig(std::unique_ptr<Axis> rail, std::unique_ptr<Axis> turntable, RigGeometry geometry,
-         std::shared_ptr<SimClock> sim_clock)
-    : geometry_(geometry), sim_clock_(std::move(sim_clock)), rail_(std::move(rail)), turntable_(std::move(turntable)) {
+Rig::Rig(std::unique_ptr<Axis> rail, std::unique_ptr<Axis> turntable, RigGeometry geometry, RigDevices devices)
+    : geometry_(geometry), devices_(std::move(devices)), rail_(std::move(rail)), turntable_(std::move(turntable)) {
   if (!rail_ || !turntable_) throw std::invalid_argument("Rig: both the rail and the turntable axis are required");
   auto on_change = [this](const AxisStatus&) {
     {

@@ -75,7 +75,29 @@ HomingSettings parse_homing(const ConfigTable& h) {
   return s;
 }
 
-AxisConfig parse_axis(const ConfigTable& rig, std::string_view name) {
+const GpioLineSpec* gpio_input(const GpioStepperSettings& gpio, HomingSteps::Switch target) {
+  const std::optional<GpioLineSpec>& line = target == HomingSteps::Switch::home        ? gpio.home
+                                            : target == HomingSteps::Switch::limit_min ? gpio.limit_min
+                                                                                       : gpio.limit_max;
+  return line ? &*line : nullptr;
+}
+
+const char* switch_key(HomingSteps::Switch target) {
+  switch (target) {
+    case HomingSteps::Switch::home: return "home";
+    case HomingSteps::Switch::limit_min: return "limit_min";
+    case HomingSteps::Switch::limit_max: return "limit_max";
+  }
+  return "home";
+}
+
+// What parse_axis needs from the rest of the [rig] table.
+struct AxisContext {
+  std::filesystem::path config_dir;
+  const std::map<std::string, ModbusBusSettings>* buses = nullptr;
+};
+
+AxisConfig parse_axis(const ConfigTable& rig, std::string_view name, const AxisContext& context) {
   const ConfigTable t = rig.table(name);
   const auto backend = t.required<std::string>("backend");
   if (backend != "sim" && backend != "gpio" && backend != "modbus") {
@@ -115,10 +137,90 @@ AxisConfig parse_axis(const ConfigTable& rig, std::string_view name) {
                                         t.key_path()));
     }
     config.drive = std::move(sim);
+  } else if (backend == "gpio") {
+    GpioStepperSettings gpio = parse_gpio_stepper(t.table("gpio"));
+    if (gpio_input(gpio, a.homing.target) == nullptr) {
+      const char* key = switch_key(a.homing.target);
+      homing.fail("switch", fmt::format("homing on {} needs the {} input, and [{}.gpio] has no {} line", key, key,
+                                        t.key_path(), key));
+    }
+    // Homing velocities are at most max_velocity (checked above): this bounds them all.
+    const double steps_per_s = a.max_velocity / a.units_per_step;
+    if (steps_per_s > gpio.max_step_rate * (1 + 1e-9)) {
+      t.fail("max_velocity", fmt::format("{} {}/s is {:.0f} steps/s at {} {} per step, above the GPIO stepper's "
+                                         "max_step_rate of {} steps/s in [{}.gpio]",
+                                         a.max_velocity, a.unit, steps_per_s, a.units_per_step, a.unit,
+                                         gpio.max_step_rate, t.key_path()));
+    }
+    config.drive = std::move(gpio);
   } else {
-    t.fail("backend", fmt::format("the '{}' backend is not built into this loader yet", backend));
+    const ConfigTable table = t.table("modbus");
+    ModbusAxisSettings modbus{parse_modbus_drive(table, context.config_dir), {}};
+    if (!context.buses->contains(modbus.drive.bus)) {
+      std::string known;
+      for (const auto& [bus_name, bus] : *context.buses) known += (known.empty() ? "" : ", ") + bus_name;
+      table.fail("bus", fmt::format("no bus '{}' ({})", modbus.drive.bus,
+                                    known.empty() ? "the config has no [rig.buses.<name>] table"
+                                                  : "buses in [rig.buses]: " + known));
+    }
+    modbus.map = load_register_map(modbus.drive.map);
+    config.drive = std::move(modbus);
   }
   return config;
+}
+
+// Mistakes that only show between the two axes.
+void check_axes_together(const ConfigTable& rig, const RigConfig& config) {
+  const auto* rail_gpio = std::get_if<GpioStepperSettings>(&config.rail.drive);
+  const auto* turntable_gpio = std::get_if<GpioStepperSettings>(&config.turntable.drive);
+  if (rail_gpio != nullptr && turntable_gpio != nullptr) {
+    // A line has one consumer: the second request would fail at start.
+    const std::pair<const char*, const std::optional<GpioLineSpec>> rail_lines[] = {
+        {"step", rail_gpio->step},           {"dir", rail_gpio->dir},           {"enable", rail_gpio->enable},
+        {"limit_min", rail_gpio->limit_min}, {"limit_max", rail_gpio->limit_max}, {"home", rail_gpio->home},
+        {"estop", rail_gpio->estop}};
+    const std::pair<const char*, const std::optional<GpioLineSpec>> turntable_lines[] = {
+        {"step", turntable_gpio->step},
+        {"dir", turntable_gpio->dir},
+        {"enable", turntable_gpio->enable},
+        {"limit_min", turntable_gpio->limit_min},
+        {"limit_max", turntable_gpio->limit_max},
+        {"home", turntable_gpio->home},
+        {"estop", turntable_gpio->estop}};
+    for (const auto& [key, line] : turntable_lines) {
+      if (!line) continue;
+      for (const auto& [rail_key, rail_line] : rail_lines) {
+        if (rail_line && rail_line->chip == line->chip && rail_line->line == line->line) {
+          rig.table("turntable").table("gpio").table(key).fail(
+              "line", fmt::format("line '{}' of {} is also the rail's {} line (a GPIO line has one user: wire a "
+                                  "shared switch to one input per axis)",
+                                  line->line, line->chip, rail_key));
+        }
+      }
+    }
+  }
+  const auto* rail_modbus = std::get_if<ModbusAxisSettings>(&config.rail.drive);
+  const auto* turntable_modbus = std::get_if<ModbusAxisSettings>(&config.turntable.drive);
+  if (rail_modbus != nullptr && turntable_modbus != nullptr && rail_modbus->drive.bus == turntable_modbus->drive.bus &&
+      rail_modbus->drive.unit_id == turntable_modbus->drive.unit_id) {
+    rig.table("turntable").table("modbus").fail(
+        "unit_id", fmt::format("unit {} on bus '{}' is the rail's drive already (drives sharing a bus need their own "
+                               "unit ids)",
+                               turntable_modbus->drive.unit_id, turntable_modbus->drive.bus));
+  }
+  // A bus no axis names is a typo in one of the axes' `bus` keys (or a leftover).
+  if (!config.buses.empty()) {
+    const ConfigTable buses = rig.table("buses");
+    for (const auto& [name, bus] : config.buses) {
+      const bool used = (rail_modbus != nullptr && rail_modbus->drive.bus == name) ||
+                        (turntable_modbus != nullptr && turntable_modbus->drive.bus == name);
+      if (!used) {
+        buses.fail(name, fmt::format("no axis uses bus '{}' (check the bus keys of [rig.rail.modbus] and "
+                                     "[rig.turntable.modbus], or remove the bus)",
+                                     name));
+      }
+    }
+  }
 }
 
 }  // namespace
@@ -162,14 +264,23 @@ SimDriveSettings parse_sim_drive(const ConfigTable& t, const AxisSettings& axis)
 
 RigConfig parse_rig_config(const ConfigTable& root) {
   RigConfig config;
+  config.source = root.source();
   config.config_dir = std::filesystem::path(root.source()).parent_path();
   const ConfigTable rig = root.table("rig");
   rig.allow_only({"geometry", "sim", "buses", "rail", "turntable"});
-  if (rig.contains("buses")) rig.fail("buses", "Modbus buses are not built into this loader yet");
   config.geometry = parse_geometry(rig.table("geometry"));
   if (auto sim = rig.maybe_table("sim")) config.sim = parse_sim(*sim);
-  config.rail = parse_axis(rig, "rail");
-  config.turntable = parse_axis(rig, "turntable");
+  if (auto buses = rig.maybe_table("buses")) {
+    for (const auto& [key, node] : buses->raw()) {
+      const std::string name(key.str());
+      if (!node.is_table()) buses->fail(name, "must be a table: [rig.buses.<name>] with the bus's keys");
+      config.buses.emplace(name, parse_modbus_bus(buses->table(name)));
+    }
+  }
+  const AxisContext context{config.config_dir, &config.buses};
+  config.rail = parse_axis(rig, "rail", context);
+  config.turntable = parse_axis(rig, "turntable", context);
+  check_axes_together(rig, config);
 
   // The camera must stay in front of the marker's axis over the whole rail.
   const ConfigTable geometry = rig.table("geometry");
@@ -186,25 +297,50 @@ RigConfig parse_rig_config(const ConfigTable& root) {
 
 RigConfig load_rig_config(const std::filesystem::path& path) { return parse_rig_config(ConfigTable::load_file(path)); }
 
-std::unique_ptr<Drive> make_drive(const AxisConfig& config, const std::shared_ptr<SimClock>& sim_clock) {
+RigDevices make_rig_devices(const RigConfig& config) {
+  RigDevices devices;
+  const auto uses = [&](auto backend) {
+    return std::holds_alternative<decltype(backend)>(config.rail.drive) ||
+           std::holds_alternative<decltype(backend)>(config.turntable.drive);
+  };
+  if (uses(SimDriveSettings{})) devices.sim_clock = std::make_shared<SimClock>(config.sim.time_scale);
+  if (uses(GpioStepperSettings{})) devices.gpio = make_gpiod1_backend();
+  // Every bus is used (the loader refuses the others); two drives on one
+  // bus share its thread and its line.
+  for (const auto& [name, settings] : config.buses) devices.buses.emplace(name, std::make_shared<ModbusBus>(settings));
+  return devices;
+}
+
+std::unique_ptr<Drive> make_drive(const AxisConfig& config, const RigDevices& devices) {
   // One branch per backend: a new DriveSettings alternative without one here
   // does not compile.
-  return std::visit(Overloaded{
-                        [&](const SimDriveSettings& s) -> std::unique_ptr<Drive> {
-                          if (!sim_clock) throw std::invalid_argument(fmt::format("{}: no simulated clock", s.name));
-                          return std::make_unique<SimDrive>(s, sim_clock);
-                        },
-                    },
-                    config.drive);
+  return std::visit(
+      Overloaded{
+          [&](const SimDriveSettings& s) -> std::unique_ptr<Drive> {
+            if (!devices.sim_clock) throw std::invalid_argument(fmt::format("{}: no simulated clock", s.name));
+            return std::make_unique<SimDrive>(s, devices.sim_clock);
+          },
+          [&](const GpioStepperSettings& s) -> std::unique_ptr<Drive> {
+            if (!devices.gpio) throw std::invalid_argument(fmt::format("{}: no GPIO backend", config.axis.name));
+            return std::make_unique<GpioStepperDrive>(config.axis.name, s, *devices.gpio);
+          },
+          [&](const ModbusAxisSettings& s) -> std::unique_ptr<Drive> {
+            const auto bus = devices.buses.find(s.drive.bus);
+            if (bus == devices.buses.end() || !bus->second) {
+              throw std::invalid_argument(fmt::format("{}: no Modbus bus '{}'", config.axis.name, s.drive.bus));
+            }
+            return std::make_unique<ModbusDrive>(config.axis.name, bus->second, s.drive.unit_id, s.map,
+                                                 s.drive.completion_margin);
+          },
+      },
+      config.drive);
 }
 
 std::unique_ptr<Rig> make_rig(const RigConfig& config) {
-  const bool simulated = std::holds_alternative<SimDriveSettings>(config.rail.drive) ||
-                         std::holds_alternative<SimDriveSettings>(config.turntable.drive);
-  auto clock = simulated ? std::make_shared<SimClock>(config.sim.time_scale) : nullptr;
-  auto rail = std::make_unique<Axis>(config.rail.axis, make_drive(config.rail, clock));
-  auto turntable = std::make_unique<Axis>(config.turntable.axis, make_drive(config.turntable, clock));
-  return std::make_unique<Rig>(std::move(rail), std::move(turntable), config.geometry, std::move(clock));
+  RigDevices devices = make_rig_devices(config);
+  auto rail = std::make_unique<Axis>(config.rail.axis, make_drive(config.rail, devices));
+  auto turntable = std::make_unique<Axis>(config.turntable.axis, make_drive(config.turntable, devices));
+  return std::make_unique<Rig>(std::move(rail), std::move(turntable), config.geometry, std::move(devices));
 }
 
 }  // namespace markerd::rig

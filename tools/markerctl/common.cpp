@@ -27,11 +27,8 @@ std::string lower(std::string_view s) {
   return out;
 }
 
-// Splits "80mm" into 80 and "mm"; nullopt when it does not start with a number.
-struct NumberAndUnit {
-  double value;
-  std::string unit;
-};
+}  // namespace
+
 std::optional<NumberAndUnit> split_number(std::string_view text) {
   text = trim(text);
   // from_chars rejects a leading '+', which people do type.
@@ -42,8 +39,6 @@ std::optional<NumberAndUnit> split_number(std::string_view text) {
   return NumberAndUnit{value,
                        lower(trim(std::string_view(end, static_cast<std::size_t>(text.data() + text.size() - end))))};
 }
-
-}  // namespace
 
 double parse_length_m(std::string_view text, BareUnit bare, std::string_view option) {
   const auto parsed = split_number(text);

@@ -4,6 +4,7 @@
 
 #include <functional>
 #include <nlohmann/json_fwd.hpp>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -55,6 +56,15 @@ void add_marker_command(CLI::App& parent, Commands& commands);
 void add_render_command(CLI::App& parent, Commands& commands);
 void add_detect_command(CLI::App& parent, Commands& commands);
 void add_evaluate_command(CLI::App& parent, Commands& commands);
+void add_rig_command(CLI::App& parent, Commands& commands);
+
+// "80mm" as 80 and "mm" (the unit lower-cased and trimmed, a leading '+'
+// allowed); nothing when the text does not start with a finite number.
+struct NumberAndUnit {
+  double value;
+  std::string unit;
+};
+std::optional<NumberAndUnit> split_number(std::string_view text);
 
 // The unit a bare number means; a print is sized in millimetres, a scene in metres.
 enum class BareUnit { millimetre, metre };

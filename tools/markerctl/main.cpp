@@ -65,7 +65,7 @@ int run(const markerctl::Command& command) {
 int main(int argc, char** argv) {
   CLI::App app{
       "markerctl: the command line of markerd. Prints frame markers, renders camera views of them,\n"
-      "detects markers in images and evaluates the detectors on rendered scenes.\n"
+      "detects markers in images, evaluates the detectors on rendered scenes, and brings up a rig.\n"
       "Families: " +
           markerctl::family_names() + ". Lengths take a unit: 80mm, 8cm, 0.08m, 3.15in.",
       "markerctl"};
@@ -78,6 +78,7 @@ int main(int argc, char** argv) {
       "  markerctl render --dist 0.95 --yaw 30 -o frame.png\n"
       "  markerctl detect --camera config/cameras/thesis-640x480.yaml --size 0.08 frame.png\n"
       "  markerctl evaluate --family frame8\n"
+      "  markerctl rig --config config/rig-sim.toml move --home --rail 250mm --turntable 30deg\n"
       "Run 'markerctl <command> --help' for a command's options. Exit status: 0 on success,\n"
       "1 when something failed while running, 2 for a mistake on the command line.");
 
@@ -90,10 +91,11 @@ int main(int argc, char** argv) {
   markerctl::add_render_command(app, commands);
   markerctl::add_detect_command(app, commands);
   markerctl::add_evaluate_command(app, commands);
+  markerctl::add_rig_command(app, commands);
 
   if (argc <= 1) {
     std::cerr << app.help();
-    print_error("", "no command given (marker, render, detect or evaluate)");
+    print_error("", "no command given (marker, render, detect, evaluate or rig)");
     return markerctl::exit_usage;
   }
   try {

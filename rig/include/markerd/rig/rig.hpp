@@ -9,8 +9,10 @@
 #include <condition_variable>
 #include <cstdint>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <type_traits>
 
@@ -19,6 +21,20 @@
 #include "markerd/rig/sim_clock.hpp"
 
 namespace markerd::rig {
+
+class GpioBackend;
+class ModbusBus;
+
+// What the drives of a rig share, and what must therefore outlive every one
+// of them: the simulated clock of its simulated devices, one ModbusBus per
+// RS-485 line or TCP connection (its thread serves every drive on it), and
+// the GPIO line backend its GPIO axes were requested through. Empty members
+// are devices the rig does not use.
+struct RigDevices {
+  std::shared_ptr<SimClock> sim_clock;
+  std::map<std::string, std::shared_ptr<ModbusBus>> buses;  // by [rig.buses.<name>]
+  std::shared_ptr<GpioBackend> gpio;
+};
 
 // One writer publishes a trivially copyable value; any number of readers copy
 // it out without locks and without allocating, retrying while a write is in
@@ -88,11 +104,11 @@ struct RigSnapshot {
 
 class Rig {
  public:
-  // `sim_clock`: the clock of the rig's simulated devices, or null when none
-  // is simulated. The rig starts publishing snapshots at once.
-  Rig(std::unique_ptr<Axis> rail, std::unique_ptr<Axis> turntable, RigGeometry geometry,
-      std::shared_ptr<SimClock> sim_clock = nullptr);
-  ~Rig();  // emergency-stops both axes
+  // `devices`: what the axes' drives share (their clock, buses, GPIO
+  // backend); the rig keeps them until after the axes are gone. The rig
+  // starts publishing snapshots at once.
+  Rig(std::unique_ptr<Axis> rail, std::unique_ptr<Axis> turntable, RigGeometry geometry, RigDevices devices = {});
+  ~Rig();  // emergency-stops both axes, then releases the axes and, after them, the devices
   Rig(const Rig&) = delete;
   Rig& operator=(const Rig&) = delete;
 
@@ -101,7 +117,9 @@ class Rig {
   [[nodiscard]] const Axis& rail() const { return *rail_; }
   [[nodiscard]] const Axis& turntable() const { return *turntable_; }
   [[nodiscard]] const RigGeometry& geometry() const { return geometry_; }
-  [[nodiscard]] const std::shared_ptr<SimClock>& sim_clock() const { return sim_clock_; }
+  // The clock of the rig's simulated devices, or null when none is simulated.
+  [[nodiscard]] const std::shared_ptr<SimClock>& sim_clock() const { return devices_.sim_clock; }
+  [[nodiscard]] const RigDevices& devices() const { return devices_; }
 
   // The latest snapshot: lock-free, allocation-free, any thread. Published
   // every kSnapshotPeriod and whenever an axis's status changes.
@@ -118,7 +136,7 @@ class Rig {
   void publish();
 
   RigGeometry geometry_;
-  std::shared_ptr<SimClock> sim_clock_;
+  RigDevices devices_;  // declared before the axes: destroyed after them
   SeqlockCell<RigSnapshot> snapshot_;
   std::uint64_t sequence_ = 0;  // the publisher thread's own
   // Axis listeners raise `dirty_` so the publisher wakes before its period.

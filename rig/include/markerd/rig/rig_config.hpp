@@ -5,12 +5,18 @@
 // settings into its Drive.
 
 #include <filesystem>
+#include <map>
 #include <memory>
+#include <string>
 #include <variant>
 
 #include "markerd/rig/axis.hpp"
 #include "markerd/rig/config_table.hpp"
 #include "markerd/rig/geometry.hpp"
+#include "markerd/rig/gpio_stepper.hpp"
+#include "markerd/rig/modbus_bus.hpp"
+#include "markerd/rig/modbus_drive.hpp"
+#include "markerd/rig/register_map.hpp"
 #include "markerd/rig/rig.hpp"
 #include "markerd/rig/sim_drive.hpp"
 
@@ -21,8 +27,15 @@ struct SimSettings {
   double time_scale = 1.0;
 };
 
-// One alternative per backend ("sim" now; "gpio" and "modbus" join here).
-using DriveSettings = std::variant<SimDriveSettings>;
+// [rig.<axis>.modbus] with its register map, read when the config is loaded
+// so that a mistake in the map is reported with the config's other errors.
+struct ModbusAxisSettings {
+  ModbusDriveSettings drive;
+  RegisterMap map;
+};
+
+// One alternative per backend: "sim", "gpio", "modbus".
+using DriveSettings = std::variant<SimDriveSettings, GpioStepperSettings, ModbusAxisSettings>;
 
 struct AxisConfig {
   AxisSettings axis;
@@ -30,9 +43,12 @@ struct AxisConfig {
 };
 
 struct RigConfig {
+  std::string source;                // the file it was read from ("<string>" for parsed text)
   std::filesystem::path config_dir;  // relative paths in the config are relative to it
   RigGeometry geometry;
   SimSettings sim;
+  // Every [rig.buses.<name>] (each used by at least one axis), by name.
+  std::map<std::string, ModbusBusSettings> buses;
   AxisConfig rail;
   AxisConfig turntable;
 };
@@ -45,10 +61,17 @@ RigConfig parse_rig_config(const ConfigTable& root);
 // The [rig.<axis>.sim] table; positions in the axis's user units.
 SimDriveSettings parse_sim_drive(const ConfigTable& sim_table, const AxisSettings& axis);
 
-// The drive of one axis, by its backend. `sim_clock` is the rig's simulated
-// clock (used by simulated backends only).
-std::unique_ptr<Drive> make_drive(const AxisConfig& config, const std::shared_ptr<SimClock>& sim_clock);
-// The whole rig: drives, axes, geometry; one SimClock when any axis is simulated.
+// What the config's drives share: one SimClock when any axis is simulated,
+// one ModbusBus per bus (opened or connected here: DriveError when the device
+// cannot be opened or the server not reached), one GPIO backend (libgpiod
+// 1.6) when any axis is a GPIO stepper.
+RigDevices make_rig_devices(const RigConfig& config);
+// The drive of one axis, by its backend, on the rig's shared devices
+// (std::invalid_argument when one it needs is missing). Constructing a
+// drive requests its lines or attaches it to its bus: DriveError naming the
+// axis and the device when that fails.
+std::unique_ptr<Drive> make_drive(const AxisConfig& config, const RigDevices& devices);
+// The whole rig: its devices, drives, axes and geometry.
 std::unique_ptr<Rig> make_rig(const RigConfig& config);
 
 }  // namespace markerd::rig
