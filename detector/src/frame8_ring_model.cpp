@@ -24,6 +24,8 @@ constexpr double kMaxOutside = 0.5;
 // Pull of every level towards the mean grey, against the few combinations
 // that the pixels leave undetermined (an outside strip barely touched).
 constexpr double kRidge = 0.02;
+// How far (in footprint widths) a grid line still counts for a pixel.
+constexpr double kReach = 5;
 // Steps of the map per alignment; it converges in three or four.
 constexpr int kAlignIterations = 4;
 
@@ -137,10 +139,26 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
   if (std::abs(to_grid_(2, 2)) < 1e-12) return false;
   to_grid_ /= to_grid_(2, 2);
   blur_map_ = to_grid_;
+  // The footprint's width in the grid, per pixel: held fixed while the map
+  // moves, so the model's slopes are its exact derivatives.
+  const int width = px1_ - px0_ + 1;
+  width_.resize(static_cast<std::size_t>(width) * (py1_ - py0_ + 1));
+  for (int py = py0_; py <= py1_; ++py) {
+    for (int px = px0_; px <= px1_; ++px) {
+      const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
+      const Eigen::Vector3d g0 = blur_map_ * Eigen::Vector3d(u, v, 1);
+      const double w0 = g0(2), gx0 = g0(0) / w0, gy0 = g0(1) / w0;
+      const double j00 = (blur_map_(0, 0) - gx0 * blur_map_(2, 0)) / w0 / scale_;
+      const double j01 = (blur_map_(0, 1) - gx0 * blur_map_(2, 1)) / w0 / scale_;
+      const double j10 = (blur_map_(1, 0) - gy0 * blur_map_(2, 0)) / w0 / scale_;
+      const double j11 = (blur_map_(1, 1) - gy0 * blur_map_(2, 1)) / w0 / scale_;
+      width_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = {
+          static_cast<float>(sigma_ * std::hypot(j00, j01)), static_cast<float>(sigma_ * std::hypot(j10, j11))};
+    }
+  }
   // The pixels the fit uses, decided once: a set that changed with the map
   // would change the sum being minimised under the steps that minimise it.
   // Their mean grey is the levels' prior.
-  const int width = px1_ - px0_ + 1;
   inside_.assign(static_cast<std::size_t>(width) * (py1_ - py0_ + 1), 1);
   double sum = 0;
   int used = 0;
@@ -178,7 +196,8 @@ Eigen::Matrix3d RingModel::grid_to_image() const {
 }
 
 int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, double& w) {
-  if (!inside_[static_cast<std::size_t>(py - py0_) * (px1_ - px0_ + 1) + (px - px0_)]) return 0;
+  const auto pixel = static_cast<std::size_t>(py - py0_) * (px1_ - px0_ + 1) + (px - px0_);
+  if (!inside_[pixel]) return 0;
   const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
   const Eigen::Vector3d g = to_grid_ * Eigen::Vector3d(u, v, 1);
   w = g(2);
@@ -189,29 +208,36 @@ int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, dou
   // a Gaussian in the grid too, and (for the rotations, yaw and tilt of a
   // marker in front of a camera) one whose axes are near the grid's: its
   // share of a rectangle is then a product along the two axes.
-  // Its width comes from the map the fit started with: held fixed, the
-  // model's slopes below are its exact derivatives.
-  const Eigen::Vector3d g0 = blur_map_ * Eigen::Vector3d(u, v, 1);
-  const double w0 = g0(2), gx0 = g0(0) / w0, gy0 = g0(1) / w0;
-  const double j00 = (blur_map_(0, 0) - gx0 * blur_map_(2, 0)) / w0 / scale_;
-  const double j01 = (blur_map_(0, 1) - gx0 * blur_map_(2, 1)) / w0 / scale_;
-  const double j10 = (blur_map_(1, 0) - gy0 * blur_map_(2, 0)) / w0 / scale_;
-  const double j11 = (blur_map_(1, 1) - gy0 * blur_map_(2, 1)) / w0 / scale_;
-  const double sx = sigma_ * std::hypot(j00, j01), sy = sigma_ * std::hypot(j10, j11);
+  const double sx = width_[pixel][0], sy = width_[pixel][1];
+  // Only the lines within kReach widths of the footprint are looked up:
+  // below them the distribution is taken as 0, above them as 1 (off by
+  // under 3e-7), and a region between two lines on the same side has no
+  // share and no slope.
   const NormalTable& table = normal_table();
   std::array<double, kLines.size()> fx{}, fy{}, dx{}, dy{};
-  for (std::size_t k = 0; k < kLines.size(); ++k) {
-    double c = 0, p = 0;
-    table.at((kLines[k] - gx) / sx, c, p);
-    fx[k] = c;
-    dx[k] = -p / sx;  // d/dgx of Phi((line - gx) / sx)
-    table.at((kLines[k] - gy) / sy, c, p);
-    fy[k] = c;
-    dy[k] = -p / sy;
-  }
+  int x_lo = 0, x_hi = 0, y_lo = 0, y_hi = 0;  // the lines looked up: [lo, hi)
+  auto axis = [&](double at, double s, std::array<double, kLines.size()>& f, std::array<double, kLines.size()>& d,
+                  int& lo, int& hi) {
+    const double reach = kReach * s;
+    lo = 0;
+    while (lo < static_cast<int>(kLines.size()) && kLines[static_cast<std::size_t>(lo)] <= at - reach) ++lo;
+    hi = lo;
+    while (hi < static_cast<int>(kLines.size()) && kLines[static_cast<std::size_t>(hi)] < at + reach) {
+      double c = 0, p = 0;
+      table.at((kLines[static_cast<std::size_t>(hi)] - at) / s, c, p);
+      f[static_cast<std::size_t>(hi)] = c;
+      d[static_cast<std::size_t>(hi)] = -p / s;  // d/d(at) of Phi((line - at) / s)
+      ++hi;
+    }
+    for (int k = hi; k < static_cast<int>(kLines.size()); ++k) f[static_cast<std::size_t>(k)] = 1;
+  };
+  axis(gx, sx, fx, dx, x_lo, x_hi);
+  axis(gy, sy, fy, dy, y_lo, y_hi);
   int n = 0;
   for (int r = 0; r < kRegions; ++r) {
     const Rect& q = kRects[static_cast<std::size_t>(r)];
+    // Both bounds below the looked-up lines, or both above: nothing.
+    if (q.x1 < x_lo || q.x0 >= x_hi || q.y1 < y_lo || q.y0 >= y_hi) continue;
     const auto x0 = static_cast<std::size_t>(q.x0), x1 = static_cast<std::size_t>(q.x1);
     const auto y0 = static_cast<std::size_t>(q.y0), y1 = static_cast<std::size_t>(q.y1);
     const double mx = fx[x1] - fx[x0], my = fy[y1] - fy[y0];

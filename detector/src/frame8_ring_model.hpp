@@ -85,6 +85,9 @@ class RingModel {
   Eigen::Matrix3d to_grid_ = Eigen::Matrix3d::Identity();  // centred pixel -> grid
   Eigen::Matrix3d blur_map_ = Eigen::Matrix3d::Identity();  // to_grid_ as prepared: the footprint's width
   std::vector<std::uint8_t> inside_;  // per pixel of the box: used by the fit
+  // Per pixel of the box: the footprint's width along the grid's axes, in
+  // grid units; fixed at prepare() with the map it started from.
+  std::vector<std::array<float, 2>> width_;
   double prior_ = 0;                  // their mean grey, which every level is pulled towards
   std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
   std::array<int, kRegions> touched_{};
