@@ -1,0 +1,123 @@
+#pragma once
+// A frame as it flows through the pipeline: one slot of the frame pool that
+// a capture source fills, the detection stage completes and the log stage
+// hands to a FrameSink. See docs/pipeline.md for who owns a frame when.
+
+#include <array>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <string_view>
+#include <vector>
+
+#include "markerd/daemon/detection_record.hpp"
+#include "markerd/detector/detection.hpp"
+#include "markerd/detector/image.hpp"
+#include "markerd/rig/rig.hpp"
+
+namespace markerd::daemon {
+
+// The pipeline's clock. libstdc++'s steady_clock is CLOCK_MONOTONIC, the
+// clock V4L2 stamps buffers with (V4L2_BUF_FLAG_TIMESTAMP_MONOTONIC) and the
+// rig stamps its snapshots with, so all three compare directly.
+using Clock = std::chrono::steady_clock;
+
+// How a source whose pixels the frame borrows (a V4L2 mmap buffer, say) gets
+// them back: called once, from whichever pipeline thread is last done with
+// the frame, and must not block (requeueing a V4L2 buffer from another
+// thread than the one that polls is fine: VIDIOC_QBUF is thread-safe). A
+// function pointer and two words rather than std::function, so that setting
+// one never allocates.
+struct ReleaseHook {
+  void (*release)(void* context, std::uint64_t token) noexcept = nullptr;
+  void* context = nullptr;
+  std::uint64_t token = 0;  // e.g. the V4L2 buffer index
+
+  explicit operator bool() const noexcept { return release != nullptr; }
+};
+
+// When the frame passed each stage boundary, on Clock.
+struct StageTimes {
+  Clock::time_point published{};     // handed to detection
+  Clock::time_point detect_start{};
+  Clock::time_point detect_end{};
+  Clock::time_point log_start{};     // handed to the sink
+};
+
+class Frame {
+ public:
+  // ---- set by the capture source between Pipeline::acquire and publish ----
+  std::uint64_t sequence = 0;        // the source's own (V4L2's buffer sequence)
+  Clock::time_point capture_time{};  // acquire() stamps "now"; a driver's timestamp is better
+  std::uint32_t source_id = 0;
+  std::optional<rig::RigSnapshot> rig;  // the rig at capture time; empty without a rig
+  GreyView image{};                  // into pixel_buffer() or into the source's own memory
+  // A source that delivers an unreadable frame (a broken MJPEG) publishes it
+  // with corrupt_frame and a cause, so that the log records it; detection
+  // skips it.
+  FrameStatus status = FrameStatus::ok;
+
+  // ---- set by the pipeline ----
+  // Cleared and refilled by the detector; its capacity is kept from frame to
+  // frame, so it allocates only when a frame holds more markers than any
+  // frame before it in this slot.
+  std::vector<Detection> detections;
+  StageTimes times;
+
+  // Why the frame is not ok (the source's or the detector's words), cut to
+  // kCauseCapacity bytes.
+  [[nodiscard]] std::string_view cause() const noexcept { return {cause_.data(), cause_length_}; }
+  void set_cause(std::string_view cause) noexcept;
+  static constexpr std::size_t kCauseCapacity = 200;
+
+  // The slot's own pixel memory, for sources that write the grey image
+  // themselves (a renderer, a YUYV or MJPEG conversion); empty when the pool
+  // was made without pixel buffers. 64-byte aligned.
+  [[nodiscard]] std::span<std::uint8_t> pixel_buffer() const noexcept { return pixel_buffer_; }
+  // Points `image` at pixel_buffer() with rows of `width` bytes; throws
+  // std::length_error when the image does not fit.
+  GreyView use_pixel_buffer(int width, int height);
+
+  // Lends the frame the source's pixels: `hook` runs once when the pipeline
+  // is done with the frame (written, dropped or discarded).
+  void set_release(ReleaseHook hook) noexcept;
+  [[nodiscard]] bool has_release() const noexcept { return static_cast<bool>(release_); }
+
+  // Runs the release hook, if any, and forgets it: a second call does nothing.
+  void release_source() noexcept;
+
+  Frame() = default;
+  Frame(const Frame&) = delete;
+  Frame& operator=(const Frame&) = delete;
+
+ private:
+  friend class FramePool;
+  friend class Pipeline;
+
+  // Back to the state acquire() hands out; keeps the detections' capacity.
+  void reset() noexcept;
+
+  std::span<std::uint8_t> pixel_buffer_;
+  ReleaseHook release_;
+  std::array<char, kCauseCapacity> cause_{};
+  std::size_t cause_length_ = 0;
+  // The pipeline's own: the frame's place in publication order, and whether
+  // it is being discarded rather than detected (a live pipeline stopping).
+  std::uint64_t ticket_ = 0;
+  bool discarded_ = false;
+};
+
+// What the log stage hands each detected frame to (the detection log writer,
+// a test's recorder). Called from the log stage's one thread, in publication
+// order; the frame and its pixels are valid only during the call. An
+// exception is counted (log.failed) and the stage goes on: a sink reports its
+// own errors, naming its file.
+class FrameSink {
+ public:
+  virtual ~FrameSink() = default;
+  virtual void write(const Frame& frame) = 0;
+};
+
+}  // namespace markerd::daemon

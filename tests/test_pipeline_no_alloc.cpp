@@ -1,0 +1,155 @@
+// The pipeline allocates nothing per frame once running: rendered frames go
+// through two frame8 workers and the log stage while every global allocation,
+// on any thread, is counted. The frames lend their pixels (as a V4L2 mmap
+// buffer would), so the sink also checks that no stage copied them.
+// A binary of its own: it replaces the global operator new.
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cstdint>
+#include <cstdlib>
+#include <memory>
+#include <new>
+#include <thread>
+#include <vector>
+
+#include "markerd/daemon/pipeline.hpp"
+#include "markerd/detector/detector.hpp"
+#include "markerd/detector/render.hpp"
+
+// Replacement allocation functions pair malloc with free by design; GCC
+// cannot see that the operators replace the standard ones.
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+
+namespace {
+std::atomic<long> g_allocations{0};
+std::atomic<bool> g_counting{false};
+}  // namespace
+
+void* operator new(std::size_t size) {
+  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1, std::memory_order_relaxed);
+  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t size) { return ::operator new(size); }
+void* operator new(std::size_t size, std::align_val_t align) {
+  if (g_counting.load(std::memory_order_relaxed)) g_allocations.fetch_add(1, std::memory_order_relaxed);
+  const auto a = static_cast<std::size_t>(align);
+  if (void* p = std::aligned_alloc(a, (size + a - 1) / a * a)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t size, std::align_val_t align) { return ::operator new(size, align); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+void operator delete(void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::align_val_t) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t, std::align_val_t) noexcept { std::free(p); }
+
+namespace markerd::daemon {
+namespace {
+
+// Counts frames and detections without allocating, and notices a frame
+// whose pixels are not the ones its source lent.
+class CountingSink : public FrameSink {
+ public:
+  explicit CountingSink(const std::vector<GreyImage>& images) : images_(images) {}
+  void write(const Frame& frame) override {
+    const GreyImage& lent = images_[frame.sequence % images_.size()];
+    if (frame.image.data != lent.data()) copied_.fetch_add(1, std::memory_order_relaxed);
+    if (frame.status != FrameStatus::ok) failed_.fetch_add(1, std::memory_order_relaxed);
+    detections_.fetch_add(frame.detections.size(), std::memory_order_relaxed);
+    written_.fetch_add(1, std::memory_order_release);
+    written_.notify_all();
+  }
+  void wait_for(std::uint64_t count) {
+    for (std::uint64_t n = written_.load(std::memory_order_acquire); n < count;
+         n = written_.load(std::memory_order_acquire)) {
+      written_.wait(n, std::memory_order_acquire);
+    }
+  }
+  std::atomic<std::uint64_t> detections_{0};
+  std::atomic<std::uint64_t> copied_{0};
+  std::atomic<std::uint64_t> failed_{0};
+
+ private:
+  const std::vector<GreyImage>& images_;
+  std::atomic<std::uint64_t> written_{0};
+};
+
+struct ReleaseCount {
+  static void on_release(void* context, std::uint64_t) noexcept {
+    static_cast<std::atomic<std::uint64_t>*>(context)->fetch_add(1, std::memory_order_relaxed);
+  }
+};
+
+TEST(PipelineNoAllocation, SteadyStateFramesThroughFrame8WorkersAllocateNothing) {
+  const CameraModel camera = CameraModel::thesis_640x480();
+  std::vector<GreyImage> images;
+  for (int k = 0; k < 6; ++k) {
+    Scene scene;
+    scene.id = 23 * k + 9;
+    scene.pose = facing_pose(0.35 + 0.25 * k, -30 + 12.0 * k, 0, 9.0 * k);
+    scene.supersample = 2;
+    scene.noise_sigma = 2;
+    scene.blur_sigma_px = 0.6;
+    scene.seed = static_cast<std::uint64_t>(k + 1);
+    images.push_back(render_scene(camera, scene));
+  }
+  CountingSink sink(images);
+  std::atomic<std::uint64_t> released{0};
+  std::vector<std::unique_ptr<MarkerDetector>> workers;
+  for (int i = 0; i < 2; ++i) workers.push_back(make_detector(DetectorConfig{}));
+  PipelineConfig config;
+  config.policy = DropPolicy::lossless;  // every frame detected: the same work in each run
+  config.pool.slots = 4;
+  Pipeline pipeline(config, std::move(workers), sink);
+
+  std::uint64_t sequence = 0;
+  auto run = [&](int rounds) {
+    for (int r = 0; r < rounds; ++r) {
+      for (std::size_t i = 0; i < images.size(); ++i, ++sequence) {
+        Frame* frame = pipeline.acquire();
+        if (frame == nullptr) return;
+        frame->sequence = sequence;
+        frame->capture_time = Clock::now();
+        frame->image = images[sequence % images.size()];
+        frame->set_release({&ReleaseCount::on_release, &released, sequence});
+        pipeline.publish(*frame);
+      }
+    }
+    sink.wait_for(sequence);
+  };
+  // Warm-up: each worker's detector grows its buffers on the frames it will
+  // see again (frames alternate between the workers in a fixed rotation).
+  run(2);
+  const std::uint64_t detections_before = sink.detections_.load();
+  g_allocations = 0;
+  g_counting = true;
+  run(5);
+  g_counting = false;
+  const long allocations = g_allocations.load();
+  pipeline.stop();
+
+  EXPECT_EQ(allocations, 0);
+  EXPECT_GT(sink.detections_.load(), detections_before) << "the frames hold markers; finding none proves nothing";
+  EXPECT_EQ(sink.copied_.load(), 0U) << "a frame reached the log with pixels other than its source's";
+  EXPECT_EQ(sink.failed_.load(), 0U);
+  EXPECT_EQ(released.load(), sequence);
+  EXPECT_EQ(pipeline.stats().pool_free, 4U);
+}
+
+// The counter itself works, on another thread too.
+TEST(PipelineNoAllocation, CounterSeesAllocationsOnAnyThread) {
+  g_allocations = 0;
+  g_counting = true;
+  std::thread([] { const auto v = std::make_unique<std::vector<int>>(1000); }).join();
+  g_counting = false;
+  EXPECT_GE(g_allocations.load(), 2);
+}
+
+}  // namespace
+}  // namespace markerd::daemon
