@@ -552,6 +552,44 @@ TEST(Pipeline, ASinkThatThrowsIsCountedAndTheSlotStillReturns) {
   expect_each_released_once(releases, 3);
 }
 
+// A sink with housekeeping: idle() runs on the log stage's thread while no
+// frames come, and not in place of them.
+class IdleCountingSink : public RecordingSink {
+ public:
+  [[nodiscard]] std::chrono::milliseconds idle_period() const override { return std::chrono::milliseconds(5); }
+  void idle() override {
+    idle_thread = std::this_thread::get_id();
+    idles.fetch_add(1);
+    if (throw_from_idle) throw std::runtime_error("idle failed");
+  }
+  std::atomic<int> idles{0};
+  std::thread::id idle_thread;
+  bool throw_from_idle = false;
+};
+
+TEST(Pipeline, TheSinksIdleHousekeepingRunsWhileNoFramesCome) {
+  const auto images = numbered_images(2);
+  Releases releases(2);
+  IdleCountingSink sink;
+  sink.throw_from_idle = true;  // ignored: the sink reports its own errors
+  Pipeline pipeline(config(DropPolicy::lossless, 2), detectors({new NumberDetector}), sink);
+  ASSERT_TRUE(offer(pipeline, images, releases, 0));
+  sink.wait_for(1);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (sink.idles.load() < 3 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_GE(sink.idles.load(), 3);
+  ASSERT_TRUE(offer(pipeline, images, releases, 1));  // frames still flow after idle periods
+  sink.wait_for(2);
+  pipeline.stop();
+  EXPECT_NE(sink.idle_thread, std::this_thread::get_id());
+  const PipelineStats s = pipeline.stats();
+  EXPECT_EQ(s.log.out, 2U);
+  EXPECT_EQ(s.log.failed, 0U);
+  expect_balanced(s);
+}
+
 TEST(Pipeline, NeedsADetector) {
   RecordingSink sink;
   EXPECT_THROW({ Pipeline p(config(DropPolicy::live, 2), {}, sink); }, std::invalid_argument);

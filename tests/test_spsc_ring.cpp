@@ -6,6 +6,7 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstdint>
 #include <optional>
 #include <stdexcept>
@@ -180,6 +181,42 @@ TEST(SpscRing, AProducerWaitingForRoomGoesOnWhenTheConsumerPops) {
   producer.join();
   EXPECT_TRUE(pushed);
   EXPECT_EQ(ring.try_pop(), std::optional<int>(2));
+}
+
+TEST(SpscRing, ATimedWaitEndsAtItsDeadlineWhenNothingComes) {
+  SpscRing<int> ring(4);
+  const auto start = std::chrono::steady_clock::now();
+  EXPECT_FALSE(ring.wait_for_item_until({}, start + std::chrono::milliseconds(30)));
+  EXPECT_GE(std::chrono::steady_clock::now() - start, std::chrono::milliseconds(30));
+  // A deadline already past returns at once, and an item is seen without waiting.
+  EXPECT_FALSE(ring.wait_for_item_until({}, start));
+  ASSERT_TRUE(ring.try_push(7));
+  EXPECT_TRUE(ring.wait_for_item_until({}, start));
+}
+
+TEST(SpscRing, ATimedWaitWakesForAnItemLongBeforeItsDeadline) {
+  SpscRing<int> ring(4);
+  std::chrono::steady_clock::duration waited{};
+  std::jthread consumer([&](const std::stop_token& stop) {
+    const auto start = std::chrono::steady_clock::now();
+    EXPECT_TRUE(ring.wait_for_item_until(stop, start + std::chrono::seconds(60)));
+    waited = std::chrono::steady_clock::now() - start;
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));  // likely asleep by now; either way it must wake
+  ASSERT_TRUE(ring.try_push(1));
+  consumer.join();
+  EXPECT_LT(waited, std::chrono::seconds(30));
+}
+
+TEST(SpscRing, AStopRequestEndsATimedWait) {
+  SpscRing<int> ring(4);
+  bool got_item = true;
+  std::jthread consumer([&](const std::stop_token& stop) {
+    got_item = ring.wait_for_item_until(stop, std::chrono::steady_clock::now() + std::chrono::seconds(60));
+  });
+  consumer.request_stop();
+  consumer.join();
+  EXPECT_FALSE(got_item);
 }
 
 }  // namespace

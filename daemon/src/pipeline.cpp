@@ -192,6 +192,7 @@ void Pipeline::run_log(const std::stop_token& stop) {
   // (vacancies included), so collecting in the same rotation restores the
   // publication order.
   const std::size_t n = workers_.size();
+  const std::chrono::milliseconds idle_period = sink_.idle_period();
   std::uint64_t next = 0;
   for (;;) {
     SpscRing<Frame*>& from = workers_[next % n]->output;
@@ -200,7 +201,16 @@ void Pipeline::run_log(const std::stop_token& stop) {
       ++next;
       continue;
     }
-    if (!from.wait_for_item(stop)) break;
+    if (idle_period.count() <= 0) {
+      if (!from.wait_for_item(stop)) break;
+      continue;
+    }
+    if (from.wait_for_item_until(stop, Clock::now() + idle_period)) continue;
+    if (stop.stop_requested()) break;
+    try {
+      sink_.idle();
+    } catch (...) {  // NOLINT(bugprone-empty-catch): idle() is no frame to count; the sink reports its own errors
+    }
   }
   // stop() stops this stage after joining the workers: the rings hold the
   // last of every worker's frames.

@@ -118,6 +118,15 @@ class FrameSink {
  public:
   virtual ~FrameSink() = default;
   virtual void write(const Frame& frame) = 0;
+
+  // Housekeeping on the log stage's thread while no frame comes: idle() runs
+  // whenever the stage has waited idle_period() for a frame (never when the
+  // period is zero). The detection log syncs by its policy's deadline and
+  // reopens its files after a SIGHUP here, when a camera is lost and no
+  // frames arrive to do it. The sink reports its own errors: an exception
+  // from idle() is not a frame's, and is neither counted nor passed on.
+  [[nodiscard]] virtual std::chrono::milliseconds idle_period() const { return std::chrono::milliseconds{0}; }
+  virtual void idle() {}
 };
 
 }  // namespace markerd::daemon

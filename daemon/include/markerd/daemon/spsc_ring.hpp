@@ -2,8 +2,8 @@
 // A bounded lock-free queue between exactly two threads, one pushing and one
 // popping: the link between two stages of the frame pipeline. Neither side
 // takes a lock or allocates after construction; each side waits, when it
-// must, on a futex (std::atomic::wait) that the other side rings, so a
-// stage with nothing to do sleeps instead of spinning.
+// must, on a futex that the other side rings, so a stage with nothing to do
+// sleeps instead of spinning.
 //
 // The producer may also take back an item it pushed that the consumer has
 // not popped yet (the live policy drops the oldest waiting frame this way).
@@ -16,12 +16,18 @@
 #include <bit>
 #include <cassert>
 #include <cstddef>
+#include <chrono>
 #include <cstdint>
+#include <ctime>
 #include <memory>
 #include <optional>
 #include <stdexcept>
 #include <stop_token>
 #include <type_traits>
+
+#include <linux/futex.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 namespace markerd::daemon {
 
@@ -124,13 +130,21 @@ class SpscRing {
   // Waits until there is something to pop. False when `stop` was requested
   // while the ring was empty.
   bool wait_for_item(const std::stop_token& stop) {
-    const auto has_item = [this] {
-      return head_.load(std::memory_order_relaxed) != tail_.load(std::memory_order_acquire);
-    };
     for (;;) {
       if (has_item()) return true;
       if (stop.stop_requested()) return false;
-      sleep_until(consumer_asleep_, item_bell_, stop, has_item);
+      sleep_until(consumer_asleep_, item_bell_, stop, [this] { return has_item(); });
+    }
+  }
+
+  // The same, giving up at `deadline` (on steady_clock): false then too.
+  bool wait_for_item_until(const std::stop_token& stop, std::chrono::steady_clock::time_point deadline) {
+    for (;;) {
+      if (has_item()) return true;
+      if (stop.stop_requested()) return false;
+      const auto left = deadline - std::chrono::steady_clock::now();
+      if (left <= std::chrono::steady_clock::duration::zero()) return false;
+      sleep_until(consumer_asleep_, item_bell_, stop, [this] { return has_item(); }, left);
     }
   }
 
@@ -155,10 +169,15 @@ class SpscRing {
     return std::bit_ceil(min_capacity);
   }
 
+  [[nodiscard]] bool has_item() const noexcept {
+    return head_.load(std::memory_order_relaxed) != tail_.load(std::memory_order_acquire);
+  }
+
   // Sleeping and waking. A side that must wait raises its `asleep` flag and
-  // sleeps on a bell, a counter the other side advances to wake it
-  // (std::atomic::wait returns only when the word it watches changes, and
-  // a stop request must be able to end a wait too). The other side rings
+  // sleeps on a bell, a counter the other side advances to wake it (a futex
+  // wait returns only when the word it watches changes, and a stop request
+  // must be able to end a wait too). The futex is called directly rather
+  // than through std::atomic::wait, which has no timeout. The other side rings
   // only when the flag is up, so a push or pop costs a fence and a load,
   // not a system call, while nobody sleeps. The two seq_cst fences (one in
   // sleep_until between raising the flag and checking the condition, one in
@@ -166,7 +185,29 @@ class SpscRing {
   // sleeper sees the change or the waker sees the flag (Dekker's pattern).
   static void ring(std::atomic<std::uint32_t>& bell) noexcept {
     bell.fetch_add(1, std::memory_order_release);
-    bell.notify_all();
+    syscall(SYS_futex, futex_word(bell), FUTEX_WAKE_PRIVATE, INT32_MAX, nullptr, nullptr, 0);
+  }
+
+  // A lock-free std::atomic<std::uint32_t> is the 32-bit word itself.
+  static std::uint32_t* futex_word(std::atomic<std::uint32_t>& bell) noexcept {
+    static_assert(sizeof(std::atomic<std::uint32_t>) == sizeof(std::uint32_t) &&
+                  std::atomic<std::uint32_t>::is_always_lock_free);
+    return reinterpret_cast<std::uint32_t*>(&bell);  // NOLINT(cppcoreguidelines-pro-type-reinterpret-cast)
+  }
+
+  // Sleeps while the bell still reads `seen`, at most `timeout` (none when
+  // zero). Spurious returns are fine: every caller re-checks its condition.
+  static void futex_wait(std::atomic<std::uint32_t>& bell, std::uint32_t seen,
+                         std::chrono::steady_clock::duration timeout) noexcept {
+    timespec relative{};
+    timespec* limit = nullptr;
+    if (timeout > std::chrono::steady_clock::duration::zero()) {
+      const auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(timeout).count();
+      relative.tv_sec = static_cast<time_t>(ns / 1'000'000'000);
+      relative.tv_nsec = static_cast<long>(ns % 1'000'000'000);
+      limit = &relative;
+    }
+    syscall(SYS_futex, futex_word(bell), FUTEX_WAIT_PRIVATE, seen, limit, nullptr, 0);
   }
 
   static void wake(const std::atomic<bool>& asleep, std::atomic<std::uint32_t>& bell) noexcept {
@@ -181,7 +222,8 @@ class SpscRing {
   // it, after almost every item.
   template <class Ready>
   static void sleep_until(std::atomic<bool>& asleep, std::atomic<std::uint32_t>& bell, const std::stop_token& stop,
-                          Ready ready) {
+                          Ready ready,
+                          std::chrono::steady_clock::duration timeout = std::chrono::steady_clock::duration::zero()) {
     for (int i = 0; i < kPollsBeforeSleep; ++i) {
       if (ready()) return;
       cpu_relax();
@@ -194,7 +236,8 @@ class SpscRing {
     const std::uint32_t seen = bell.load(std::memory_order_acquire);
     if (!ready() && !stop.stop_requested()) {
       const std::stop_callback on_stop(stop, [&bell] { ring(bell); });
-      bell.wait(seen, std::memory_order_acquire);
+      futex_wait(bell, seen, timeout);
+      std::atomic_thread_fence(std::memory_order_acquire);
     }
     asleep.store(false, std::memory_order_relaxed);
   }
