@@ -1,0 +1,72 @@
+#pragma once
+// markerd assembled: the rig, the camera and its capture thread, the
+// detection pipeline and the detection log, built from one DaemonConfig.
+// markerd's main() (daemon/markerd_main.cpp) owns one, wires it to systemd
+// and to the signals; the end-to-end tests run one in-process.
+
+#include <chrono>
+#include <memory>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include "markerd/daemon/capture/capture_loop.hpp"
+#include "markerd/daemon/capture/capture_source.hpp"
+#include "markerd/daemon/daemon_config.hpp"
+#include "markerd/daemon/detection_log_sink.hpp"
+#include "markerd/daemon/pipeline.hpp"
+#include "markerd/rig/rig.hpp"
+
+namespace markerd::daemon {
+
+// The camera backend a config names.
+std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
+                                                   const std::optional<rig::RigConfig>& rig);
+
+class Daemon {
+ public:
+  // Builds everything and opens what must be there at start (the rig's
+  // devices, the detection log); throws (rig::DriveError, LogWriteError,
+  // CaptureError of kind config, ...) naming what failed. A camera that is
+  // not there yet is no reason to fail: the capture loop waits for it.
+  explicit Daemon(DaemonConfig config);
+  ~Daemon();  // stop()
+  Daemon(const Daemon&) = delete;
+  Daemon& operator=(const Daemon&) = delete;
+
+  // Starts the capture thread.
+  void start();
+  // Stops capture, detects and logs what is in flight (by the pipeline's
+  // policy), stops the axes and disables them, and syncs the log. Idempotent.
+  void stop();
+  // SIGHUP: the detection log reopens its file (logrotate renamed it).
+  void reopen_logs() noexcept { sink_->request_reopen(); }
+
+  // The threads that must keep going are going: the capture loop comes
+  // round, and the rig publishes snapshots. What the systemd watchdog is
+  // pinged on; a lost camera is no reason to be restarted, a hung thread is.
+  [[nodiscard]] bool responsive() const;
+  // One line for systemd's STATUS=.
+  [[nodiscard]] std::string status_line() const;
+
+  [[nodiscard]] const DaemonConfig& config() const { return config_; }
+  [[nodiscard]] rig::Rig* rig() { return rig_.get(); }
+  [[nodiscard]] const CaptureLoop& capture() const { return *capture_loop_; }
+  [[nodiscard]] const CaptureSource& source() const { return *source_; }
+  [[nodiscard]] const Pipeline& pipeline() const { return *pipeline_; }
+  [[nodiscard]] DetectionLogSink& log() { return *sink_; }
+
+ private:
+  void stop_motion() noexcept;
+
+  DaemonConfig config_;
+  std::unique_ptr<rig::Rig> rig_;
+  std::unique_ptr<CaptureSource> source_;
+  std::unique_ptr<DetectionLogSink> sink_;
+  std::unique_ptr<Pipeline> pipeline_;
+  std::unique_ptr<CaptureLoop> capture_loop_;
+  std::jthread capture_thread_;
+  bool stopped_ = false;
+};
+
+}  // namespace markerd::daemon

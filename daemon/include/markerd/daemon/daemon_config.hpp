@@ -1,0 +1,85 @@
+#pragma once
+// markerd's configuration: one TOML file (reference: docs/daemon-config.md),
+// parsed once into these structs. Every mistake is a ConfigError naming the
+// file, the line and the key, and keys nobody reads are mistakes too, so a
+// typo cannot pass silently. Nothing deeper than this reads TOML.
+
+#include <chrono>
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <variant>
+
+#include "markerd/daemon/capture/capture_loop.hpp"
+#include "markerd/daemon/capture/sim_camera.hpp"
+#include "markerd/daemon/log_writer.hpp"
+#include "markerd/daemon/pipeline.hpp"
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/detector.hpp"
+#include "markerd/rig/rig_config.hpp"
+
+namespace markerd::daemon {
+
+// [marker]: the marker under test.
+struct MarkerSettings {
+  Family family = Family::frame8;
+  int id = 165;  // what the simulated camera shows
+  double size_m = 0.08;
+  bool cut_hole = false;  // frame8: the hole printed white; true: cut out, the background shows through
+};
+
+// One alternative per capture backend.
+using CameraSourceSettings = std::variant<SimCameraSettings>;
+
+struct CameraSettings {
+  CameraSourceSettings source;
+  std::string source_kind;  // "sim", "v4l2", ...
+  // The intrinsics (OpenCV calibration YAML): poses need them, the
+  // simulated camera renders through them.
+  std::optional<CameraModel> model;
+  std::filesystem::path model_path;
+  CaptureLoopSettings loop;
+};
+
+struct DetectorSettings {
+  std::size_t workers = 1;  // detection threads, each with its own detector
+  Frame8Options frame8;
+};
+
+struct LogSettings {
+  std::filesystem::path directory;  // the detection logs; must exist
+  std::string prefix = "detections";
+  std::uint64_t max_file_bytes = 256ULL << 20;
+  FsyncPolicy fsync = FsyncPolicy::interval;
+  std::chrono::milliseconds fsync_interval{1000};
+  std::string level = "info";  // the daemon's own log: trace, debug, info, warn, error
+};
+
+struct ControlConfig {
+  std::filesystem::path socket;
+  std::string group;  // empty: the daemon's own group
+};
+
+struct DaemonConfig {
+  std::string source;                // the file it was read from
+  std::filesystem::path config_dir;  // relative paths are relative to it
+  MarkerSettings marker;
+  CameraSettings camera;
+  DetectorSettings detector;
+  PipelineConfig pipeline;
+  LogSettings log;
+  ControlConfig control;
+  std::optional<rig::RigConfig> rig;  // absent: a daemon that only watches
+};
+
+// Reads and checks the whole file. ConfigError on any mistake. Directories
+// left unset default to systemd's LOGS_DIRECTORY and RUNTIME_DIRECTORY when
+// set (the unit's LogsDirectory=, RuntimeDirectory=), else /var/log/markerd
+// and /run/markerd.
+DaemonConfig load_daemon_config(const std::filesystem::path& path);
+DaemonConfig parse_daemon_config(const ConfigTable& root);
+
+// The detector configuration the pipeline's workers are made with.
+[[nodiscard]] DetectorConfig detector_config(const DaemonConfig& config);
+
+}  // namespace markerd::daemon

@@ -1,0 +1,160 @@
+#include "markerd/daemon/capture/sim_camera.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <thread>
+#include <utility>
+
+#include "markerd/detector/render.hpp"
+
+namespace markerd::daemon {
+
+namespace {
+
+// 1 Mi samples: a frame up to a megapixel reads no sample twice.
+constexpr std::size_t kNoiseSamples = std::size_t{1} << 20;
+
+std::uint64_t splitmix(std::uint64_t& state) {
+  std::uint64_t z = (state += 0x9E3779B97F4A7C15ULL);
+  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+  z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+  return z ^ (z >> 31);
+}
+
+}  // namespace
+
+SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
+  t.allow_only({"fps", "exposure", "blur_sigma_px", "noise_sigma", "supersample", "clutter", "distort", "seed",
+                "rail_mm", "turntable_deg"});
+  SimCameraSettings s;
+  s.fps = t.optional<double>("fps", s.fps);
+  if (!(s.fps > 0 && s.fps <= 1000)) t.fail("fps", fmt::format("must be > 0 and <= 1000, got {}", s.fps));
+  s.exposure = t.optional<double>("exposure", s.exposure);
+  if (!(s.exposure > 0 && s.exposure <= 4)) t.fail("exposure", fmt::format("must be > 0 and <= 4, got {}", s.exposure));
+  s.blur_sigma_px = t.optional<double>("blur_sigma_px", s.blur_sigma_px);
+  if (!(s.blur_sigma_px >= 0 && s.blur_sigma_px <= 20)) {
+    t.fail("blur_sigma_px", fmt::format("must be 0 .. 20, got {}", s.blur_sigma_px));
+  }
+  s.noise_sigma = t.optional<double>("noise_sigma", s.noise_sigma);
+  if (!(s.noise_sigma >= 0 && s.noise_sigma <= 40)) {
+    t.fail("noise_sigma", fmt::format("must be 0 .. 40 (grey levels), got {}", s.noise_sigma));
+  }
+  s.supersample = t.optional<int>("supersample", s.supersample);
+  if (s.supersample < 1 || s.supersample > 8) t.fail("supersample", fmt::format("must be 1 .. 8, got {}", s.supersample));
+  s.clutter = t.optional<bool>("clutter", s.clutter);
+  s.distort = t.optional<bool>("distort", s.distort);
+  const auto seed = t.optional<std::int64_t>("seed", 1);
+  if (seed < 0) t.fail("seed", fmt::format("must be >= 0, got {}", seed));
+  s.seed = static_cast<std::uint64_t>(seed);
+  s.rail_mm = t.optional<double>("rail_mm", s.rail_mm);
+  s.turntable_deg = t.optional<double>("turntable_deg", s.turntable_deg);
+  if (!std::isfinite(s.rail_mm)) t.fail("rail_mm", "must be a finite number");
+  if (!std::isfinite(s.turntable_deg)) t.fail("turntable_deg", "must be a finite number");
+  return s;
+}
+
+SimCamera::SimCamera(SimCameraSettings settings, CameraModel camera, rig::RigGeometry geometry)
+    : settings_(settings), camera_(std::move(camera)), geometry_(geometry) {
+  if (camera_.width <= 0 || camera_.height <= 0) {
+    throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
+  }
+  name_ = fmt::format("sim {}x{}@{:g}", camera_.width, camera_.height, settings_.fps);
+  period_ = std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(1.0 / settings_.fps));
+  // The table holds whole grey levels: the rendered image is whole levels
+  // too, and rounding the sum is what a sensor's converter does.
+  noise_.resize(kNoiseSamples);
+  std::mt19937_64 engine(settings_.seed ^ 0x6E6F697365ULL);
+  std::normal_distribution<double> normal(0.0, settings_.noise_sigma);
+  for (auto& sample : noise_) {
+    sample = static_cast<std::int8_t>(std::clamp(std::lround(normal(engine)), -127L, 127L));
+  }
+  noise_state_ = settings_.seed;
+}
+
+CaptureGeometry SimCamera::geometry() const {
+  return {camera_.width, camera_.height, static_cast<std::size_t>(camera_.width) * static_cast<std::size_t>(camera_.height),
+          settings_.fps};
+}
+
+void SimCamera::open() {
+  open_ = true;
+  next_frame_ = std::chrono::steady_clock::now();
+}
+
+bool SimCamera::wait_frame(std::chrono::milliseconds timeout) {
+  if (!open_) throw CaptureError(CaptureError::Kind::io, name_ + ": not open");
+  const auto now = std::chrono::steady_clock::now();
+  if (next_frame_ > now + timeout) {
+    std::this_thread::sleep_for(timeout);
+    return false;
+  }
+  std::this_thread::sleep_until(next_frame_);
+  // A late frame (rendering took longer than a period) starts the next
+  // period from now: the camera does not try to catch up with a burst.
+  next_frame_ = std::max(next_frame_ + period_, std::chrono::steady_clock::now());
+  return true;
+}
+
+void SimCamera::skip() noexcept { ++sequence_; }
+
+void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
+  if (rendered_at_ && rendered_at_->first == rail_mm && rendered_at_->second == turntable_deg) return;
+  const rig::MarkerGroundTruth truth = rig::ground_truth(geometry_, rail_mm, turntable_deg);
+  Scene scene;
+  scene.family = settings_.family;
+  scene.id = settings_.id;
+  scene.marker_size_m = settings_.marker_size_m;
+  scene.cut_hole = settings_.cut_hole;
+  scene.pose.rotation = truth.rotation;
+  scene.pose.translation = truth.translation;
+  scene.exposure = settings_.exposure;
+  scene.blur_sigma_px = settings_.blur_sigma_px;
+  scene.noise_sigma = 0;  // added per frame
+  scene.supersample = settings_.supersample;
+  scene.clutter = settings_.clutter;
+  scene.distort = settings_.distort;
+  scene.seed = settings_.seed;
+  clean_ = render_scene(camera_, scene);
+  rendered_at_ = {rail_mm, turntable_deg};
+  ++renders_;
+}
+
+void SimCamera::fill(Frame& frame) {
+  const double rail = frame.rig ? frame.rig->rail.position : settings_.rail_mm;
+  const double turntable = frame.rig ? frame.rig->turntable.position : settings_.turntable_deg;
+  try {
+    render_if_moved(rail, turntable);
+  } catch (const std::exception& e) {
+    // A pose the renderer refuses (the marker behind the camera, say) is
+    // this frame's problem, not the camera's.
+    frame.sequence = sequence_++;
+    frame.status = FrameStatus::corrupt_frame;
+    frame.set_cause(fmt::format("simulated camera cannot render rail {} mm, turntable {} deg: {}", rail, turntable,
+                                e.what()));
+    rendered_at_.reset();
+    return;
+  }
+  frame.sequence = sequence_++;
+  frame.capture_time = std::chrono::steady_clock::now();
+  frame.use_pixel_buffer(clean_.width(), clean_.height());
+  std::uint8_t* dst = frame.pixel_buffer().data();
+  const std::uint8_t* src = clean_.data();
+  const std::size_t pixels = static_cast<std::size_t>(clean_.width()) * static_cast<std::size_t>(clean_.height());
+  if (settings_.noise_sigma <= 0) {
+    std::copy_n(src, pixels, dst);
+    return;
+  }
+  const std::size_t mask = noise_.size() - 1;
+  std::size_t at = splitmix(noise_state_) & mask;
+  const std::int8_t* noise = noise_.data();
+  for (std::size_t i = 0; i < pixels; ++i) {
+    const int v = src[i] + noise[at];
+    at = (at + 1) & mask;
+    dst[i] = static_cast<std::uint8_t>(std::clamp(v, 0, 255));
+  }
+}
+
+}  // namespace markerd::daemon

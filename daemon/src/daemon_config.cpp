@@ -1,0 +1,226 @@
+#include "markerd/daemon/daemon_config.hpp"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdlib>
+
+namespace markerd::daemon {
+
+namespace {
+
+std::filesystem::path resolve(const std::filesystem::path& dir, const std::string& path) {
+  const std::filesystem::path p(path);
+  return p.is_absolute() ? p : dir / p;
+}
+
+// systemd's directory variables may list several paths separated by ':'; the first is ours.
+std::filesystem::path from_environment(const char* name, const char* fallback) {
+  const char* value = std::getenv(name);  // NOLINT(concurrency-mt-unsafe): read at start, before threads
+  if (value == nullptr || *value == '\0') return fallback;
+  const std::string_view v(value);
+  return std::filesystem::path(std::string(v.substr(0, v.find(':'))));
+}
+
+std::chrono::milliseconds positive_ms(const ConfigTable& t, std::string_view key, std::chrono::milliseconds fallback) {
+  const auto ms = t.optional<std::int64_t>(key, fallback.count());
+  if (ms <= 0 || ms > 24LL * 3600 * 1000) t.fail(key, fmt::format("must be > 0 and at most a day (ms), got {}", ms));
+  return std::chrono::milliseconds(ms);
+}
+
+MarkerSettings parse_marker(const ConfigTable& t) {
+  t.allow_only({"family", "id", "size_m", "cut_hole"});
+  MarkerSettings m;
+  const auto family_name = t.optional<std::string>("family", "frame8");
+  const auto family = family_from_name(family_name);
+  if (!family) t.fail("family", fmt::format("unknown marker family \"{}\"", family_name));
+  m.family = *family;
+  const FamilyInfo& info = family_info(m.family);
+  m.id = t.optional<int>("id", m.id);
+  if (m.id < 0 || m.id >= info.id_count) {
+    t.fail("id", fmt::format("must be 0 .. {} for {}, got {}", info.id_count - 1, info.name, m.id));
+  }
+  m.size_m = t.optional<double>("size_m", m.size_m);
+  if (!(m.size_m > 0 && m.size_m < 10)) t.fail("size_m", fmt::format("must be > 0 and < 10 (metres), got {}", m.size_m));
+  m.cut_hole = t.optional<bool>("cut_hole", m.cut_hole);
+  return m;
+}
+
+CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& dir, const MarkerSettings& marker) {
+  t.allow_only({"source", "model", "frame_timeout_ms", "reopen_delay_ms", "reopen_max_delay_ms", "sim", "v4l2",
+                "libcamera", "file"});
+  CameraSettings c;
+  if (auto model = t.maybe<std::string>("model")) {
+    c.model_path = resolve(dir, *model);
+    try {
+      c.model = CameraModel::load(c.model_path);
+    } catch (const std::exception& e) {
+      t.fail("model", e.what());
+    }
+  }
+  c.loop.frame_timeout = positive_ms(t, "frame_timeout_ms", c.loop.frame_timeout);
+  c.loop.reopen_delay = positive_ms(t, "reopen_delay_ms", c.loop.reopen_delay);
+  c.loop.reopen_max_delay = positive_ms(t, "reopen_max_delay_ms", c.loop.reopen_max_delay);
+  if (c.loop.reopen_max_delay < c.loop.reopen_delay) {
+    t.fail("reopen_max_delay_ms", fmt::format("must be at least reopen_delay_ms ({})", c.loop.reopen_delay.count()));
+  }
+  c.source_kind = t.required<std::string>("source");
+  constexpr std::array kinds{"sim", "v4l2", "libcamera", "file"};
+  if (std::find(kinds.begin(), kinds.end(), c.source_kind) == kinds.end()) {
+    t.fail("source", fmt::format("must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"{}\"", c.source_kind));
+  }
+  // Only the chosen backend's table is read; another one present is a
+  // leftover worth pointing out.
+  for (const char* kind : kinds) {
+    if (kind != c.source_kind && t.contains(kind)) {
+      t.fail(kind, fmt::format("is set, but source is \"{}\" (remove the table or change the source)", c.source_kind));
+    }
+  }
+  if (c.source_kind == "sim") {
+    SimCameraSettings s;
+    if (auto table = t.maybe_table("sim")) s = parse_sim_camera_settings(*table);
+    s.family = marker.family;
+    s.id = marker.id;
+    s.marker_size_m = marker.size_m;
+    s.cut_hole = marker.cut_hole;
+    if (!c.model) t.fail("model", "is required by the simulated camera (it renders through the camera model)");
+    c.source = s;
+  } else {
+    t.fail("source", fmt::format("the \"{}\" source is not built into this markerd", c.source_kind));
+  }
+  return c;
+}
+
+DetectorSettings parse_detector(const ConfigTable& t) {
+  t.allow_only({"workers", "frame8"});
+  DetectorSettings d;
+  const auto workers = t.optional<int>("workers", 1);
+  if (workers < 1 || workers > 16) t.fail("workers", fmt::format("must be 1 .. 16, got {}", workers));
+  d.workers = static_cast<std::size_t>(workers);
+  if (auto f = t.maybe_table("frame8")) {
+    f->allow_only({"decimate", "threshold_offset", "min_hole_side_px", "min_margin", "uniform_ids", "model_small_cells",
+                   "blur_sigma_px"});
+    Frame8Options& o = d.frame8;
+    o.decimate = f->optional<int>("decimate", o.decimate);
+    if (o.decimate < 0 || o.decimate > 8) f->fail("decimate", fmt::format("must be 0 (automatic) .. 8, got {}", o.decimate));
+    o.threshold_offset = f->optional<int>("threshold_offset", o.threshold_offset);
+    if (o.threshold_offset < 0 || o.threshold_offset > 128) {
+      f->fail("threshold_offset", fmt::format("must be 0 .. 128 grey levels, got {}", o.threshold_offset));
+    }
+    o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px);
+    if (!(o.min_hole_side_px >= 2 && o.min_hole_side_px < 1000)) {
+      f->fail("min_hole_side_px", fmt::format("must be 2 .. 1000 px, got {}", o.min_hole_side_px));
+    }
+    o.min_margin = f->optional<double>("min_margin", o.min_margin);
+    if (!(o.min_margin >= 0 && o.min_margin < 1)) f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
+    o.uniform_ids = f->optional<bool>("uniform_ids", o.uniform_ids);
+    o.model_small_cells = f->optional<bool>("model_small_cells", o.model_small_cells);
+    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px);
+    if (!(o.blur_sigma_px >= 0 && o.blur_sigma_px <= 10)) {
+      f->fail("blur_sigma_px", fmt::format("must be 0 .. 10 px, got {}", o.blur_sigma_px));
+    }
+  }
+  return d;
+}
+
+PipelineConfig parse_pipeline(const ConfigTable& t) {
+  t.allow_only({"policy", "slots"});
+  PipelineConfig p;
+  const auto policy = t.optional<std::string>("policy", "live");
+  if (policy == "live") {
+    p.policy = DropPolicy::live;
+  } else if (policy == "lossless") {
+    p.policy = DropPolicy::lossless;
+  } else {
+    t.fail("policy", fmt::format("must be \"live\" or \"lossless\", got \"{}\"", policy));
+  }
+  const auto slots = t.optional<int>("slots", 8);
+  if (slots < 2 || slots > 256) t.fail("slots", fmt::format("must be 2 .. 256, got {}", slots));
+  p.pool.slots = static_cast<std::size_t>(slots);
+  return p;
+}
+
+LogSettings parse_log(const ConfigTable& t, const std::filesystem::path& dir) {
+  t.allow_only({"directory", "prefix", "max_file_mb", "fsync", "fsync_interval_ms", "level"});
+  LogSettings l;
+  if (auto d = t.maybe<std::string>("directory")) {
+    l.directory = resolve(dir, *d);
+  } else {
+    l.directory = from_environment("LOGS_DIRECTORY", "/var/log/markerd");
+  }
+  l.prefix = t.optional<std::string>("prefix", l.prefix);
+  if (l.prefix.empty() || l.prefix.find_first_of("/\n") != std::string::npos || l.prefix.front() == '.') {
+    t.fail("prefix", fmt::format("must be a file name prefix without '/', not starting with '.', got \"{}\"", l.prefix));
+  }
+  const auto mb = t.optional<std::int64_t>("max_file_mb", 256);
+  if (mb < 0 || mb > 1'000'000) t.fail("max_file_mb", fmt::format("must be 0 (no limit) .. 1000000, got {}", mb));
+  l.max_file_bytes = static_cast<std::uint64_t>(mb) << 20;
+  const auto fsync = t.optional<std::string>("fsync", "interval");
+  const auto policy = fsync_policy_from_name(fsync);
+  if (!policy) t.fail("fsync", fmt::format("must be \"never\", \"interval\" or \"every_line\", got \"{}\"", fsync));
+  l.fsync = *policy;
+  l.fsync_interval = positive_ms(t, "fsync_interval_ms", l.fsync_interval);
+  l.level = t.optional<std::string>("level", l.level);
+  if (l.level != "trace" && l.level != "debug" && l.level != "info" && l.level != "warn" && l.level != "error") {
+    t.fail("level", fmt::format("must be trace, debug, info, warn or error; got \"{}\"", l.level));
+  }
+  return l;
+}
+
+ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& dir) {
+  t.allow_only({"socket", "group"});
+  ControlConfig c;
+  if (auto s = t.maybe<std::string>("socket")) {
+    c.socket = resolve(dir, *s);
+  } else {
+    c.socket = from_environment("RUNTIME_DIRECTORY", "/run/markerd") / "control.sock";
+  }
+  // sockaddr_un's path holds 107 characters and a NUL.
+  if (c.socket.string().size() > 107) t.fail("socket", fmt::format("is longer than 107 characters: {}", c.socket.string()));
+  c.group = t.optional<std::string>("group", "");
+  return c;
+}
+
+}  // namespace
+
+DaemonConfig parse_daemon_config(const ConfigTable& root) {
+  root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "rig"});
+  DaemonConfig config;
+  config.source = root.source();
+  config.config_dir = std::filesystem::path(root.source()).parent_path();
+  const auto& dir = config.config_dir;
+  // The rig inline ([rig] tables), or `rig = "FILE"`: a rig file of its own,
+  // the one `markerctl rig --config` brings the rig up with.
+  const toml::node* rig = root.raw().get("rig");
+  if (rig != nullptr && rig->is_string()) {
+    const std::filesystem::path file = resolve(dir, root.required<std::string>("rig"));
+    if (!std::filesystem::exists(file)) root.fail("rig", fmt::format("no such rig file: {}", file.string()));
+    config.rig = rig::load_rig_config(file);
+  } else if (rig != nullptr) {
+    config.rig = rig::parse_rig_config(root);
+  }
+  if (auto t = root.maybe_table("marker")) config.marker = parse_marker(*t);
+  config.camera = parse_camera(root.table("camera"), dir, config.marker);
+  if (auto t = root.maybe_table("detector")) config.detector = parse_detector(*t);
+  if (auto t = root.maybe_table("pipeline")) config.pipeline = parse_pipeline(*t);
+  config.log = parse_log(root.maybe_table("log").value_or(ConfigTable::parse("", root.source())), dir);
+  config.control = parse_control(root.maybe_table("control").value_or(ConfigTable::parse("", root.source())), dir);
+  return config;
+}
+
+DaemonConfig load_daemon_config(const std::filesystem::path& path) {
+  return parse_daemon_config(ConfigTable::load_file(path));
+}
+
+DetectorConfig detector_config(const DaemonConfig& config) {
+  DetectorConfig d;
+  d.family = config.marker.family;
+  d.frame8 = config.detector.frame8;
+  d.camera = config.camera.model;
+  d.marker_size_m = config.marker.size_m;
+  return d;
+}
+
+}  // namespace markerd::daemon

@@ -1,0 +1,278 @@
+// markerd in-process: its config (errors name file, line and key; nothing
+// starts on a bad one), and the simulated camera + simulated rig + detector +
+// detection log end to end: the rig moves, the camera renders what the rig
+// shows, and the log holds the right marker with a pose that agrees with the
+// ground truth logged beside it.
+
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "markerd/daemon/daemon.hpp"
+#include "markerd/daemon/daemon_config.hpp"
+
+namespace markerd::daemon {
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void write_file(const fs::path& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+}
+
+class DaemonTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("markerd-daemon-" + std::to_string(::getpid()) + "-" + testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_ / "logs");
+    // The example rig, with simulated time running 50 times faster than real
+    // time, so that homing and moves take about a second.
+    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
+    const std::string scale = "time_scale = 1.0";
+    rig.replace(rig.find(scale), scale.size(), "time_scale = 50.0");
+    write_file(dir_ / "rig.toml", rig);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  [[nodiscard]] std::string base_config() const {
+    return fmt::format(R"(rig = "rig.toml"
+
+[marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[camera]
+source = "sim"
+model = "{}/config/cameras/thesis-640x480.yaml"
+frame_timeout_ms = 2000
+
+[camera.sim]
+fps = 30
+noise_sigma = 2.0
+supersample = 2
+
+[pipeline]
+policy = "lossless"
+
+[log]
+directory = "logs"
+fsync = "interval"
+fsync_interval_ms = 100
+
+[control]
+socket = "control.sock"
+)",
+                       MARKERD_SOURCE_DIR);
+  }
+
+  // The config with its first `line` replaced; the error it gives, and the
+  // file:line that error must begin with.
+  std::pair<std::string, std::string> error_with(const std::string& line, const std::string& replacement) {
+    std::string text = base_config();
+    const auto at = text.find(line);
+    EXPECT_NE(at, std::string::npos) << line;
+    if (at == std::string::npos) return {};
+    text.replace(at, line.size(), replacement);
+    const auto number = 1 + std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n');
+    const fs::path path = dir_ / "markerd.toml";
+    write_file(path, text);
+    std::string error = "(no error)";
+    try {
+      (void)load_daemon_config(path);
+    } catch (const ConfigError& e) {
+      error = e.what();
+    }
+    return {error, fmt::format("{}:{}", path.string(), number)};
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(DaemonTest, TheExampleConfigLoads) {
+  const DaemonConfig c = load_daemon_config(fs::path(MARKERD_SOURCE_DIR) / "config/markerd-sim.toml");
+  EXPECT_EQ(c.camera.source_kind, "sim");
+  ASSERT_TRUE(c.rig.has_value());
+  EXPECT_EQ(c.rig->rail.axis.max_position, 2500.0);
+  ASSERT_TRUE(c.camera.model.has_value());
+  EXPECT_EQ(c.camera.model->width, 640);
+  EXPECT_EQ(c.marker.id, 165);
+}
+
+TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
+  {
+    const auto [error, where] = error_with("source = \"sim\"", "source = \"webcam\"");
+    EXPECT_EQ(error, where + ": camera.source: must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"webcam\"");
+  }
+  {
+    const auto [error, where] = error_with("fps = 30", "fps = -1");
+    EXPECT_EQ(error, where + ": camera.sim.fps: must be > 0 and <= 1000, got -1");
+  }
+  {
+    const auto [error, where] = error_with("id = 165", "id = 300");
+    EXPECT_EQ(error, where + ": marker.id: must be 0 .. 255 for frame8, got 300");
+  }
+  {
+    const auto [error, where] = error_with("policy = \"lossless\"", "policy = \"fast\"");
+    EXPECT_EQ(error, where + ": pipeline.policy: must be \"live\" or \"lossless\", got \"fast\"");
+  }
+  {
+    const auto [error, where] = error_with("fsync = \"interval\"", "fsync = \"sometimes\"");
+    EXPECT_EQ(error, where + ": log.fsync: must be \"never\", \"interval\" or \"every_line\", got \"sometimes\"");
+  }
+  {
+    const auto [error, where] = error_with("noise_sigma = 2.0", "noise_sigma = 2.0\nnoise_sigm = 2.0");
+    const std::string expected = fmt::format("{}:{}: camera.sim.noise_sigm: unknown key",
+                                             where.substr(0, where.rfind(':')), std::stoi(where.substr(where.rfind(':') + 1)) + 1);
+    EXPECT_EQ(error.substr(0, expected.size()), expected) << error;
+  }
+  {
+    const auto [error, where] = error_with("rig = \"rig.toml\"", "rig = \"nowhere.toml\"");
+    EXPECT_EQ(error, where + ": rig: no such rig file: " + (dir_ / "nowhere.toml").string());
+  }
+  {
+    const auto [error, where] = error_with(
+        fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"", MARKERD_SOURCE_DIR), "");
+    EXPECT_NE(error.find("camera.model: is required by the simulated camera"), std::string::npos) << error;
+  }
+  {
+    const auto [error, where] = error_with("[camera.sim]", "[camera.v4l2]\ndevice = \"/dev/video0\"\n[camera.sim]");
+    EXPECT_NE(error.find("camera.v4l2: is set, but source is \"sim\""), std::string::npos) << error;
+  }
+  {
+    // The rig file's own errors name the rig file.
+    std::string rig = read_file(dir_ / "rig.toml");
+    rig.replace(rig.find("max_velocity = 50.0"), 19, "max_velocity = -50.0");
+    write_file(dir_ / "rig.toml", rig);
+    const auto [error, where] = error_with("[marker]", "[marker]");
+    EXPECT_NE(error.find((dir_ / "rig.toml").string() + ":"), std::string::npos) << error;
+    EXPECT_NE(error.find("rig.rail.max_velocity: "), std::string::npos) << error;
+  }
+}
+
+// Home, move to a point of the thesis's viewing-angle sweep, and read the
+// log: every line whole, the settled frames show marker 165 where the truth
+// says it is.
+TEST_F(DaemonTest, SimulatedCameraRigDetectorAndLogEndToEnd) {
+  const fs::path path = dir_ / "markerd.toml";
+  write_file(path, base_config());
+  Daemon daemon(load_daemon_config(path));
+  daemon.start();
+  rig::Rig& rig = *daemon.rig();
+  rig.rail().enable();
+  rig.turntable().enable();
+  rig.rail().home();
+  rig.turntable().home();
+  ASSERT_TRUE(rig.rail().wait_settled(60s)) << rig.rail().status().fault;
+  ASSERT_TRUE(rig.turntable().wait_settled(60s)) << rig.turntable().status().fault;
+  rig.rail().move_to(650.0);    // d = 300 + 650 mm
+  rig.turntable().move_to(30.0);
+  ASSERT_TRUE(rig.rail().wait_settled(60s));
+  ASSERT_TRUE(rig.turntable().wait_settled(60s));
+  const std::uint64_t settled_at = daemon.capture().status().frames;
+  const auto deadline = std::chrono::steady_clock::now() + 60s;
+  while (daemon.capture().status().frames < settled_at + 15 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(10ms);
+  }
+  EXPECT_TRUE(daemon.responsive());
+  EXPECT_NE(daemon.status_line().find("camera sim 640x480@30: streaming"), std::string::npos) << daemon.status_line();
+  const std::string log_path = daemon.log().current_path();
+  daemon.stop();
+
+  // Motion stopped and disabled.
+  EXPECT_EQ(rig.rail().status().state, rig::AxisState::disabled);
+  EXPECT_EQ(rig.turntable().status().state, rig::AxisState::disabled);
+
+  const std::string text = read_file(log_path);
+  ASSERT_FALSE(text.empty());
+  ASSERT_EQ(text.back(), '\n');
+  std::istringstream lines(text);
+  std::string line;
+  int total = 0, at_point = 0, detected = 0;
+  std::uint64_t previous_sequence = 0;
+  while (std::getline(lines, line)) {
+    const auto record = nlohmann::json::parse(line);  // throws on a torn line
+    const auto sequence = record["frame"]["sequence"].get<std::uint64_t>();
+    if (total > 0) {
+      EXPECT_GT(sequence, previous_sequence);
+    }
+    previous_sequence = sequence;
+    ++total;
+    EXPECT_EQ(record["status"], "ok") << line;
+    const auto& r = record["rig"];
+    ASSERT_TRUE(r.is_object()) << line;
+    if (!(r["settled"].get<bool>() && std::abs(r["rail"]["position_mm"].get<double>() - 650.0) < 1e-6 &&
+          std::abs(r["turntable"]["position_deg"].get<double>() - 30.0) < 1e-6)) {
+      continue;
+    }
+    ++at_point;
+    EXPECT_NEAR(record["truth"]["distance_m"].get<double>(), 0.95, 1e-9);
+    EXPECT_NEAR(record["truth"]["yaw_deg"].get<double>(), 30.0, 1e-9);
+    for (const auto& d : record["detections"]) {
+      if (d["id"] != 165) continue;
+      ++detected;
+      const auto& error = d["pose"]["best"]["error"];
+      EXPECT_LT(error["translation_pct"].get<double>(), 2.0) << line;
+      break;
+    }
+  }
+  EXPECT_GE(at_point, 15);
+  EXPECT_GE(detected, at_point * 9 / 10) << detected << " of " << at_point;
+}
+
+TEST_F(DaemonTest, ReopeningTheLogAfterARenameStartsANewFile) {
+  const fs::path path = dir_ / "markerd.toml";
+  std::string text = base_config();
+  text.replace(text.find("rig = \"rig.toml\""), 16, "");  // a daemon without a rig
+  write_file(path, text);
+  Daemon daemon(load_daemon_config(path));
+  EXPECT_EQ(daemon.rig(), nullptr);
+  daemon.start();
+  const fs::path first = daemon.log().current_path();
+  const auto wait_for_lines = [&](const fs::path& file, std::size_t lines) {
+    const auto deadline = std::chrono::steady_clock::now() + 30s;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const std::string t = read_file(file);
+      if (static_cast<std::size_t>(std::count(t.begin(), t.end(), '\n')) >= lines) return true;
+      std::this_thread::sleep_for(10ms);
+    }
+    return false;
+  };
+  ASSERT_TRUE(wait_for_lines(first, 3));
+  fs::rename(first, dir_ / "logs" / "rotated.jsonl");  // what logrotate does
+  daemon.reopen_logs();
+  ASSERT_TRUE(wait_for_lines(first, 3));  // the same name, a new file
+  daemon.stop();
+  const std::string rotated = read_file(dir_ / "logs" / "rotated.jsonl");
+  ASSERT_FALSE(rotated.empty());
+  EXPECT_EQ(rotated.back(), '\n');
+  // Without a rig: "rig":null and no truth.
+  const auto record = nlohmann::json::parse(rotated.substr(0, rotated.find('\n')));
+  EXPECT_TRUE(record["rig"].is_null());
+  EXPECT_TRUE(record["truth"].is_null());
+}
+
+}  // namespace
+}  // namespace markerd::daemon
