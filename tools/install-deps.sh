@@ -24,6 +24,9 @@ packages=(
   python3-serial python3-serial-asyncio
   # hardware-in-the-loop tests: Debian's kernel under qemu, a busybox initramfs
   qemu-system-x86 busybox-static cpio
+  # the service's tests: systemd-analyze (verify, security), systemd-sysusers
+  # and systemd-tmpfiles, which a container image may lack
+  systemd
 )
 
 if [[ $(id -u) -ne 0 ]]; then
