@@ -128,8 +128,8 @@ void SimCamera::fill(Frame& frame) {
   try {
     render_if_moved(rail, turntable);
   } catch (const std::exception& e) {
-    // A pose the renderer refuses (the marker behind the camera, say) is
-    // this frame's problem, not the camera's.
+    // A scene the renderer refuses is this frame's problem, not the
+    // camera's: the frame is logged with the cause and capture goes on.
     frame.sequence = sequence_++;
     frame.status = FrameStatus::corrupt_frame;
     frame.set_cause(fmt::format("simulated camera cannot render rail {} mm, turntable {} deg: {}", rail, turntable,
@@ -138,23 +138,30 @@ void SimCamera::fill(Frame& frame) {
     return;
   }
   frame.sequence = sequence_++;
-  frame.capture_time = std::chrono::steady_clock::now();
   frame.use_pixel_buffer(clean_.width(), clean_.height());
   std::uint8_t* dst = frame.pixel_buffer().data();
   const std::uint8_t* src = clean_.data();
   const std::size_t pixels = static_cast<std::size_t>(clean_.width()) * static_cast<std::size_t>(clean_.height());
+  // Stamped when the image is complete, as a driver stamps a frame at the
+  // end of its readout: the simulated sensor's work is not the pipeline's.
   if (settings_.noise_sigma <= 0) {
     std::copy_n(src, pixels, dst);
+    frame.capture_time = std::chrono::steady_clock::now();
     return;
   }
-  const std::size_t mask = noise_.size() - 1;
-  std::size_t at = splitmix(noise_state_) & mask;
-  const std::int8_t* noise = noise_.data();
-  for (std::size_t i = 0; i < pixels; ++i) {
-    const int v = src[i] + noise[at];
-    at = (at + 1) & mask;
-    dst[i] = static_cast<std::uint8_t>(std::clamp(v, 0, 255));
+  // In runs that do not wrap around the table, so that the loop body is a
+  // plain element-wise add the compiler vectorises.
+  std::size_t at = splitmix(noise_state_) & (noise_.size() - 1);
+  for (std::size_t done = 0; done < pixels;) {
+    const std::size_t run = std::min(pixels - done, noise_.size() - at);
+    const std::uint8_t* s = src + done;
+    const std::int8_t* n = noise_.data() + at;
+    std::uint8_t* d = dst + done;
+    for (std::size_t i = 0; i < run; ++i) d[i] = static_cast<std::uint8_t>(std::clamp(s[i] + n[i], 0, 255));
+    done += run;
+    at = 0;
   }
+  frame.capture_time = std::chrono::steady_clock::now();
 }
 
 }  // namespace markerd::daemon
