@@ -1,7 +1,9 @@
 // markerctl rig: bring-up of a rig without the daemon. Loads the rig config,
 // locks its devices against every other process (markerd, another
 // markerctl), builds the rig and runs one command: status, home, move, or
-// jog (relative moves, or an interactive jog on a terminal).
+// jog (relative moves, or an interactive jog on a terminal). Without
+// --config the same commands (and stop) go to a running markerd over its
+// control socket instead (cmd_daemon.cpp).
 //
 // Fail safe: whatever way the command ends, the axes end disabled. An
 // interrupt (SIGINT, SIGTERM, SIGHUP, SIGQUIT) stops the motion with a
@@ -40,6 +42,7 @@
 #include <string_view>
 #include <vector>
 
+#include "cmd_daemon.hpp"
 #include "common.hpp"
 #include "markerd/rig/device_lock.hpp"
 #include "markerd/rig/rig.hpp"
@@ -429,6 +432,10 @@ struct RigOptions {
   std::string rail;       // move, jog
   std::string turntable;
   bool home = false;      // move, jog: home what is not homed first
+  // markerd's rig (no --config):
+  std::string socket;
+  bool emergency = false;  // stop
+  bool no_wait = false;    // home, move, jog, stop: return once the daemon has started it
 };
 
 int run_status(const RigOptions& o, const std::string& context) {
@@ -552,6 +559,41 @@ int run_motion(const RigOptions& o, const std::vector<Request>& requests, bool r
   }
   session.print_ground_truth();
   return 0;
+}
+
+// ---------------------------------------------------------------- markerd's rig
+
+// The command for a running markerd: values keep their units until the
+// daemon says which unit its axis counts in.
+int run_on_daemon(const RigOptions& o, DaemonRigRequest::Action action, bool relative, const std::string& context,
+                  const SignalWatch* signals) {
+  DaemonRigRequest request;
+  request.action = action;
+  request.context = context;
+  request.socket = o.socket;
+  request.json = o.json;
+  request.home_axis = o.home_axis;
+  request.relative = relative;
+  request.home_first = o.home;
+  request.emergency = o.emergency;
+  request.wait = !o.no_wait;
+  for (const Request& r : requests_of(o)) {
+    const AxisKind* kind = r.kind;
+    const double base_value = r.base_value;
+    request.targets.push_back({kind->name, [kind, base_value, context](const std::string& unit) {
+                                 const auto scale = scale_of(kind->units, unit);
+                                 if (!scale) {
+                                   throw runtime_error(context, fmt::format("markerd's {} counts in '{}'; markerctl "
+                                                                            "rig converts to {} only",
+                                                                            kind->name, unit, unit_list(kind->units)));
+                                 }
+                                 return base_value / *scale;
+                               }});
+  }
+  if (signals != nullptr) {
+    request.wait_for_signal = [signals](std::chrono::milliseconds timeout) { return signals->wait(timeout).signal; };
+  }
+  return run_rig_on_daemon(request);
 }
 
 // ---------------------------------------------------------------- interactive jog
@@ -869,7 +911,8 @@ void log_to_stderr() {
 
 void add_rig_command(CLI::App& parent, Commands& commands) {
   auto o = std::make_shared<RigOptions>();
-  CLI::App* app = parent.add_subcommand("rig", "Bring up a rig: status, homing, moves and jogging, without markerd");
+  CLI::App* app = parent.add_subcommand(
+      "rig", "Bring up a rig: status, homing, moves and jogging, from its config or through markerd");
   app->require_subcommand(1);
   app->footer(
       "Runs one command on the rig a config describes (config/rig-*.toml, docs/rig.md), then disables the axes.\n"
@@ -878,10 +921,14 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
       "turntable deg or rad. A new process starts with the axes unhomed (an open-loop stepper loses its\n"
       "reference when the process that drove it ends): pass --home to move or jog to home what is not homed.\n"
       "An interrupt (Ctrl-C, SIGTERM) stops the motion with a ramp, disables the axes and exits with 1.\n"
-      "Exit status: 0 done, 1 refused or failed (a fault, the devices in use, an interrupt), 2 bad usage.");
-  app->add_option("--config", o->config, "The rig config (TOML with a [rig] table)")
-      ->type_name("FILE")
-      ->required();
+      "Exit status: 0 done, 1 refused or failed (a fault, the devices in use, an interrupt), 2 bad usage.\n"
+      "Without --config, status, home, move, jog --rail/--turntable and stop go to a running markerd (its\n"
+      "rig, through the control socket: --socket, else $MARKERD_SOCKET, else /run/markerd/control.sock);\n"
+      "the axes stay as markerd keeps them, and an interrupt while waiting stops the rig.");
+  app->add_option("--config", o->config, "The rig config (TOML with a [rig] table); without it, markerd's rig")
+      ->type_name("FILE");
+  app->add_option("--socket", o->socket, "markerd's control socket, for markerd's rig (no --config)")
+      ->type_name("PATH");
 
   CLI::App* status = app->add_subcommand("status", "Each axis's state, position and inputs, and the ground truth");
   status->add_flag("--json", o->json, "One JSON object instead of text");
@@ -891,12 +938,14 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   home->add_option("--axis", o->home_axis, "Only this axis")
       ->type_name("rail|turntable")
       ->check(CLI::IsMember({"rail", "turntable"}));
+  home->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the homing has started");
   home->fallthrough();
 
   CLI::App* move = app->add_subcommand("move", "Move the axes to absolute positions and wait until settled");
   move->add_option("--rail", o->rail, "Rail position (250mm, 25cm, 0.25m)")->type_name("LENGTH");
   move->add_option("--turntable", o->turntable, "Turntable angle (30deg, 0.5rad)")->type_name("ANGLE");
   move->add_flag("--home", o->home, "Home the axes that are not homed first");
+  move->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the move has started");
   move->fallthrough();
 
   CLI::App* jog = app->add_subcommand(
@@ -904,14 +953,44 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   jog->add_option("--rail", o->rail, "Rail step (+5mm, -1cm)")->type_name("LENGTH");
   jog->add_option("--turntable", o->turntable, "Turntable step (+2deg, -0.1rad)")->type_name("ANGLE");
   jog->add_flag("--home", o->home, "Home the axes that are not homed first");
+  jog->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the move has started");
   jog->footer(
       "Interactive keys: left/right arrows jog the rail, up/down the turntable; + and - change the step\n"
       "(0.1 mm / 0.05 deg up to 100 mm / 30 deg); h homes both axes; s stops; space is an emergency stop\n"
       "(the axes are disabled and must be homed again); q quits.");
   jog->fallthrough();
 
-  commands.push_back({app, [o, status, home, move, jog] {
+  CLI::App* stop = app->add_subcommand("stop", "markerd's rig: stop both axes (with a ramp) and wait until they rest");
+  stop->add_flag("--emergency", o->emergency, "Stop at once and disable the axes (they must be homed again)");
+  stop->add_flag("--no-wait", o->no_wait, "Return once the stop has been sent");
+  stop->fallthrough();
+
+  commands.push_back({app, [o, status, home, move, jog, stop] {
                         log_to_stderr();
+                        if (o->config.empty()) {
+                          // markerd's rig. Signals are watched only while a command waits for motion.
+                          using Action = DaemonRigRequest::Action;
+                          const bool waits = !o->no_wait && !status->parsed();
+                          std::optional<SignalWatch> signals;
+                          if (waits) signals.emplace();
+                          const SignalWatch* watch = signals ? &*signals : nullptr;
+                          if (status->parsed()) return run_on_daemon(*o, Action::status, false, "rig status", watch);
+                          if (home->parsed()) return run_on_daemon(*o, Action::home, false, "rig home", watch);
+                          if (stop->parsed()) return run_on_daemon(*o, Action::stop, false, "rig stop", watch);
+                          const bool jogging = jog->parsed();
+                          const std::string context = jogging ? "rig jog" : "rig move";
+                          if (requests_of(*o).empty()) {
+                            throw usage_error(context, jogging ? "give --rail or --turntable (the interactive jog "
+                                                                 "needs --config: it drives the rig itself)"
+                                                               : "give --rail, --turntable or both");
+                          }
+                          return run_on_daemon(*o, Action::move, jogging, context, watch);
+                        }
+                        if (o->no_wait) throw usage_error("rig", "--no-wait is for markerd's rig (without --config)");
+                        if (stop->parsed()) {
+                          throw usage_error("rig stop", "stop is for markerd's rig (without --config); a rig "
+                                                        "driven with --config stops when its command ends");
+                        }
                         if (status->parsed()) return run_status(*o, "rig status");
                         if (home->parsed()) return run_home(*o, "rig home");
                         if (move->parsed()) {
@@ -931,7 +1010,7 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
                           Session session(o->config, "rig jog");
                           return InteractiveJog(session).run();
                         }
-                        throw usage_error("rig", "no rig command given (status, home, move or jog)");
+                        throw usage_error("rig", "no rig command given (status, home, move, jog or stop)");
                       }});
 }
 

@@ -19,6 +19,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/core/utils/logger.hpp>
 
+#include "cmd_daemon.hpp"
 #include "common.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
@@ -79,6 +80,8 @@ int main(int argc, char** argv) {
       "  markerctl detect --camera config/cameras/thesis-640x480.yaml --size 0.08 frame.png\n"
       "  markerctl evaluate --family frame8\n"
       "  markerctl rig --config config/rig-sim.toml move --home --rail 250mm --turntable 30deg\n"
+      "  markerctl cameras\n"
+      "  markerctl status                  (and detections, call, rig without --config: a running markerd)\n"
       "Run 'markerctl <command> --help' for a command's options. Exit status: 0 on success,\n"
       "1 when something failed while running, 2 for a mistake on the command line.");
 
@@ -92,10 +95,12 @@ int main(int argc, char** argv) {
   markerctl::add_detect_command(app, commands);
   markerctl::add_evaluate_command(app, commands);
   markerctl::add_rig_command(app, commands);
+  markerctl::add_cameras_command(app, commands);
+  markerctl::add_daemon_commands(app, commands);
 
   if (argc <= 1) {
     std::cerr << app.help();
-    print_error("", "no command given (marker, render, detect, evaluate or rig)");
+    print_error("", "no command given (marker, render, detect, evaluate, rig, cameras, status, detections or call)");
     return markerctl::exit_usage;
   }
   try {

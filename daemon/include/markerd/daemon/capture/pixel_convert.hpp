@@ -1,0 +1,43 @@
+#pragma once
+// Grey images from the pixel formats a camera sends that are not grey
+// already: YUYV (its Y bytes, in one pass) and MJPEG (decoded by
+// libjpeg-turbo's TurboJPEG API straight to grey, which decodes the Y
+// component only). Both write into a buffer the caller owns (a frame slot's
+// pixel_buffer()) and allocate nothing themselves per frame.
+
+#include <cstddef>
+#include <cstdint>
+#include <span>
+
+namespace markerd::daemon {
+
+// Copies the Y of every YUYV pixel (Y0 U Y1 V, two pixels in four bytes)
+// into `grey`. `yuyv_stride` and `grey_stride` are bytes from one row to the
+// next; `width` is in pixels and even.
+void yuyv_to_grey(const std::uint8_t* yuyv, std::ptrdiff_t yuyv_stride, int width, int height, std::uint8_t* grey,
+                  std::ptrdiff_t grey_stride) noexcept;
+
+// One TurboJPEG decompressor, kept from frame to frame; used by one thread
+// at a time.
+class MjpegDecoder {
+ public:
+  // Throws std::runtime_error when TurboJPEG cannot make a decompressor.
+  MjpegDecoder();
+  ~MjpegDecoder();
+  MjpegDecoder(const MjpegDecoder&) = delete;
+  MjpegDecoder& operator=(const MjpegDecoder&) = delete;
+
+  // Decodes `jpeg`, which must be a `width` x `height` image, into `grey`
+  // (rows of `grey_stride` bytes). Returns null on success, or why the frame
+  // cannot be read: TurboJPEG's own message (a warning such as a truncated
+  // image counts: half a frame is no measurement), or a size other than the
+  // one asked for. The text stays valid until the next call.
+  [[nodiscard]] const char* decode(std::span<const std::uint8_t> jpeg, int width, int height, std::uint8_t* grey,
+                                   std::ptrdiff_t grey_stride) noexcept;
+
+ private:
+  void* handle_ = nullptr;  // tjhandle
+  char message_[160] = {};
+};
+
+}  // namespace markerd::daemon

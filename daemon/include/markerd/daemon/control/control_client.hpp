@@ -1,0 +1,61 @@
+#pragma once
+// The client side of markerd's control socket (docs/control.md): connect,
+// send a request line, read reply lines, or follow a stream. markerctl and
+// the tests speak to the daemon through it. Errors name the socket and say
+// what to do ("cannot connect to /run/markerd/control.sock: No such file or
+// directory (is markerd running?)").
+
+#include <chrono>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+namespace markerd::daemon {
+
+inline constexpr const char* kDefaultControlSocket = "/run/markerd/control.sock";
+
+class ControlClientError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+class ControlClient {
+ public:
+  // Connects. ControlClientError naming the path and, where it helps, the
+  // likely cause (markerd not running; the group that grants access).
+  explicit ControlClient(std::filesystem::path socket_path);
+  ~ControlClient();
+  ControlClient(const ControlClient&) = delete;
+  ControlClient& operator=(const ControlClient&) = delete;
+
+  [[nodiscard]] const std::filesystem::path& socket_path() const { return path_; }
+
+  // Sends one request (an object) as one line.
+  void send(const nlohmann::json& request);
+
+  // The next line the server sent, without its '\n'; nothing when `timeout`
+  // passes first (no timeout: wait as long as it takes). ControlClientError
+  // when the connection ends or fails.
+  [[nodiscard]] std::optional<std::string> read_line(std::optional<std::chrono::milliseconds> timeout);
+
+  // Sends `request` with an "id" of its own (unless it has one) and returns
+  // the reply that carries it, as an object. ControlClientError when no
+  // reply comes within `timeout`, or the reply is not JSON. An "ok": false
+  // reply is returned like any other. `raw_line`, when given, receives the
+  // reply's line as it came.
+  [[nodiscard]] nlohmann::json call(nlohmann::json request,
+                                    std::chrono::milliseconds timeout = std::chrono::seconds(10),
+                                    std::string* raw_line = nullptr);
+
+ private:
+  [[noreturn]] void fail(const std::string& why) const;
+
+  std::filesystem::path path_;
+  int fd_ = -1;
+  std::string buffer_;  // received, not yet returned
+  std::int64_t next_id_ = 1;
+};
+
+}  // namespace markerd::daemon

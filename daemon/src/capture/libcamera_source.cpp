@@ -1,0 +1,884 @@
+#include "markerd/daemon/capture/libcamera_source.hpp"
+
+#include <sys/mman.h>
+
+#include <libcamera/camera.h>
+#include <libcamera/camera_manager.h>
+#include <libcamera/control_ids.h>
+#include <libcamera/controls.h>
+#include <libcamera/formats.h>
+#include <libcamera/framebuffer.h>
+#include <libcamera/framebuffer_allocator.h>
+#include <libcamera/property_ids.h>
+#include <libcamera/request.h>
+#include <libcamera/stream.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <fmt/format.h>
+#include <limits>
+#include <mutex>
+#include <nlohmann/json.hpp>
+#include <stdexcept>
+#include <utility>
+
+#include "markerd/daemon/capture/pixel_convert.hpp"
+#include "markerd/rig/config_table.hpp"
+
+namespace markerd::daemon {
+
+namespace {
+
+using libcamera::Camera;
+using libcamera::CameraManager;
+
+// ---------------------------------------------------------------- the camera manager
+
+// libcamera aborts the process when a second CameraManager is made while one
+// exists, so every user shares this one. A new one may only be made once the
+// old one is gone: the deleter stops it outside the lock and then says so.
+struct ManagerHolder {
+  std::mutex mutex;
+  std::condition_variable gone;
+  std::weak_ptr<CameraManager> current;
+  bool alive = false;
+};
+
+ManagerHolder& manager_holder() {
+  static ManagerHolder holder;
+  return holder;
+}
+
+std::shared_ptr<CameraManager> shared_camera_manager() {
+  ManagerHolder& holder = manager_holder();
+  std::unique_lock lock(holder.mutex);
+  if (auto manager = holder.current.lock()) return manager;
+  holder.gone.wait(lock, [&] { return !holder.alive; });
+
+  auto manager = std::make_unique<CameraManager>();
+  if (const int ret = manager->start(); ret < 0) {
+    throw CaptureError(CaptureError::Kind::io,
+                       fmt::format("libcamera: cannot start the camera manager: {}", std::strerror(-ret)));
+  }
+  std::shared_ptr<CameraManager> shared(manager.release(), [](CameraManager* m) {
+    m->stop();
+    delete m;
+    ManagerHolder& h = manager_holder();
+    const std::lock_guard guard(h.mutex);
+    h.alive = false;
+    h.gone.notify_all();
+  });
+  holder.alive = true;
+  holder.current = shared;
+  return shared;
+}
+
+std::string camera_ids(const CameraManager& manager) {
+  std::string ids;
+  for (const auto& camera : manager.cameras()) ids += fmt::format("{}'{}'", ids.empty() ? "" : ", ", camera->id());
+  return ids.empty() ? "none" : ids;
+}
+
+// ---------------------------------------------------------------- formats and values
+
+libcamera::PixelFormat pixel_format_of(LibcameraPixelFormat format) {
+  switch (format) {
+    case LibcameraPixelFormat::yuyv: return libcamera::formats::YUYV;
+    case LibcameraPixelFormat::nv12: return libcamera::formats::NV12;
+    case LibcameraPixelFormat::r8: return libcamera::formats::R8;
+  }
+  return {};
+}
+
+std::string_view type_name(libcamera::ControlType type) {
+  switch (type) {
+    case libcamera::ControlTypeNone: return "none";
+    case libcamera::ControlTypeBool: return "bool";
+    case libcamera::ControlTypeByte: return "byte";
+    case libcamera::ControlTypeInteger32: return "int32";
+    case libcamera::ControlTypeInteger64: return "int64";
+    case libcamera::ControlTypeFloat: return "float";
+    case libcamera::ControlTypeString: return "string";
+    case libcamera::ControlTypeRectangle: return "rectangle";
+    case libcamera::ControlTypeSize: return "size";
+  }
+  return "unknown";
+}
+
+LibcameraValue value_of(const libcamera::ControlValue& value) {
+  if (value.isNone()) return std::monostate{};
+  if (value.isArray()) return value.toString();
+  switch (value.type()) {
+    case libcamera::ControlTypeBool: return value.get<bool>();
+    case libcamera::ControlTypeByte: return static_cast<std::int64_t>(value.get<std::uint8_t>());
+    case libcamera::ControlTypeInteger32: return static_cast<std::int64_t>(value.get<std::int32_t>());
+    case libcamera::ControlTypeInteger64: return value.get<std::int64_t>();
+    case libcamera::ControlTypeFloat: return static_cast<double>(value.get<float>());
+    default: return value.toString();
+  }
+}
+
+// A number of a control value, for range checks; nothing for other types.
+std::optional<double> number_of(const libcamera::ControlValue& value) {
+  if (value.isNone() || value.isArray()) return std::nullopt;
+  switch (value.type()) {
+    case libcamera::ControlTypeBool: return value.get<bool>() ? 1.0 : 0.0;
+    case libcamera::ControlTypeByte: return value.get<std::uint8_t>();
+    case libcamera::ControlTypeInteger32: return value.get<std::int32_t>();
+    case libcamera::ControlTypeInteger64: return static_cast<double>(value.get<std::int64_t>());
+    case libcamera::ControlTypeFloat: return value.get<float>();
+    default: return std::nullopt;
+  }
+}
+
+std::string text_of(const std::variant<bool, std::int64_t, double>& value) {
+  return std::visit([](auto v) { return fmt::format("{}", v); }, value);
+}
+
+const libcamera::ControlId* find_control(const libcamera::ControlInfoMap& map, std::string_view name) {
+  for (const auto& [id, info] : map) {
+    if (id->name() == name) return id;
+  }
+  return nullptr;
+}
+
+std::string control_names(const libcamera::ControlInfoMap& map) {
+  std::vector<std::string> names;
+  for (const auto& [id, info] : map) names.push_back(id->name());
+  std::sort(names.begin(), names.end());
+  std::string list;
+  for (const auto& name : names) list += fmt::format("{}{}", list.empty() ? "" : ", ", name);
+  return list.empty() ? "none" : list;
+}
+
+std::string offered_formats(const libcamera::StreamFormats& formats) {
+  std::string text;
+  for (const auto& pixel_format : formats.pixelformats()) {
+    std::string sizes;
+    for (const auto& size : formats.sizes(pixel_format)) {
+      sizes += fmt::format("{}{}x{}", sizes.empty() ? "" : " ", size.width, size.height);
+    }
+    text += fmt::format("{}{} {}", text.empty() ? "" : "; ", pixel_format.toString(), sizes);
+  }
+  return text.empty() ? "nothing" : text;
+}
+
+// The camera's configuration for one stream: video first, the viewfinder for
+// a camera without a video role.
+std::unique_ptr<libcamera::CameraConfiguration> generate_configuration(Camera& camera) {
+  for (const auto role : {libcamera::StreamRole::VideoRecording, libcamera::StreamRole::Viewfinder}) {
+    auto config = camera.generateConfiguration({role});
+    if (config && !config->empty()) return config;
+  }
+  return nullptr;
+}
+
+// Publishes the frame as unreadable with a cause formatted on the stack.
+template <class... Args>
+void mark_corrupt(Frame& frame, fmt::format_string<Args...> format, Args&&... args) {
+  std::array<char, Frame::kCauseCapacity> text{};
+  const auto written = fmt::format_to_n(text.data(), text.size(), format, std::forward<Args>(args)...);
+  frame.image = {};
+  frame.status = FrameStatus::corrupt_frame;
+  frame.set_cause({text.data(), std::min(written.size, text.size())});
+}
+
+// ---------------------------------------------------------------- a streaming session
+
+// Everything one open() sets up: the acquired camera, its buffers and their
+// mappings, the requests, and the queue of completed ones. The source owns
+// it while open; a frame that borrows a buffer's Y plane owns it too, until
+// its release hook has run, so that the mapping it points into (and the
+// camera, which must not be released with buffers allocated) outlives
+// close().
+class Session : public std::enable_shared_from_this<Session> {
+ public:
+  Session(std::shared_ptr<CameraManager> manager, std::string name)
+      : manager_(std::move(manager)), name_(std::move(name)) {}
+  Session(const Session&) = delete;
+  Session& operator=(const Session&) = delete;
+  ~Session() { teardown(); }
+
+  void open(const LibcameraSettings& settings);
+  // Stops streaming: no request is queued again after this, and every
+  // queued one has come back (cancelled).
+  void stop() noexcept;
+
+  // ---- the capture thread ----
+  // The index of the next completed request, nothing after `timeout`.
+  std::optional<std::uint32_t> wait(std::chrono::milliseconds timeout);
+  void fill(std::uint32_t index, Frame& frame);
+  void requeue(std::uint32_t index) noexcept;
+
+  [[nodiscard]] const std::string& camera_id() const { return camera_id_; }
+
+ private:
+  struct Mapping {
+    void* address = MAP_FAILED;
+    std::size_t length = 0;
+  };
+  struct Slot {
+    std::unique_ptr<libcamera::Request> request;
+    const libcamera::FrameBuffer* buffer = nullptr;
+    const std::uint8_t* pixels = nullptr;  // the first plane: Y of NV12, the whole image of R8 and YUYV
+    std::shared_ptr<Session> lent_to;     // set while a frame borrows the slot's pixels
+  };
+
+  static void release_lent(void* context, std::uint64_t token) noexcept;
+
+  void find_camera(const LibcameraSettings& settings);
+  void configure(const LibcameraSettings& settings);
+  void allocate_and_map();
+  libcamera::ControlList start_controls(const LibcameraSettings& settings) const;
+  void teardown() noexcept;
+
+  // Signal handlers, on libcamera's thread.
+  void on_request_completed(libcamera::Request* request);
+  void on_disconnected();
+  void on_camera_removed(std::shared_ptr<Camera> camera);
+
+  [[noreturn]] void fail(CaptureError::Kind kind, const std::string& message) const {
+    throw CaptureError(kind, fmt::format("{}: {}", name_, message));
+  }
+
+  // Destroyed last: the camera and everything from it go first.
+  std::shared_ptr<CameraManager> manager_;
+  std::string name_;
+  std::string camera_id_;
+  std::shared_ptr<Camera> camera_;
+  bool acquired_ = false;
+  bool connected_ = false;
+  bool started_ = false;
+  std::unique_ptr<libcamera::CameraConfiguration> config_;
+  libcamera::Stream* stream_ = nullptr;
+  LibcameraPixelFormat format_ = LibcameraPixelFormat::yuyv;
+  int width_ = 0;
+  int height_ = 0;
+  std::size_t stride_ = 0;
+  std::size_t first_plane_bytes_ = 0;  // what a frame's first plane must hold
+  std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
+  std::vector<Mapping> mappings_;
+  std::vector<Slot> slots_;
+
+  // Requeueing against stopping: a release hook on another thread never
+  // queues a request once stop() has begun.
+  std::mutex requeue_mutex_;
+  bool running_ = false;
+
+  // Completed requests, from libcamera's thread to the capture thread: a
+  // ring with room for every request (each is in it at most once), so
+  // pushing never fails and nothing allocates once open.
+  std::mutex completed_mutex_;
+  std::condition_variable completed_ready_;
+  std::vector<std::uint32_t> completed_;
+  std::size_t completed_head_ = 0;
+  std::size_t completed_count_ = 0;
+  bool vanished_ = false;
+};
+
+void Session::open(const LibcameraSettings& settings) {
+  find_camera(settings);
+  configure(settings);
+  allocate_and_map();
+  const libcamera::ControlList controls = start_controls(settings);
+
+  camera_->requestCompleted.connect(this, &Session::on_request_completed);
+  camera_->disconnected.connect(this, &Session::on_disconnected);
+  manager_->cameraRemoved.connect(this, &Session::on_camera_removed);
+  connected_ = true;
+
+  if (const int ret = camera_->start(&controls); ret < 0) {
+    fail(CaptureError::Kind::io, fmt::format("cannot start streaming: {}", std::strerror(-ret)));
+  }
+  started_ = true;
+  {
+    const std::lock_guard lock(requeue_mutex_);
+    running_ = true;
+  }
+  for (auto& slot : slots_) {
+    if (const int ret = camera_->queueRequest(slot.request.get()); ret < 0) {
+      fail(CaptureError::Kind::io, fmt::format("cannot queue a request: {}", std::strerror(-ret)));
+    }
+  }
+}
+
+void Session::find_camera(const LibcameraSettings& settings) {
+  if (settings.camera.empty()) {
+    const auto cameras = manager_->cameras();
+    if (cameras.empty()) fail(CaptureError::Kind::not_found, "libcamera finds no camera");
+    camera_ = cameras.front();
+  } else {
+    camera_ = manager_->get(settings.camera);
+    if (!camera_) {
+      fail(CaptureError::Kind::not_found,
+           fmt::format("no camera '{}' (libcamera's cameras: {})", settings.camera, camera_ids(*manager_)));
+    }
+  }
+  camera_id_ = camera_->id();
+  if (const int ret = camera_->acquire(); ret < 0) {
+    fail(CaptureError::Kind::io,
+         fmt::format("cannot acquire camera '{}': {}{}", camera_id_, std::strerror(-ret),
+                     ret == -EBUSY ? " (another process or source has it)" : ""));
+  }
+  acquired_ = true;
+}
+
+void Session::configure(const LibcameraSettings& settings) {
+  config_ = generate_configuration(*camera_);
+  if (!config_) fail(CaptureError::Kind::config, fmt::format("camera '{}' offers no video stream", camera_id_));
+  libcamera::StreamConfiguration& stream_config = config_->at(0);
+  const libcamera::PixelFormat wanted_format = pixel_format_of(settings.format);
+  const libcamera::Size wanted_size(static_cast<unsigned>(settings.width), static_cast<unsigned>(settings.height));
+  const std::string offered = offered_formats(stream_config.formats());
+  stream_config.pixelFormat = wanted_format;
+  stream_config.size = wanted_size;
+  stream_config.bufferCount = static_cast<unsigned>(settings.buffers);
+
+  const auto status = config_->validate();
+  const auto asked = fmt::format("{} {}x{}", to_string(settings.format), settings.width, settings.height);
+  if (status == libcamera::CameraConfiguration::Invalid) {
+    fail(CaptureError::Kind::config,
+         fmt::format("camera '{}' cannot stream {} (it offers: {})", camera_id_, asked, offered));
+  }
+  // An adjusted buffer count or colour space is fine; another format or
+  // size is not what the config asks for.
+  if (stream_config.pixelFormat != wanted_format || stream_config.size != wanted_size) {
+    fail(CaptureError::Kind::config,
+         fmt::format("camera '{}' cannot stream {}: the nearest it offers is {} {} (it offers: {})", camera_id_, asked,
+                     stream_config.pixelFormat.toString(), stream_config.size.toString(), offered));
+  }
+  if (const int ret = camera_->configure(config_.get()); ret < 0) {
+    fail(CaptureError::Kind::io, fmt::format("cannot configure {}: {}", asked, std::strerror(-ret)));
+  }
+  stream_ = stream_config.stream();
+  format_ = settings.format;
+  width_ = settings.width;
+  height_ = settings.height;
+  const std::size_t row_bytes = static_cast<std::size_t>(width_) * (format_ == LibcameraPixelFormat::yuyv ? 2 : 1);
+  stride_ = stream_config.stride != 0 ? stream_config.stride : row_bytes;
+  if (stride_ < row_bytes) {
+    fail(CaptureError::Kind::config,
+         fmt::format("camera '{}' reports rows of {} bytes for {}: too short", camera_id_, stride_, asked));
+  }
+  first_plane_bytes_ = stride_ * static_cast<std::size_t>(height_ - 1) + row_bytes;
+}
+
+void Session::allocate_and_map() {
+  allocator_ = std::make_unique<libcamera::FrameBufferAllocator>(camera_);
+  if (const int ret = allocator_->allocate(stream_); ret < 0) {
+    fail(CaptureError::Kind::io, fmt::format("cannot allocate buffers: {}", std::strerror(-ret)));
+  }
+  const auto& buffers = allocator_->buffers(stream_);
+  slots_.resize(buffers.size());
+  for (std::size_t i = 0; i < buffers.size(); ++i) {
+    const libcamera::FrameBuffer& buffer = *buffers[i];
+    const auto& planes = buffer.planes();
+    if (planes.empty()) fail(CaptureError::Kind::io, "a buffer without planes");
+    const auto& first = planes.front();
+    if (first.offset == libcamera::FrameBuffer::Plane::kInvalidOffset || first.length < first_plane_bytes_) {
+      fail(CaptureError::Kind::io, fmt::format("buffer {}: its first plane holds {} bytes, a frame needs {}", i,
+                                               first.length, first_plane_bytes_));
+    }
+    // Planes of one buffer may share a dmabuf (NV12's Y and UV at two
+    // offsets): the first plane's descriptor is mapped from 0 to the end of
+    // the furthest plane in it.
+    std::size_t length = 0;
+    for (const auto& plane : planes) {
+      if (plane.fd.get() == first.fd.get()) {
+        length = std::max(length, static_cast<std::size_t>(plane.offset) + plane.length);
+      }
+    }
+    void* address = ::mmap(nullptr, length, PROT_READ, MAP_SHARED, first.fd.get(), 0);
+    if (address == MAP_FAILED) {
+      fail(CaptureError::Kind::io, fmt::format("cannot map buffer {}: {}", i, std::strerror(errno)));
+    }
+    mappings_.push_back({address, length});
+
+    Slot& slot = slots_[i];
+    slot.buffer = &buffer;
+    slot.pixels = static_cast<const std::uint8_t*>(address) + first.offset;
+    slot.request = camera_->createRequest(i);
+    if (!slot.request) fail(CaptureError::Kind::io, "cannot create a request");
+    if (const int ret = slot.request->addBuffer(stream_, buffers[i].get()); ret < 0) {
+      fail(CaptureError::Kind::io, fmt::format("cannot add buffer {} to its request: {}", i, std::strerror(-ret)));
+    }
+  }
+  completed_.assign(slots_.size(), 0);
+}
+
+libcamera::ControlList Session::start_controls(const LibcameraSettings& settings) const {
+  const libcamera::ControlInfoMap& available = camera_->controls();
+  libcamera::ControlList controls(available);
+  for (const auto& setting : settings.controls) {
+    const libcamera::ControlId* id = find_control(available, setting.name);
+    if (id == nullptr) {
+      throw CaptureError(CaptureError::Kind::config,
+                         fmt::format("{}: camera '{}' has no control {} (its controls: {})", setting.origin,
+                                     camera_id_, setting.name, control_names(available)));
+    }
+    const libcamera::ControlInfo& info = available.at(id);
+    libcamera::ControlValue value;
+    switch (id->type()) {
+      case libcamera::ControlTypeBool: value = libcamera::ControlValue(std::get<bool>(setting.value)); break;
+      case libcamera::ControlTypeInteger32:
+        value = libcamera::ControlValue(static_cast<std::int32_t>(std::get<std::int64_t>(setting.value)));
+        break;
+      case libcamera::ControlTypeInteger64:
+        value = libcamera::ControlValue(std::get<std::int64_t>(setting.value));
+        break;
+      case libcamera::ControlTypeFloat:
+        value = libcamera::ControlValue(static_cast<float>(std::get<double>(setting.value)));
+        break;
+      default:
+        // parse_libcamera_settings admits no other type.
+        throw CaptureError(CaptureError::Kind::config,
+                           fmt::format("{}: a {} control cannot be set from the config", setting.origin,
+                                       type_name(id->type())));
+    }
+    if (!info.values().empty()) {
+      if (std::find(info.values().begin(), info.values().end(), value) == info.values().end()) {
+        std::string allowed;
+        for (const auto& v : info.values()) allowed += fmt::format("{}{}", allowed.empty() ? "" : ", ", v.toString());
+        throw CaptureError(CaptureError::Kind::config,
+                           fmt::format("{}: {} is not one of camera '{}''s values for {}: {}", setting.origin,
+                                       text_of(setting.value), camera_id_, setting.name, allowed));
+      }
+    } else {
+      const auto wanted = number_of(value);
+      const auto min = number_of(info.min());
+      const auto max = number_of(info.max());
+      if (wanted && ((min && *wanted < *min) || (max && *wanted > *max))) {
+        throw CaptureError(CaptureError::Kind::config,
+                           fmt::format("{}: {} is outside camera '{}''s range for {}: {}", setting.origin,
+                                       text_of(setting.value), camera_id_, setting.name, info.toString()));
+      }
+    }
+    controls.set(id->id(), value);
+  }
+
+  if (settings.fps > 0) {
+    const auto& limits = libcamera::controls::FrameDurationLimits;
+    const auto found = available.find(limits.id());
+    if (found == available.end()) {
+      throw CaptureError(CaptureError::Kind::config,
+                         fmt::format("{}: camera '{}' has no FrameDurationLimits control, so its frame rate cannot "
+                                     "be set (leave fps out to take its own)",
+                                     name_, camera_id_));
+    }
+    const auto frame_us = static_cast<std::int64_t>(std::llround(1e6 / settings.fps));
+    const auto min = number_of(found->second.min());
+    const auto max = number_of(found->second.max());
+    if ((min && static_cast<double>(frame_us) < *min) || (max && static_cast<double>(frame_us) > *max)) {
+      throw CaptureError(CaptureError::Kind::config,
+                         fmt::format("{}: {} fps is a frame duration of {} us, outside camera '{}''s range {}", name_,
+                                     settings.fps, frame_us, camera_id_, found->second.toString()));
+    }
+    controls.set(limits, {frame_us, frame_us});
+  }
+  return controls;
+}
+
+void Session::stop() noexcept {
+  {
+    const std::lock_guard lock(requeue_mutex_);
+    running_ = false;
+  }
+  if (started_) {
+    // Blocking: the queued requests come back cancelled through
+    // on_request_completed before it returns.
+    camera_->stop();
+    started_ = false;
+  }
+  if (connected_) {
+    camera_->requestCompleted.disconnect(this);
+    camera_->disconnected.disconnect(this);
+    manager_->cameraRemoved.disconnect(this);
+    connected_ = false;
+  }
+  const std::lock_guard lock(completed_mutex_);
+  completed_count_ = 0;
+}
+
+void Session::teardown() noexcept {
+  stop();
+  // Requests before the buffers they hold, the mappings before the buffers
+  // they map, the buffers before the camera is released.
+  slots_.clear();
+  for (const auto& mapping : mappings_) ::munmap(mapping.address, mapping.length);
+  mappings_.clear();
+  allocator_.reset();
+  config_.reset();
+  if (acquired_) {
+    camera_->release();
+    acquired_ = false;
+  }
+  camera_.reset();
+}
+
+std::optional<std::uint32_t> Session::wait(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(completed_mutex_);
+  completed_ready_.wait_for(lock, timeout, [&] { return completed_count_ > 0 || vanished_; });
+  if (vanished_) fail(CaptureError::Kind::vanished, fmt::format("camera '{}' is gone (disconnected)", camera_id_));
+  if (completed_count_ == 0) return std::nullopt;
+  const std::uint32_t index = completed_[completed_head_];
+  completed_head_ = (completed_head_ + 1) % completed_.size();
+  --completed_count_;
+  return index;
+}
+
+void Session::fill(std::uint32_t index, Frame& frame) {
+  Slot& slot = slots_[index];
+  const libcamera::FrameMetadata& metadata = slot.buffer->metadata();
+  frame.sequence = metadata.sequence;
+  // libcamera stamps buffers on CLOCK_MONOTONIC, the pipeline's Clock.
+  if (metadata.timestamp != 0) {
+    frame.capture_time = Clock::time_point(std::chrono::duration_cast<Clock::duration>(
+        std::chrono::nanoseconds(static_cast<std::int64_t>(metadata.timestamp))));
+  }
+
+  std::size_t bytes_used = 0;
+  for (const auto& plane : metadata.planes()) bytes_used += plane.bytesused;
+  if (slot.request->status() == libcamera::Request::RequestCancelled ||
+      metadata.status == libcamera::FrameMetadata::FrameCancelled) {
+    mark_corrupt(frame, "libcamera camera '{}': frame {} cancelled", camera_id_, metadata.sequence);
+  } else if (metadata.status == libcamera::FrameMetadata::FrameError) {
+    mark_corrupt(frame, "libcamera camera '{}': frame {} has an error", camera_id_, metadata.sequence);
+  } else if (bytes_used < first_plane_bytes_) {
+    mark_corrupt(frame, "libcamera camera '{}': frame {} holds {} bytes, a {}x{} {} frame needs {}", camera_id_,
+                 metadata.sequence, bytes_used, width_, height_, to_string(format_), first_plane_bytes_);
+  } else if (format_ == LibcameraPixelFormat::yuyv) {
+    GreyView grey;
+    try {
+      grey = frame.use_pixel_buffer(width_, height_);
+    } catch (const std::length_error& e) {
+      requeue(index);
+      fail(CaptureError::Kind::config, e.what());
+    }
+    yuyv_to_grey(slot.pixels, static_cast<std::ptrdiff_t>(stride_), width_, height_, frame.pixel_buffer().data(),
+                 grey.stride);
+  } else {
+    // The Y plane (NV12) or the whole image (R8), lent: the request goes
+    // back when the pipeline is done with the frame.
+    frame.image = GreyView{slot.pixels, width_, height_, static_cast<std::ptrdiff_t>(stride_)};
+    slot.lent_to = shared_from_this();
+    frame.set_release(ReleaseHook{&Session::release_lent, this, index});
+    return;
+  }
+  requeue(index);
+}
+
+void Session::release_lent(void* context, std::uint64_t token) noexcept {
+  auto* session = static_cast<Session*>(context);
+  const auto index = static_cast<std::uint32_t>(token);
+  // Possibly the last owner, after close(): the session goes with it, once
+  // the request is dealt with.
+  const std::shared_ptr<Session> keep = std::move(session->slots_[index].lent_to);
+  session->requeue(index);
+}
+
+void Session::requeue(std::uint32_t index) noexcept {
+  const std::lock_guard lock(requeue_mutex_);
+  if (!running_) return;
+  libcamera::Request& request = *slots_[index].request;
+  request.reuse(libcamera::Request::ReuseBuffers);
+  // A failure here (the camera going away) shows as the request not coming
+  // back; the camera's disconnection is reported by wait().
+  (void)camera_->queueRequest(&request);
+}
+
+void Session::on_request_completed(libcamera::Request* request) {
+  const std::lock_guard lock(completed_mutex_);
+  if (completed_count_ < completed_.size()) {
+    const std::size_t tail = (completed_head_ + completed_count_) % completed_.size();
+    completed_[tail] = static_cast<std::uint32_t>(request->cookie());
+    ++completed_count_;
+  }
+  completed_ready_.notify_one();
+}
+
+void Session::on_disconnected() {
+  const std::lock_guard lock(completed_mutex_);
+  vanished_ = true;
+  completed_ready_.notify_one();
+}
+
+void Session::on_camera_removed(std::shared_ptr<Camera> camera) {
+  if (camera.get() == camera_.get()) on_disconnected();
+}
+
+// ---------------------------------------------------------------- the source
+
+class LibcameraSource final : public CaptureSource {
+ public:
+  explicit LibcameraSource(LibcameraSettings settings) : settings_(std::move(settings)) {
+    name_ = fmt::format("libcamera {} {} {}x{}", settings_.camera.empty() ? "(first camera)" : settings_.camera,
+                        to_string(settings_.format), settings_.width, settings_.height);
+    if (settings_.fps > 0) name_ += fmt::format("@{}", settings_.fps);
+  }
+  ~LibcameraSource() override { close(); }
+  LibcameraSource(const LibcameraSource&) = delete;
+  LibcameraSource& operator=(const LibcameraSource&) = delete;
+
+  [[nodiscard]] const std::string& name() const override { return name_; }
+  [[nodiscard]] CaptureGeometry geometry() const override {
+    const bool converted = settings_.format == LibcameraPixelFormat::yuyv;
+    return CaptureGeometry{
+        settings_.width, settings_.height,
+        converted ? static_cast<std::size_t>(settings_.width) * static_cast<std::size_t>(settings_.height) : 0,
+        settings_.fps};
+  }
+
+  void open() override {
+    close();
+    auto session = std::make_shared<Session>(shared_camera_manager(), name_);
+    session->open(settings_);
+    session_ = std::move(session);
+  }
+
+  void close() noexcept override {
+    ready_.reset();
+    if (!session_) return;
+    session_->stop();
+    // Frames still borrowing its buffers keep the session (and the camera)
+    // until their release hooks have run.
+    session_.reset();
+  }
+
+  [[nodiscard]] bool is_open() const noexcept override { return session_ != nullptr; }
+
+  [[nodiscard]] bool wait_frame(std::chrono::milliseconds timeout) override {
+    if (!session_) throw CaptureError(CaptureError::Kind::io, fmt::format("{}: wait_frame() while closed", name_));
+    if (ready_) return true;
+    ready_ = session_->wait(timeout);
+    return ready_.has_value();
+  }
+
+  void fill(Frame& frame) override {
+    if (!session_ || !ready_) {
+      throw CaptureError(CaptureError::Kind::io, fmt::format("{}: fill() without a ready frame", name_));
+    }
+    const std::uint32_t index = *ready_;
+    ready_.reset();
+    session_->fill(index, frame);
+  }
+
+  void skip() noexcept override {
+    if (session_ && ready_) session_->requeue(*ready_);
+    ready_.reset();
+  }
+
+ private:
+  LibcameraSettings settings_;
+  std::string name_;
+  std::shared_ptr<Session> session_;
+  std::optional<std::uint32_t> ready_;  // a completed request, waiting for fill() or skip()
+};
+
+// ---------------------------------------------------------------- listing
+
+LibcameraCameraInfo describe(Camera& camera) {
+  LibcameraCameraInfo info;
+  info.id = camera.id();
+  const libcamera::ControlList& properties = camera.properties();
+  info.model = properties.get(libcamera::properties::Model);
+  if (const auto location = properties.get(libcamera::properties::Location)) {
+    switch (*location) {
+      case libcamera::properties::CameraLocationFront: info.location = "front"; break;
+      case libcamera::properties::CameraLocationBack: info.location = "back"; break;
+      case libcamera::properties::CameraLocationExternal: info.location = "external"; break;
+      default: info.location = fmt::format("{}", *location); break;
+    }
+  }
+  if (const auto rotation = properties.get(libcamera::properties::Rotation)) info.rotation = *rotation;
+
+  if (auto config = generate_configuration(camera)) {
+    const libcamera::StreamFormats& formats = config->at(0).formats();
+    for (const auto& pixel_format : formats.pixelformats()) {
+      LibcameraStreamFormat format;
+      format.pixel_format = pixel_format.toString();
+      for (const auto& size : formats.sizes(pixel_format)) format.sizes.push_back({size.width, size.height});
+      const libcamera::SizeRange range = formats.range(pixel_format);
+      format.min_size = {range.min.width, range.min.height};
+      format.max_size = {range.max.width, range.max.height};
+      info.formats.push_back(std::move(format));
+    }
+  } else {
+    info.error = "it generates no configuration for video or viewfinder";
+  }
+
+  for (const auto& [id, control] : camera.controls()) {
+    LibcameraControlInfo entry;
+    entry.name = id->name();
+    entry.type = type_name(id->type());
+    entry.min = value_of(control.min());
+    entry.max = value_of(control.max());
+    entry.default_value = value_of(control.def());
+    for (const auto& value : control.values()) entry.values.push_back(value_of(value));
+    info.controls.push_back(std::move(entry));
+  }
+  std::sort(info.controls.begin(), info.controls.end(),
+            [](const LibcameraControlInfo& a, const LibcameraControlInfo& b) { return a.name < b.name; });
+  return info;
+}
+
+nlohmann::ordered_json json_of(const LibcameraValue& value) {
+  return std::visit(
+      [](const auto& v) -> nlohmann::ordered_json {
+        if constexpr (std::is_same_v<std::decay_t<decltype(v)>, std::monostate>) {
+          return nullptr;
+        } else {
+          return v;
+        }
+      },
+      value);
+}
+
+}  // namespace
+
+std::string_view to_string(LibcameraPixelFormat format) {
+  switch (format) {
+    case LibcameraPixelFormat::yuyv: return "YUYV";
+    case LibcameraPixelFormat::nv12: return "NV12";
+    case LibcameraPixelFormat::r8: return "R8";
+  }
+  return "unknown";
+}
+
+LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
+  table.allow_only({"camera", "pixel_format", "width", "height", "fps", "buffers", "controls"});
+  LibcameraSettings settings;
+  settings.camera = table.optional<std::string>("camera", "");
+
+  const auto format = table.optional<std::string>("pixel_format", "YUYV");
+  if (format == "YUYV") {
+    settings.format = LibcameraPixelFormat::yuyv;
+  } else if (format == "NV12") {
+    settings.format = LibcameraPixelFormat::nv12;
+  } else if (format == "R8" || format == "GREY") {
+    settings.format = LibcameraPixelFormat::r8;
+  } else {
+    table.fail("pixel_format", fmt::format("unknown pixel format '{}' (known: YUYV, NV12, R8, GREY)", format));
+  }
+
+  settings.width = table.required<int>("width");
+  settings.height = table.required<int>("height");
+  if (settings.width <= 0) table.fail("width", fmt::format("must be > 0, got {}", settings.width));
+  if (settings.height <= 0) table.fail("height", fmt::format("must be > 0, got {}", settings.height));
+  if (settings.format == LibcameraPixelFormat::yuyv && settings.width % 2 != 0) {
+    table.fail("width", fmt::format("must be even for YUYV (two pixels share their colour), got {}", settings.width));
+  }
+  settings.fps = table.optional<double>("fps", 0.0);
+  if (!std::isfinite(settings.fps) || settings.fps < 0) {
+    table.fail("fps", fmt::format("must be >= 0 (0: the camera's own frame rate), got {}", settings.fps));
+  }
+  settings.buffers = table.optional<int>("buffers", 4);
+  if (settings.buffers < 1 || settings.buffers > 32) {
+    table.fail("buffers", fmt::format("must be between 1 and 32, got {}", settings.buffers));
+  }
+
+  if (const auto controls = table.maybe_table("controls")) {
+    for (const auto& [key, node] : controls->raw()) {
+      const std::string name(key.str());
+      const libcamera::ControlId* id = nullptr;
+      for (const auto& [number, control] : libcamera::controls::controls) {
+        if (control->name() == name) id = control;
+      }
+      if (id == nullptr) {
+        std::vector<std::string> names;
+        for (const auto& [number, control] : libcamera::controls::controls) names.push_back(control->name());
+        std::sort(names.begin(), names.end());
+        std::string known;
+        for (const auto& n : names) known += fmt::format("{}{}", known.empty() ? "" : ", ", n);
+        controls->fail(name, fmt::format("libcamera has no control '{}' (its controls: {})", name, known));
+      }
+      if (id->id() == libcamera::controls::FrameDurationLimits.id()) {
+        controls->fail(name, "set the frame rate with [camera.libcamera] fps");
+      }
+
+      // Array controls (ColourGains, a Span of floats) have their element's
+      // type but take a list: not from the config.
+      if (id->name() == "ColourGains" || id->name() == "ColourCorrectionMatrix" ||
+          id->name() == "SensorBlackLevels") {
+        controls->fail(name, "an array control cannot be set from the config");
+      }
+
+      LibcameraControlSetting setting;
+      setting.name = name;
+      const auto line = node.source().begin.line;
+      setting.origin = line > 0 ? fmt::format("{}:{}: {}.{}", table.source(), line, controls->key_path(), name)
+                                : fmt::format("{}: {}.{}", table.source(), controls->key_path(), name);
+      switch (id->type()) {
+        case libcamera::ControlTypeBool: setting.value = controls->required<bool>(name); break;
+        case libcamera::ControlTypeInteger32: {
+          const auto value = controls->required<std::int64_t>(name);
+          if (value < std::numeric_limits<std::int32_t>::min() || value > std::numeric_limits<std::int32_t>::max()) {
+            controls->fail(name, fmt::format("must be a 32-bit integer, got {}", value));
+          }
+          setting.value = value;
+          break;
+        }
+        case libcamera::ControlTypeInteger64: setting.value = controls->required<std::int64_t>(name); break;
+        case libcamera::ControlTypeFloat: setting.value = controls->required<double>(name); break;
+        default:
+          controls->fail(name, fmt::format("a {} control cannot be set from the config", type_name(id->type())));
+      }
+      settings.controls.push_back(std::move(setting));
+    }
+  }
+  return settings;
+}
+
+std::unique_ptr<CaptureSource> make_libcamera_source(const LibcameraSettings& settings) {
+  return std::make_unique<LibcameraSource>(settings);
+}
+
+std::vector<LibcameraCameraInfo> list_libcamera_cameras() {
+  const auto manager = shared_camera_manager();
+  std::vector<LibcameraCameraInfo> cameras;
+  for (const auto& camera : manager->cameras()) cameras.push_back(describe(*camera));
+  return cameras;
+}
+
+nlohmann::ordered_json to_json(const LibcameraCameraInfo& camera) {
+  nlohmann::ordered_json json;
+  json["backend"] = "libcamera";
+  json["id"] = camera.id;
+  json["model"] = camera.model ? nlohmann::ordered_json(*camera.model) : nlohmann::ordered_json(nullptr);
+  json["location"] = camera.location ? nlohmann::ordered_json(*camera.location) : nlohmann::ordered_json(nullptr);
+  json["rotation"] = camera.rotation ? nlohmann::ordered_json(*camera.rotation) : nlohmann::ordered_json(nullptr);
+  if (!camera.error.empty()) json["error"] = camera.error;
+  auto formats = nlohmann::ordered_json::array();
+  for (const auto& format : camera.formats) {
+    auto sizes = nlohmann::ordered_json::array();
+    for (const auto& size : format.sizes) sizes.push_back({{"width", size.width}, {"height", size.height}});
+    formats.push_back({{"pixel_format", format.pixel_format},
+                       {"sizes", sizes},
+                       {"min_size", {{"width", format.min_size.width}, {"height", format.min_size.height}}},
+                       {"max_size", {{"width", format.max_size.width}, {"height", format.max_size.height}}}});
+  }
+  json["formats"] = formats;
+  auto controls = nlohmann::ordered_json::array();
+  for (const auto& control : camera.controls) {
+    nlohmann::ordered_json entry;
+    entry["name"] = control.name;
+    entry["type"] = control.type;
+    entry["min"] = json_of(control.min);
+    entry["max"] = json_of(control.max);
+    entry["default"] = json_of(control.default_value);
+    if (!control.values.empty()) {
+      auto values = nlohmann::ordered_json::array();
+      for (const auto& value : control.values) values.push_back(json_of(value));
+      entry["values"] = values;
+    }
+    controls.push_back(entry);
+  }
+  json["controls"] = controls;
+  return json;
+}
+
+}  // namespace markerd::daemon

@@ -1,0 +1,80 @@
+#include "markerd/daemon/capture/pixel_convert.hpp"
+
+#include <turbojpeg.h>
+
+#include <cstdio>
+#include <stdexcept>
+#include <string>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+namespace markerd::daemon {
+
+namespace {
+
+void yuyv_row_to_grey(const std::uint8_t* in, std::uint8_t* out, int width) noexcept {
+  int x = 0;
+#if defined(__SSE2__)
+  // 16 pixels a step: the Y bytes are the low byte of each 16-bit word;
+  // masking the chroma off and packing with unsigned saturation keeps them.
+  const __m128i low_bytes = _mm_set1_epi16(0x00ff);
+  for (; x + 16 <= width; x += 16) {
+    const __m128i a = _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + 2 * x));
+    const __m128i b = _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + 2 * x + 16));
+    const __m128i y = _mm_packus_epi16(_mm_and_si128(a, low_bytes), _mm_and_si128(b, low_bytes));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x), y);
+  }
+#endif
+  for (; x < width; ++x) out[x] = in[2 * x];
+}
+
+}  // namespace
+
+void yuyv_to_grey(const std::uint8_t* yuyv, std::ptrdiff_t yuyv_stride, int width, int height, std::uint8_t* grey,
+                  std::ptrdiff_t grey_stride) noexcept {
+  for (int y = 0; y < height; ++y) {
+    yuyv_row_to_grey(yuyv + y * yuyv_stride, grey + y * grey_stride, width);
+  }
+}
+
+MjpegDecoder::MjpegDecoder() : handle_(tjInitDecompress()) {
+  if (handle_ == nullptr) {
+    throw std::runtime_error(std::string("TurboJPEG: cannot make a decompressor: ") + tjGetErrorStr2(nullptr));
+  }
+}
+
+MjpegDecoder::~MjpegDecoder() { tjDestroy(handle_); }
+
+const char* MjpegDecoder::decode(std::span<const std::uint8_t> jpeg, int width, int height, std::uint8_t* grey,
+                                 std::ptrdiff_t grey_stride) noexcept {
+  if (jpeg.empty()) {
+    std::snprintf(message_, sizeof message_, "MJPEG: the frame is empty (0 bytes)");
+    return message_;
+  }
+  int jpeg_width = 0;
+  int jpeg_height = 0;
+  int subsampling = 0;
+  int colorspace = 0;
+  if (tjDecompressHeader3(handle_, jpeg.data(), jpeg.size(), &jpeg_width, &jpeg_height, &subsampling, &colorspace) !=
+      0) {
+    std::snprintf(message_, sizeof message_, "MJPEG: %s", tjGetErrorStr2(handle_));
+    return message_;
+  }
+  if (jpeg_width != width || jpeg_height != height) {
+    std::snprintf(message_, sizeof message_, "MJPEG: the frame is %dx%d, the stream was set up for %dx%d", jpeg_width,
+                  jpeg_height, width, height);
+    return message_;
+  }
+  // A warning (a truncated frame, a corrupt entropy segment) stops the
+  // decode at once: the frame is reported broken either way.
+  if (tjDecompress2(handle_, jpeg.data(), jpeg.size(), grey, width, static_cast<int>(grey_stride), height, TJPF_GRAY,
+                    TJFLAG_STOPONWARNING) != 0) {
+    std::snprintf(message_, sizeof message_, "MJPEG: %s", tjGetErrorStr2(handle_));
+    return message_;
+  }
+  return nullptr;
+}
+
+}  // namespace markerd::daemon

@@ -1,0 +1,751 @@
+#include "markerd/daemon/control/control_server.hpp"
+
+#include <grp.h>
+#include <poll.h>
+#include <sys/eventfd.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <utility>
+
+
+namespace markerd::daemon {
+
+using nlohmann::json;
+using nlohmann::ordered_json;
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+namespace {
+
+// Requests nested deeper than this are refused while they are parsed: the
+// reply echoes "id", and serializing a value 30000 arrays deep would recurse
+// as deep. No command takes more than a few levels.
+constexpr int kMaxRequestDepth = 32;
+// Bytes read from a client per read(); the input buffer holds at most one
+// partial line (max_request_bytes) and one such chunk.
+constexpr std::size_t kReadChunk = 64 * 1024;
+// How long a connection being closed (a request too long) may take to
+// collect its error reply before it is closed anyway.
+constexpr auto kCloseLinger = 2s;
+// After accept() runs out of file descriptors, it is retried after this.
+constexpr auto kAcceptPause = 100ms;
+
+std::string errno_text(int error) { return std::strerror(error); }
+
+[[noreturn]] void socket_error(const std::filesystem::path& path, std::string_view why) {
+  throw ControlSocketError(fmt::format("control socket {}: {}", path.string(), why));
+}
+
+sockaddr_un socket_address(const std::filesystem::path& path) {
+  sockaddr_un address{};
+  address.sun_family = AF_UNIX;
+  const std::string& text = path.native();
+  if (text.size() >= sizeof address.sun_path) {
+    socket_error(path, fmt::format("the path is {} bytes long; a Unix socket's address holds at most {}", text.size(),
+                                   sizeof address.sun_path - 1));
+  }
+  std::memcpy(address.sun_path, text.c_str(), text.size() + 1);
+  return address;
+}
+
+std::optional<gid_t> group_id(const std::string& name) {
+  long size = ::sysconf(_SC_GETGR_R_SIZE_MAX);
+  std::vector<char> buffer(size > 0 ? static_cast<std::size_t>(size) : 16384);
+  for (;;) {
+    group entry{};
+    group* found = nullptr;
+    const int error = ::getgrnam_r(name.c_str(), &entry, buffer.data(), buffer.size(), &found);
+    if (error == ERANGE) {
+      buffer.resize(buffer.size() * 2);
+      continue;
+    }
+    if (error != 0 || found == nullptr) return std::nullopt;
+    return found->gr_gid;
+  }
+}
+
+// Whether a process accepts connections on the socket at `path`: true when
+// one does, false when nobody listens (a stale socket file); a
+// ControlSocketError when it cannot be told.
+bool someone_listens(const std::filesystem::path& path, const sockaddr_un& address) {
+  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+  if (fd < 0) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
+  const int result = ::connect(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address);
+  const int error = errno;
+  ::close(fd);
+  if (result == 0) return true;
+  // EAGAIN: a listener whose backlog is full, which is alive all the same.
+  if (error == EAGAIN || error == EINPROGRESS) return true;
+  if (error == ECONNREFUSED) return false;
+  socket_error(path, fmt::format("exists, and connecting to it to see whether a markerd still listens failed: {}",
+                                 errno_text(error)));
+}
+
+const char* json_type(const json& value) {
+  switch (value.type()) {
+    case json::value_t::null: return "null";
+    case json::value_t::object: return "an object";
+    case json::value_t::array: return "an array";
+    case json::value_t::string: return "a string";
+    case json::value_t::boolean: return "a boolean";
+    case json::value_t::number_integer:
+    case json::value_t::number_unsigned:
+    case json::value_t::number_float: return "a number";
+    default: return "binary data";
+  }
+}
+
+// nlohmann's messages start with "[json.exception.parse_error.101] ": the
+// client needs the rest.
+std::string parse_error_text(const json::parse_error& e) {
+  std::string_view text = e.what();
+  if (const auto end = text.find("] "); text.starts_with("[json.exception.") && end != std::string_view::npos) {
+    text.remove_prefix(end + 2);
+  }
+  return std::string(text);
+}
+
+bool blank(std::string_view line) {
+  return std::all_of(line.begin(), line.end(), [](char c) { return c == ' ' || c == '\t' || c == '\r'; });
+}
+
+std::string dump_line(const ordered_json& value) {
+  std::string text = value.dump(-1, ' ', false, json::error_handler_t::replace);
+  text += '\n';
+  return text;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------- arguments
+
+void expect_arguments(const json& request, std::initializer_list<std::string_view> known) {
+  for (const auto& [key, value] : request.items()) {
+    if (key == "cmd" || key == "id") continue;
+    if (std::find(known.begin(), known.end(), key) != known.end()) continue;
+    std::string list;
+    for (const auto k : known) list += fmt::format("{}{}", list.empty() ? "" : ", ", k);
+    const std::string command = request.value("cmd", std::string());
+    throw ControlError(list.empty()
+                           ? fmt::format("unknown argument '{}': {} takes none", key, command)
+                           : fmt::format("unknown argument '{}' (for {}: {})", key, command, list));
+  }
+}
+
+namespace {
+
+const json* argument(const json& request, std::string_view name) {
+  const auto it = request.find(name);
+  if (it == request.end() || it->is_null()) return nullptr;
+  return &*it;
+}
+
+[[noreturn]] void wrong_type(std::string_view name, std::string_view wanted, const json& value) {
+  throw ControlError(fmt::format("argument '{}' must be {}, got {}", name, wanted, json_type(value)));
+}
+
+}  // namespace
+
+std::optional<std::string> string_argument(const json& request, std::string_view name) {
+  const json* value = argument(request, name);
+  if (value == nullptr) return std::nullopt;
+  if (!value->is_string()) wrong_type(name, "a string", *value);
+  return value->get<std::string>();
+}
+
+std::optional<double> number_argument(const json& request, std::string_view name) {
+  const json* value = argument(request, name);
+  if (value == nullptr) return std::nullopt;
+  if (!value->is_number()) wrong_type(name, "a number", *value);
+  const double number = value->get<double>();
+  if (!std::isfinite(number)) throw ControlError(fmt::format("argument '{}' must be a finite number", name));
+  return number;
+}
+
+std::optional<bool> bool_argument(const json& request, std::string_view name) {
+  const json* value = argument(request, name);
+  if (value == nullptr) return std::nullopt;
+  if (!value->is_boolean()) wrong_type(name, "true or false", *value);
+  return value->get<bool>();
+}
+
+// ---------------------------------------------------------------- the server
+
+struct ControlServer::Client {
+  int fd = -1;
+  std::uint64_t id = 0;
+  std::string input;              // received, not yet answered; starts at a line's start
+  std::size_t input_scanned = 0;  // bytes of `input` known to hold no '\n'
+  std::string output;             // to send, from output_sent on
+  std::size_t output_sent = 0;
+  LineBroadcast* following = nullptr;
+  std::uint64_t missed = 0;       // stream lines lost to this client, not yet announced
+  bool peer_closed = false;       // read() saw the end
+  bool closing = false;           // no more requests: send what is queued, then close
+  bool dead = false;              // close now
+  Clock::time_point close_deadline{};
+
+  [[nodiscard]] std::size_t pending() const { return output.size() - output_sent; }
+  [[nodiscard]] bool request_waiting() const { return input.find('\n', input_scanned) != std::string::npos; }
+};
+
+bool ControlServer::can_serve(const Client& client) const {
+  return !client.closing && !client.dead && client.request_waiting() &&
+         (client.following != nullptr || client.pending() < settings_.max_output_bytes);
+}
+
+ControlServer::ControlServer(ControlSettings settings) : settings_(std::move(settings)) {
+  register_command(
+      "help", [this](const json&) { return help(); },
+      "the commands this server knows, each with a line of help");
+}
+
+ControlServer::~ControlServer() { stop(); }
+
+void ControlServer::register_command(std::string name, CommandHandler handler, std::string help) {
+  if (running()) throw std::logic_error("ControlServer: register commands before start()");
+  if (name.empty() || !handler) throw std::logic_error("ControlServer: a command needs a name and a handler");
+  if (commands_.contains(name)) throw std::logic_error("ControlServer: command '" + name + "' is registered twice");
+  commands_.emplace(std::move(name), Command{std::move(handler), nullptr, std::move(help)});
+}
+
+void ControlServer::register_stream(LineBroadcast& broadcast, std::string help) {
+  if (running()) throw std::logic_error("ControlServer: register streams before start()");
+  if (commands_.contains(broadcast.name())) {
+    throw std::logic_error("ControlServer: command '" + broadcast.name() + "' is registered twice");
+  }
+  commands_.emplace(broadcast.name(), Command{{}, &broadcast, std::move(help)});
+  streams_.push_back(&broadcast);
+}
+
+json ControlServer::help() const {
+  json list = json::array();
+  for (const auto& [name, command] : commands_) {
+    json entry = {{"name", name}, {"help", command.help}};
+    if (command.stream != nullptr) entry["stream"] = true;
+    list.push_back(std::move(entry));
+  }
+  return {{"commands", std::move(list)}};
+}
+
+void ControlServer::start() {
+  if (running() || listen_fd_ >= 0) throw std::logic_error("ControlServer: started twice");
+  set_up_socket();
+  thread_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
+}
+
+void ControlServer::set_up_socket() {
+  const std::filesystem::path& path = settings_.socket_path;
+  if (path.empty()) throw ControlSocketError("control socket: no path configured");
+  if ((settings_.mode & ~mode_t{0777}) != 0 || (settings_.mode & 0007) != 0) {
+    socket_error(path, fmt::format("mode 0{:o} would give other users access; the socket moves the rig",
+                                   static_cast<unsigned>(settings_.mode)));
+  }
+  const sockaddr_un address = socket_address(path);
+
+  std::filesystem::path directory = path.parent_path();
+  if (directory.empty()) directory = ".";
+  struct stat st {};
+  if (::stat(directory.c_str(), &st) != 0) {
+    const int error = errno;
+    socket_error(path, fmt::format("its directory {}: {}{}", directory.string(), errno_text(error),
+                                   error == ENOENT ? " (it is not created here: systemd's RuntimeDirectory= does)" : ""));
+  }
+  if (!S_ISDIR(st.st_mode)) socket_error(path, fmt::format("{} is not a directory", directory.string()));
+
+  std::optional<gid_t> gid;
+  if (!settings_.group.empty()) {
+    gid = group_id(settings_.group);
+    if (!gid) {
+      socket_error(path, fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, or name "
+                                     "another in [control] group)",
+                                     settings_.group));
+    }
+  }
+
+  if (::lstat(path.c_str(), &st) == 0) {
+    if (!S_ISSOCK(st.st_mode)) socket_error(path, "exists and is not a socket; it is left alone");
+    if (someone_listens(path, address)) {
+      socket_error(path, "another process is listening on it (is another markerd running?); it is left alone");
+    }
+    if (::unlink(path.c_str()) != 0 && errno != ENOENT) {
+      socket_error(path, fmt::format("cannot remove the stale socket: {}", errno_text(errno)));
+    }
+    spdlog::info("control socket {}: replaced a stale socket (left by a process that ended without removing it)",
+                 path.string());
+  }
+
+  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+  if (fd < 0) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
+  if (::bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
+    const int error = errno;
+    ::close(fd);
+    socket_error(path, fmt::format("cannot bind: {}", errno_text(error)));
+  }
+  // Owner, group and mode are set between bind() and listen(): until
+  // listen() every connect() is refused, so no client ever reaches the
+  // socket with the permissions the umask gave it.
+  const auto fail_bound = [&](const std::string& why) {
+    ::close(fd);
+    ::unlink(path.c_str());
+    socket_error(path, why);
+  };
+  if (gid && ::chown(path.c_str(), static_cast<uid_t>(-1), *gid) != 0) {
+    const int error = errno;
+    fail_bound(fmt::format("cannot give it to group '{}': {}{}", settings_.group, errno_text(error),
+                           error == EPERM ? " (markerd must run as a member of that group: the unit's Group= or "
+                                            "SupplementaryGroups=)"
+                                          : ""));
+  }
+  if (::chmod(path.c_str(), settings_.mode) != 0) {
+    fail_bound(fmt::format("cannot set its mode to 0{:o}: {}", static_cast<unsigned>(settings_.mode),
+                           errno_text(errno)));
+  }
+  if (::lstat(path.c_str(), &st) != 0) fail_bound(fmt::format("cannot stat it after bind: {}", errno_text(errno)));
+  socket_dev_ = st.st_dev;
+  socket_ino_ = st.st_ino;
+  if (::listen(fd, static_cast<int>(std::min<std::size_t>(settings_.max_clients, 128))) != 0) {
+    fail_bound(fmt::format("cannot listen: {}", errno_text(errno)));
+  }
+  stop_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  if (stop_fd_ < 0) fail_bound(fmt::format("eventfd: {}", errno_text(errno)));
+  listen_fd_ = fd;
+  spdlog::info("control socket {}: listening (mode 0{:o}{})", path.string(), static_cast<unsigned>(settings_.mode),
+               settings_.group.empty() ? std::string() : ", group " + settings_.group);
+}
+
+void ControlServer::stop() noexcept {
+  if (thread_.joinable()) {
+    thread_.request_stop();
+    const std::uint64_t one = 1;
+    [[maybe_unused]] const ssize_t n = ::write(stop_fd_, &one, sizeof one);
+    thread_.join();
+  }
+  for (auto& client : clients_) ::close(client->fd);
+  clients_.clear();
+  counters_.clients.store(0, std::memory_order_relaxed);
+  for (LineBroadcast* stream : streams_) stream->set_listening(false);
+  if (listen_fd_ >= 0) {
+    ::close(listen_fd_);
+    listen_fd_ = -1;
+    // Only our own socket: after a restart race another markerd may have
+    // replaced it, and its socket is not ours to remove.
+    struct stat st {};
+    const auto& path = settings_.socket_path;
+    if (::lstat(path.c_str(), &st) == 0 && st.st_dev == socket_dev_ && st.st_ino == socket_ino_) {
+      ::unlink(path.c_str());
+    }
+  }
+  if (stop_fd_ >= 0) {
+    ::close(stop_fd_);
+    stop_fd_ = -1;
+  }
+}
+
+ControlServerStats ControlServer::stats() const noexcept {
+  ControlServerStats s;
+  s.connections = counters_.connections.load(std::memory_order_relaxed);
+  s.clients = counters_.clients.load(std::memory_order_relaxed);
+  s.refused = counters_.refused.load(std::memory_order_relaxed);
+  s.requests = counters_.requests.load(std::memory_order_relaxed);
+  s.errors = counters_.errors.load(std::memory_order_relaxed);
+  s.oversized = counters_.oversized.load(std::memory_order_relaxed);
+  s.stream_lines = counters_.stream_lines.load(std::memory_order_relaxed);
+  s.stream_dropped = counters_.stream_dropped.load(std::memory_order_relaxed);
+  return s;
+}
+
+// ---------------------------------------------------------------- the loop
+
+void ControlServer::run(const std::stop_token& stop) {
+  std::vector<pollfd> fds;
+  std::optional<Clock::time_point> accept_paused_until;
+  while (!stop.stop_requested()) {
+    const auto now = Clock::now();
+    if (accept_paused_until && now >= *accept_paused_until) accept_paused_until.reset();
+    std::optional<Clock::time_point> wake_at = accept_paused_until;
+
+    fds.clear();
+    fds.push_back({stop_fd_, POLLIN, 0});
+    fds.push_back({accept_paused_until ? -1 : listen_fd_, POLLIN, 0});
+    for (const LineBroadcast* stream : streams_) fds.push_back({stream->wake_fd(), POLLIN, 0});
+    const std::size_t first_client = fds.size();
+    bool serve_now = false;
+    for (const auto& client : clients_) {
+      // Requests that waited for the client to read its replies, and may
+      // go on now that it has: no poll() event would announce them.
+      serve_now = serve_now || can_serve(*client);
+      short events = 0;
+      // Input is read while no whole request waits in it (requests wait
+      // while the client's replies pile up), so it stays bounded.
+      if (!client->closing && !client->peer_closed && !client->request_waiting()) events |= POLLIN;
+      if (client->pending() > 0) events |= POLLOUT;
+      fds.push_back({client->fd, events, 0});
+      if (client->closing && (!wake_at || client->close_deadline < *wake_at)) wake_at = client->close_deadline;
+    }
+    int timeout = -1;
+    if (serve_now) {
+      timeout = 0;
+    } else if (wake_at) {
+      const auto ms = std::chrono::ceil<std::chrono::milliseconds>(*wake_at - now).count();
+      timeout = static_cast<int>(std::clamp<std::int64_t>(ms, 0, 60000));
+    }
+
+    if (::poll(fds.data(), fds.size(), timeout) < 0) {
+      if (errno == EINTR) continue;
+      spdlog::error("control socket {}: poll: {}", settings_.socket_path.string(), errno_text(errno));
+      std::this_thread::sleep_for(10ms);
+      continue;
+    }
+    if (fds[0].revents != 0 || stop.stop_requested()) break;
+
+    for (std::size_t i = 0; i < streams_.size(); ++i) {
+      if (fds[2 + i].revents != 0) drain_stream(*streams_[i]);
+    }
+    // Clients accepted below are not in `fds` yet: only the first ones here.
+    const std::size_t polled = fds.size() - first_client;
+    for (std::size_t i = 0; i < polled; ++i) {
+      Client& client = *clients_[i];
+      const short revents = fds[first_client + i].revents;
+      if ((revents & (POLLERR | POLLNVAL)) != 0) {
+        client.dead = true;
+        continue;
+      }
+      if ((revents & (POLLIN | POLLHUP)) != 0) read_from(client);
+      if ((revents & (POLLOUT | POLLHUP)) != 0) write_to(client);
+    }
+    for (auto& client : clients_) {
+      serve_buffered(*client);
+      if (client->pending() > 0) write_to(*client);
+    }
+
+    const auto after = Clock::now();
+    std::erase_if(clients_, [&](const std::unique_ptr<Client>& c) {
+      const bool done = c->dead || (c->closing && (c->pending() == 0 || after >= c->close_deadline)) ||
+                        (c->peer_closed && c->pending() == 0 && !c->request_waiting());
+      if (done) close_client(*c);
+      return done;
+    });
+    counters_.clients.store(clients_.size(), std::memory_order_relaxed);
+
+    if (fds[1].fd >= 0 && (fds[1].revents & POLLIN) != 0) {
+      accept_clients();
+      if (std::exchange(accept_failed_, false)) accept_paused_until = Clock::now() + kAcceptPause;
+    }
+  }
+  for (auto& client : clients_) close_client(*client);
+  clients_.clear();
+  counters_.clients.store(0, std::memory_order_relaxed);
+}
+
+void ControlServer::accept_clients() {
+  for (;;) {
+    const int fd = ::accept4(listen_fd_, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
+    if (fd < 0) {
+      const int error = errno;
+      if (error == EAGAIN || error == EWOULDBLOCK) return;
+      if (error == EINTR || error == ECONNABORTED) continue;
+      // Out of descriptors or memory: the pending connection stays queued
+      // and poll() would report it at once again; wait a little instead.
+      spdlog::warn("control socket {}: accept: {}", settings_.socket_path.string(), errno_text(error));
+      accept_failed_ = true;
+      return;
+    }
+    counters_.connections.fetch_add(1, std::memory_order_relaxed);
+    const std::uint64_t id = next_client_id_++;
+    ucred peer{};
+    socklen_t peer_size = sizeof peer;
+    if (::getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &peer, &peer_size) != 0) peer = {};
+    if (clients_.size() >= settings_.max_clients) {
+      counters_.refused.fetch_add(1, std::memory_order_relaxed);
+      const std::string line = dump_line(
+          {{"ok", false}, {"error", fmt::format("too many clients ({} connected); try again later", clients_.size())}});
+      // A fresh socket's buffer takes the line; if not, it is lost with the connection.
+      [[maybe_unused]] const ssize_t n = ::send(fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      ::close(fd);
+      spdlog::warn("control socket: refused a connection from pid {} (uid {}): {} clients connected", peer.pid,
+                   peer.uid, clients_.size());
+      continue;
+    }
+    auto client = std::make_unique<Client>();
+    client->fd = fd;
+    client->id = id;
+    spdlog::debug("control: client {} connected (pid {}, uid {})", id, peer.pid, peer.uid);
+    clients_.push_back(std::move(client));
+  }
+}
+
+void ControlServer::read_from(Client& client) {
+  if (client.closing || client.peer_closed) return;
+  const std::size_t old_size = client.input.size();
+  client.input.resize(old_size + kReadChunk);
+  const ssize_t n = ::recv(client.fd, client.input.data() + old_size, kReadChunk, MSG_DONTWAIT);
+  client.input.resize(old_size + static_cast<std::size_t>(std::max<ssize_t>(n, 0)));
+  if (n > 0) return;
+  if (n < 0) {
+    if (errno == EAGAIN || errno == EWOULDBLOCK || errno == EINTR) return;
+    spdlog::debug("control: client {}: read: {}", client.id, errno_text(errno));
+    client.dead = true;
+    return;
+  }
+  client.peer_closed = true;
+  // What follows the last '\n' is a request cut off by the disconnect: dropped.
+}
+
+void ControlServer::serve_buffered(Client& client) {
+  std::size_t start = 0;
+  while (!client.closing && !client.dead) {
+    const std::size_t from = std::max(start, client.input_scanned);
+    const std::size_t newline = client.input.find('\n', from);
+    const std::size_t line_end = newline == std::string::npos ? client.input.size() : newline;
+    if (line_end - start > settings_.max_request_bytes) {
+      // The rest of the line cannot be trusted to be what the client meant
+      // (nor can where the next request starts): refuse, then close.
+      counters_.oversized.fetch_add(1, std::memory_order_relaxed);
+      counters_.requests.fetch_add(1, std::memory_order_relaxed);
+      counters_.errors.fetch_add(1, std::memory_order_relaxed);
+      queue_reply(client, {{"ok", false},
+                           {"error", fmt::format("request longer than {} bytes; closing the connection",
+                                                 settings_.max_request_bytes)}});
+      spdlog::warn("control: client {}: a request longer than {} bytes; connection closed", client.id,
+                   settings_.max_request_bytes);
+      client.closing = true;
+      client.close_deadline = Clock::now() + kCloseLinger;
+      start = client.input.size();
+      break;
+    }
+    if (newline == std::string::npos) break;
+    // A follower's next line ends its stream, however full its output; any
+    // other request waits until the client has read its earlier replies.
+    if (client.following == nullptr && client.pending() >= settings_.max_output_bytes) {
+      client.input_scanned = newline;
+      break;
+    }
+    handle_line(client, std::string_view(client.input).substr(start, newline - start));
+    start = newline + 1;
+  }
+  if (start > 0) {
+    client.input.erase(0, std::min(start, client.input.size()));
+    client.input_scanned = 0;
+  }
+  // Nothing left of a request to scan again: remember how far it was read.
+  if (client.input.find('\n') == std::string::npos) client.input_scanned = client.input.size();
+}
+
+void ControlServer::write_to(Client& client) {
+  while (client.pending() > 0 && !client.dead) {
+    const ssize_t n = ::send(client.fd, client.output.data() + client.output_sent, client.pending(),
+                             MSG_NOSIGNAL | MSG_DONTWAIT);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      if (errno == EAGAIN || errno == EWOULDBLOCK) break;
+      spdlog::debug("control: client {}: write: {}", client.id, errno_text(errno));
+      client.dead = true;
+      return;
+    }
+    client.output_sent += static_cast<std::size_t>(n);
+  }
+  if (client.output_sent == client.output.size()) {
+    client.output.clear();
+    client.output_sent = 0;
+  } else if (client.output_sent >= kReadChunk && client.output_sent * 2 >= client.output.size()) {
+    client.output.erase(0, client.output_sent);
+    client.output_sent = 0;
+  }
+  // Lines lost at the end of a burst are announced once there is room,
+  // without waiting for the stream's next line.
+  if (client.following != nullptr && client.missed > 0 && client.pending() < settings_.max_output_bytes / 2) {
+    queue_notice(client);
+  }
+}
+
+void ControlServer::close_client(Client& client) {
+  if (client.following != nullptr) unfollow(client);
+  // Unread bytes in the receive queue would make the client's read fail
+  // with ECONNRESET instead of reading the reply and then the end: discard
+  // what has arrived (a bounded amount) before closing.
+  std::array<char, 4096> sink{};
+  for (int i = 0; i < 256 && ::recv(client.fd, sink.data(), sink.size(), MSG_DONTWAIT) > 0; ++i) {
+  }
+  ::close(client.fd);
+  client.fd = -1;
+  spdlog::debug("control: client {} disconnected", client.id);
+}
+
+// ---------------------------------------------------------------- requests
+
+void ControlServer::handle_line(Client& client, std::string_view line) {
+  counters_.requests.fetch_add(1, std::memory_order_relaxed);
+  if (client.following != nullptr) {
+    // Any line ends a stream. It is not run as a command: a client that
+    // wants the stream to end may not know what else might arrive first.
+    ordered_json reply;
+    try {
+      const json request = json::parse(line);
+      if (request.is_object() && request.contains("id") && !request["id"].is_structured()) reply["id"] = request["id"];
+    } catch (const json::exception&) {
+      // Not JSON: the stream ends all the same.
+    }
+    const std::string name = client.following->name();
+    unfollow(client);
+    reply["ok"] = true;
+    reply["event"] = "end";
+    reply["stream"] = name;
+    queue_reply(client, reply);
+    return;
+  }
+  const ordered_json reply = answer(client, line);
+  if (!reply.value("ok", false)) counters_.errors.fetch_add(1, std::memory_order_relaxed);
+  queue_reply(client, reply);
+}
+
+ordered_json ControlServer::answer(Client& client, std::string_view line) {
+  ordered_json reply;
+  const auto refuse = [&reply](const std::string& why) {
+    reply["ok"] = false;
+    reply["error"] = why;
+    return reply;
+  };
+  if (blank(line)) return refuse(R"(empty request: send one JSON object per line, e.g. {"cmd":"help"})");
+  json request;
+  try {
+    request = json::parse(line, [](int depth, json::parse_event_t, json&) {
+      if (depth > kMaxRequestDepth) {
+        throw ControlError(fmt::format("request nested deeper than {} levels", kMaxRequestDepth));
+      }
+      return true;
+    });
+  } catch (const json::parse_error& e) {
+    return refuse("malformed JSON: " + parse_error_text(e));
+  } catch (const ControlError& e) {
+    return refuse(e.what());
+  } catch (const json::exception& e) {
+    return refuse(fmt::format("malformed JSON: {}", e.what()));
+  }
+  if (!request.is_object()) {
+    return refuse(fmt::format(R"(a request must be a JSON object such as {{"cmd":"help"}}, got {})",
+                              json_type(request)));
+  }
+  if (const auto id = request.find("id"); id != request.end()) {
+    if (id->is_structured()) return refuse(fmt::format("\"id\" must be a string or a number, got {}", json_type(*id)));
+    reply["id"] = *id;
+  }
+  const auto cmd = request.find("cmd");
+  if (cmd == request.end()) return refuse(R"(missing "cmd", the command's name ("help" lists them))");
+  if (!cmd->is_string()) return refuse(fmt::format("\"cmd\" must be a string, got {}", json_type(*cmd)));
+  const std::string& name = cmd->get_ref<const std::string&>();
+  const auto found = commands_.find(name);
+  if (found == commands_.end()) {
+    return refuse(fmt::format(R"(unknown command '{}' ("help" lists the commands))", name));
+  }
+  const Command& command = found->second;
+  if (command.stream != nullptr) {
+    try {
+      expect_arguments(request, {});
+    } catch (const ControlError& e) {
+      return refuse(e.what());
+    }
+    follow(client, *command.stream);
+    reply["ok"] = true;
+    reply["stream"] = name;
+    return reply;
+  }
+  json result;
+  try {
+    result = command.handler(request);
+  } catch (const ControlError& e) {
+    return refuse(e.what());
+  } catch (const std::exception& e) {
+    spdlog::warn("control: {} failed: {}", name, e.what());
+    return refuse(e.what());
+  } catch (...) {
+    spdlog::error("control: {} threw something that is not an exception", name);
+    return refuse(fmt::format("{} failed (an internal error)", name));
+  }
+  reply["ok"] = true;
+  if (result.is_object()) {
+    for (auto& [key, value] : result.items()) {
+      if (key != "id" && key != "ok") reply[key] = std::move(value);
+    }
+  } else if (!result.is_null()) {
+    reply["result"] = std::move(result);
+  }
+  return reply;
+}
+
+void ControlServer::queue_reply(Client& client, const ordered_json& reply) {
+  client.output += dump_line(reply);
+}
+
+void ControlServer::queue_notice(Client& client) {
+  if (client.following == nullptr || client.missed == 0) return;
+  client.output += dump_line(
+      {{"event", "dropped"}, {"stream", client.following->name()}, {"lines", client.missed}});
+  client.missed = 0;
+}
+
+// ---------------------------------------------------------------- streams
+
+void ControlServer::follow(Client& client, LineBroadcast& broadcast) {
+  // Lines published before this client asked belong to the followers that
+  // were there: hand them out first.
+  drain_stream(broadcast);
+  client.following = &broadcast;
+  client.missed = 0;
+  broadcast.set_listening(true);
+}
+
+void ControlServer::unfollow(Client& client) {
+  LineBroadcast* broadcast = client.following;
+  if (broadcast == nullptr) return;
+  queue_notice(client);
+  client.following = nullptr;
+  client.missed = 0;
+  const bool others = std::any_of(clients_.begin(), clients_.end(),
+                                  [&](const auto& c) { return c.get() != &client && c->following == broadcast; });
+  broadcast->set_listening(others);
+}
+
+void ControlServer::drain_stream(LineBroadcast& broadcast) {
+  followers_.clear();
+  for (auto& client : clients_) {
+    if (client->following == &broadcast && !client->dead) followers_.push_back(client.get());
+  }
+  const std::size_t limit = settings_.max_output_bytes;
+  std::uint64_t sent = 0;
+  std::uint64_t missed = 0;
+  broadcast.drain(
+      [&](std::string_view line) {
+        for (Client* client : followers_) {
+          if (client->pending() + line.size() + 1 > limit) {
+            ++client->missed;
+            ++missed;
+            continue;
+          }
+          queue_notice(*client);
+          client->output.append(line);
+          client->output += '\n';
+          ++sent;
+        }
+      },
+      [&](std::uint64_t count) {
+        for (Client* client : followers_) client->missed += count;
+        missed += count * followers_.size();
+      });
+  counters_.stream_lines.fetch_add(sent, std::memory_order_relaxed);
+  counters_.stream_dropped.fetch_add(missed, std::memory_order_relaxed);
+}
+
+}  // namespace markerd::daemon

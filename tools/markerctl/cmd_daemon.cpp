@@ -1,0 +1,449 @@
+// markerctl's commands that talk to a running markerd over its control
+// socket: status, detections (follow the detection log live), call (any
+// command, raw), and `markerctl rig ...` without --config. The protocol is
+// docs/control.md; the client side is markerd::daemon::ControlClient.
+
+#include "cmd_daemon.hpp"
+
+#include <signal.h>
+
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cstdlib>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <vector>
+
+#include "markerd/daemon/control/control_client.hpp"
+
+namespace markerctl {
+
+using markerd::daemon::ControlClient;
+using markerd::daemon::ControlClientError;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+using namespace std::chrono_literals;
+
+std::string control_socket_path(const std::string& option) {
+  if (!option.empty()) return option;
+  if (const char* env = std::getenv("MARKERD_SOCKET"); env != nullptr && *env != '\0') return env;
+  return markerd::daemon::kDefaultControlSocket;
+}
+
+namespace {
+
+// A connection to markerd for one markerctl command: errors carry the
+// command's name ("markerctl: status: cannot connect to ...").
+class Daemon {
+ public:
+  Daemon(const std::string& socket_option, std::string context) : context_(std::move(context)) {
+    try {
+      client_.emplace(control_socket_path(socket_option));
+    } catch (const ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  // The reply of a command that must succeed, without "id" and "ok".
+  json call(json request, std::chrono::milliseconds timeout = 10s) {
+    json reply = raw_call(std::move(request), timeout);
+    if (!reply.value("ok", false)) throw runtime_error(context_, reply.value("error", std::string("refused")));
+    reply.erase("id");
+    reply.erase("ok");
+    return reply;
+  }
+
+  // The reply as it came, whatever "ok" says.
+  json raw_call(json request, std::chrono::milliseconds timeout = 10s, std::string* line = nullptr) {
+    try {
+      return client_->call(std::move(request), timeout, line);
+    } catch (const ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  std::optional<std::string> read_line(std::optional<std::chrono::milliseconds> timeout) {
+    try {
+      return client_->read_line(timeout);
+    } catch (const ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  [[nodiscard]] const std::string& context() const { return context_; }
+
+ private:
+  std::string context_;
+  std::optional<ControlClient> client_;
+};
+
+// ---------------------------------------------------------------- status
+
+std::string scalar_text(const json& value) {
+  if (value.is_string()) return value.get<std::string>();
+  return value.dump(-1, ' ', false, json::error_handler_t::replace);
+}
+
+// Nested objects as indented "key: value" lines; arrays and scalars on the
+// key's line as JSON (strings bare).
+void print_tree(const json& object, int indent, std::string& out) {
+  for (const auto& [key, value] : object.items()) {
+    if (value.is_object() && !value.empty()) {
+      out += fmt::format("{:{}}{}:\n", "", indent, key);
+      print_tree(value, indent + 2, out);
+    } else {
+      out += fmt::format("{:{}}{}: {}\n", "", indent, key, scalar_text(value));
+    }
+  }
+}
+
+int run_status(const std::string& socket, bool as_json) {
+  Daemon daemon(socket, "status");
+  const json status = daemon.call({{"cmd", "status"}});
+  if (as_json) {
+    std::cout << status.dump(-1, ' ', false, json::error_handler_t::replace) << '\n';
+  } else {
+    std::string text;
+    print_tree(status, 0, text);
+    std::cout << text;
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- detections
+
+int run_detections(const std::string& socket, std::uint64_t count) {
+  Daemon daemon(socket, "detections");
+  (void)daemon.call({{"cmd", "detections"}});
+  std::uint64_t printed = 0;
+  while (count == 0 || printed < count) {
+    const auto line = daemon.read_line(std::nullopt);
+    if (!line) continue;
+    // The server's own lines in a stream are objects whose first member is
+    // "event"; the detection log's lines never are.
+    if (line->starts_with(R"({"event":)")) {
+      const json event = json::parse(*line, nullptr, false);
+      if (event.is_object() && event.value("event", std::string()) == "dropped") {
+        std::cout.flush();
+        std::cerr << fmt::format("markerctl: detections: {} lines dropped (this reader fell behind)\n",
+                                 event.value("lines", std::uint64_t{0}))
+                  << std::flush;
+      }
+      continue;
+    }
+    // Each line as it comes: a pipe to jq or grep sees it at once.
+    std::cout << *line << '\n' << std::flush;
+    ++printed;
+  }
+  return 0;
+}
+
+// ---------------------------------------------------------------- call
+
+int run_call(const std::string& socket, const std::string& command, const std::string& arguments,
+             double timeout_s) {
+  json request = json::object();
+  if (!arguments.empty()) {
+    try {
+      request = json::parse(arguments);
+    } catch (const json::parse_error& e) {
+      std::string_view why = e.what();
+      if (const auto end = why.find("] "); end != std::string_view::npos) why.remove_prefix(end + 2);
+      throw usage_error("call", fmt::format("the arguments are not JSON: {}", why));
+    }
+    if (!request.is_object()) {
+      throw usage_error("call", fmt::format(R"(the arguments must be a JSON object, e.g. '{{"axis": "rail"}}', got '{}')",
+                                            arguments));
+    }
+  }
+  request["cmd"] = command;
+  Daemon daemon(socket, "call " + command);
+  std::string line;
+  const json reply = daemon.raw_call(
+      request, std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::duration<double>(timeout_s)), &line);
+  std::cout << line << '\n';
+  if (!reply.value("ok", false)) throw runtime_error(daemon.context(), reply.value("error", std::string("refused")));
+  return 0;
+}
+
+// ---------------------------------------------------------------- rig
+
+std::string signal_text(int signal) {
+  const char* abbrev = sigabbrev_np(signal);
+  return abbrev != nullptr ? fmt::format("SIG{}", abbrev) : fmt::format("signal {}", signal);
+}
+
+std::string position_text(const json& axis, std::string_view key = "position") {
+  return fmt::format("{:.3f} {}", axis.value(key, 0.0), axis.value("unit", std::string()));
+}
+
+std::string inputs_text(const json& inputs) {
+  std::string text;
+  for (const char* name : {"limit_min", "limit_max", "home", "estop"}) {
+    if (!inputs.value(name, false)) continue;
+    if (!text.empty()) text += ' ';
+    text += name;
+  }
+  return text.empty() ? "none active" : text + " active";
+}
+
+bool in_motion(const json& axis) { return axis.value("moving", false); }
+
+class DaemonRig {
+ public:
+  explicit DaemonRig(const DaemonRigRequest& request) : request_(request), daemon_(request.socket, request.context) {}
+
+  json status() { return daemon_.call({{"cmd", "rig.status"}}); }
+  json call(const json& request) { return daemon_.call(request); }
+
+  // "rail at 250.000 mm, turntable at 30.000 deg"
+  std::string positions(const json& status) {
+    return fmt::format("rail at {}, turntable at {}", position_text(status["rail"]),
+                       position_text(status["turntable"]));
+  }
+
+  void print_ground_truth(const json& status) {
+    const json& truth = status["ground_truth"];
+    std::cout << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.value("distance_m", 0.0),
+                             truth.value("yaw_deg", 0.0));
+  }
+
+  // Waits until every axis in `axes` has settled (or, for a stop, is at
+  // rest), printing progress every second. A fault ends it with an error
+  // naming the axis and the cause; a signal stops the rig.
+  json follow(const std::vector<std::string>& axes, std::string_view doing, bool rest_is_enough = false) {
+    auto next_progress = Clock::now() + 1s;
+    std::vector<std::optional<Clock::time_point>> idle_since(axes.size());
+    for (;;) {
+      const json s = status();
+      bool done = true;
+      for (std::size_t i = 0; i < axes.size(); ++i) {
+        const json& a = s[axes[i]];
+        const std::string state = a.value("state", std::string());
+        if (!a["fault"].is_null()) {
+          throw runtime_error(request_.context,
+                              fmt::format("{}: {} failed: {}", axes[i], doing, a["fault"].get<std::string>()));
+        }
+        if (rest_is_enough ? !in_motion(a) : a.value("settled", false)) continue;
+        if (state == "disabled") {
+          throw runtime_error(request_.context, fmt::format("{}: disabled while {}", axes[i], doing));
+        }
+        done = false;
+        // Idle but not settled: settling, or (a closed-loop drive) drifting
+        // outside its deadband; the second must not hang.
+        if (state != "idle") {
+          idle_since[i].reset();
+        } else if (!idle_since[i]) {
+          idle_since[i] = Clock::now();
+        } else if (Clock::now() - *idle_since[i] > 15s) {
+          throw runtime_error(request_.context, fmt::format("{}: did not settle at {} (at {})", axes[i],
+                                                            position_text(a, "target"), position_text(a)));
+        }
+      }
+      if (done) return s;
+      if (Clock::now() >= next_progress) {
+        next_progress += 1s;
+        for (const std::string& name : axes) {
+          const json& a = s[name];
+          if (a.value("settled", false)) continue;
+          const std::string state = a.value("state", std::string());
+          std::cout << fmt::format("{}: {}, at {}\n", name, state == "idle" ? "settling" : state, position_text(a))
+                    << std::flush;
+        }
+      }
+      const int signal = request_.wait_for_signal ? request_.wait_for_signal(50ms) : 0;
+      if (signal == 0 && !request_.wait_for_signal) std::this_thread::sleep_for(50ms);
+      if (signal != 0) interrupted(signal);
+    }
+  }
+
+  // An interrupt while markerctl waits: the rig is stopped with a ramp (a
+  // second interrupt, or a stop that does not end, makes it an emergency
+  // stop), and the command fails.
+  [[noreturn]] void interrupted(int signal) {
+    std::cout << std::flush;
+    std::cerr << fmt::format("markerctl: {}: {}: stopping the rig\n", request_.context, signal_text(signal))
+              << std::flush;
+    (void)call({{"cmd", "rig.stop"}});
+    bool emergency = false;
+    const auto deadline = Clock::now() + 30s;
+    json s = status();
+    while (in_motion(s["rail"]) || in_motion(s["turntable"])) {
+      const int again = request_.wait_for_signal ? request_.wait_for_signal(50ms) : 0;
+      if (again != 0 || Clock::now() > deadline) {
+        emergency = true;
+        (void)call({{"cmd", "rig.stop"}, {"emergency", true}});
+        s = status();
+        break;
+      }
+      s = status();
+    }
+    throw runtime_error(request_.context, fmt::format("interrupted by {}: {} ({})", signal_text(signal),
+                                                      emergency ? "emergency stop" : "rig stopped", positions(s)));
+  }
+
+ private:
+  const DaemonRigRequest& request_;
+  Daemon daemon_;
+};
+
+int rig_status(DaemonRig& rig, const DaemonRigRequest& request) {
+  const json s = rig.status();
+  if (request.json) {
+    std::cout << s.dump(-1, ' ', false, json::error_handler_t::replace) << '\n';
+    return 0;
+  }
+  for (const char* name : {"rail", "turntable"}) {
+    const json& a = s[name];
+    std::cout << fmt::format("{:<10} {}, {}{}: position {}, target {}; inputs: {}\n", name,
+                             a.value("state", std::string()), a.value("homed", false) ? "homed" : "not homed",
+                             a.value("settled", false) ? ", settled" : "", position_text(a),
+                             position_text(a, "target"), inputs_text(a["inputs"]));
+    if (!a["fault"].is_null()) std::cout << fmt::format("{:<10} fault: {}\n", "", a["fault"].get<std::string>());
+  }
+  rig.print_ground_truth(s);
+  return 0;
+}
+
+void home_and_follow(DaemonRig& rig, const std::vector<std::string>& axes, bool wait) {
+  const json axis = axes.size() == 1 ? json(axes.front()) : json("both");
+  (void)rig.call({{"cmd", "rig.home"}, {"axis", axis}});
+  for (const std::string& name : axes) std::cout << fmt::format("{}: homing\n", name) << std::flush;
+  if (!wait) return;
+  const json s = rig.follow(axes, "homing");
+  for (const std::string& name : axes) {
+    std::cout << fmt::format("{}: homed at {}\n", name, position_text(s[name])) << std::flush;
+  }
+}
+
+int rig_home(DaemonRig& rig, const DaemonRigRequest& request) {
+  std::vector<std::string> axes;
+  if (request.home_axis.empty() || request.home_axis == "rail") axes.emplace_back("rail");
+  if (request.home_axis.empty() || request.home_axis == "turntable") axes.emplace_back("turntable");
+  home_and_follow(rig, axes, request.wait);
+  if (request.wait) rig.print_ground_truth(rig.status());
+  return 0;
+}
+
+int rig_move(DaemonRig& rig, const DaemonRigRequest& request) {
+  json s = rig.status();
+  json move = {{"cmd", "rig.move"}, {"relative", request.relative}};
+  std::vector<std::string> axes;
+  std::vector<std::string> to_home;
+  for (const DaemonRigTarget& target : request.targets) {
+    const json& a = s[target.axis];
+    move[target.axis] = target.in_unit(a.value("unit", std::string()));
+    axes.push_back(target.axis);
+    if (request.home_first && (!a.value("homed", false) || !a["fault"].is_null())) to_home.push_back(target.axis);
+  }
+  // Homing first is markerctl's doing, not the daemon's: a command to the
+  // daemon starts one thing and returns.
+  if (!to_home.empty()) home_and_follow(rig, to_home, true);
+  const json reply = rig.call(move);
+  for (const std::string& name : axes) {
+    std::cout << fmt::format("{}: moving to {:.3f} {}\n", name, reply["moving"].value(name, 0.0),
+                             s[name].value("unit", std::string()))
+              << std::flush;
+  }
+  if (!request.wait) return 0;
+  s = rig.follow(axes, request.relative ? "jog" : "move");
+  for (const std::string& name : axes) std::cout << fmt::format("{}: at {}\n", name, position_text(s[name]));
+  rig.print_ground_truth(s);
+  return 0;
+}
+
+int rig_stop(DaemonRig& rig, const DaemonRigRequest& request) {
+  const json reply = rig.call({{"cmd", "rig.stop"}, {"emergency", request.emergency}});
+  if (request.emergency) {
+    std::cout << "emergency stop: both axes disabled; home them again (markerctl rig home)\n" << std::flush;
+  } else if (reply["stopping"].empty()) {
+    std::cout << "nothing was moving\n" << std::flush;
+  } else {
+    std::vector<std::string> names = reply["stopping"].get<std::vector<std::string>>();
+    for (const std::string& name : names) std::cout << fmt::format("{}: stopping\n", name) << std::flush;
+    if (request.wait) (void)rig.follow(names, "stop", true);
+  }
+  std::cout << rig.positions(rig.status()) << '\n';
+  return 0;
+}
+
+}  // namespace
+
+int run_rig_on_daemon(const DaemonRigRequest& request) {
+  DaemonRig rig(request);
+  switch (request.action) {
+    case DaemonRigRequest::Action::status: return rig_status(rig, request);
+    case DaemonRigRequest::Action::home: return rig_home(rig, request);
+    case DaemonRigRequest::Action::move: return rig_move(rig, request);
+    case DaemonRigRequest::Action::stop: return rig_stop(rig, request);
+  }
+  return exit_runtime;
+}
+
+void add_daemon_commands(CLI::App& parent, Commands& commands) {
+  const char* socket_help = "markerd's control socket (default: $MARKERD_SOCKET, else /run/markerd/control.sock)";
+  const std::string access_footer =
+      "Talks to a running markerd over its control socket (docs/control.md). Access is for the socket's\n"
+      "group (the config's [control] group): run as a member of it.";
+
+  struct StatusOptions {
+    std::string socket;
+    bool json = false;
+  };
+  auto status_options = std::make_shared<StatusOptions>();
+  CLI::App* status = parent.add_subcommand("status", "What markerd is doing: capture, detection, logs and the rig");
+  status->add_option("--socket", status_options->socket, socket_help)->type_name("PATH");
+  status->add_flag("--json", status_options->json, "One JSON object instead of text");
+  status->footer(access_footer);
+  commands.push_back({status, [status_options] { return run_status(status_options->socket, status_options->json); }});
+
+  struct DetectionsOptions {
+    std::string socket;
+    std::uint64_t count = 0;
+  };
+  auto detections_options = std::make_shared<DetectionsOptions>();
+  CLI::App* detections =
+      parent.add_subcommand("detections", "Follow the detection log live: one JSON line per frame, as it is logged");
+  detections->add_option("--socket", detections_options->socket, socket_help)->type_name("PATH");
+  detections->add_option("--count", detections_options->count, "Stop after N lines (default: follow until stopped)")
+      ->type_name("N");
+  detections->footer(access_footer +
+                     "\nLines are the detection log's (docs/detection-log.md). A reader slower than the daemon\n"
+                     "loses lines rather than holding it up: stderr then says how many.");
+  commands.push_back({detections, [detections_options] {
+                        return run_detections(detections_options->socket, detections_options->count);
+                      }});
+
+  struct CallOptions {
+    std::string socket;
+    std::string command;
+    std::string arguments;
+    double timeout_s = 10;
+  };
+  auto call_options = std::make_shared<CallOptions>();
+  CLI::App* call = parent.add_subcommand("call", "Send markerd one command and print its reply (raw protocol)");
+  call->add_option("command", call_options->command, "The command (markerctl call help lists them)")
+      ->type_name("CMD")
+      ->required();
+  call->add_option("arguments", call_options->arguments, "Its arguments as a JSON object")->type_name("JSON-ARGS");
+  call->add_option("--socket", call_options->socket, socket_help)->type_name("PATH");
+  call->add_option("--timeout", call_options->timeout_s, "Seconds to wait for the reply (default 10)")
+      ->type_name("SECONDS")
+      ->check(CLI::PositiveNumber);
+  call->footer(access_footer +
+               "\nPrints the reply line as it came; exit 1 when it says \"ok\": false. Example:\n"
+               "  markerctl call rig.move '{\"rail\": 250, \"turntable\": 30}'");
+  commands.push_back({call, [call_options] {
+                        return run_call(call_options->socket, call_options->command, call_options->arguments,
+                                        call_options->timeout_s);
+                      }});
+}
+
+}  // namespace markerctl
