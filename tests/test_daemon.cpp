@@ -19,6 +19,7 @@
 #include <thread>
 #include <vector>
 
+#include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 
@@ -198,6 +199,39 @@ TEST_F(DaemonTest, SimulatedCameraRigDetectorAndLogEndToEnd) {
   }
   EXPECT_TRUE(daemon.responsive());
   EXPECT_NE(daemon.status_line().find("camera sim 640x480@30: streaming"), std::string::npos) << daemon.status_line();
+
+  // The control socket: status, the rig, and the detection stream, live.
+  {
+    ControlClient client(dir_ / "control.sock");
+    const nlohmann::json status = client.call({{"cmd", "status"}});
+    ASSERT_EQ(status["ok"], true) << status.dump();
+    EXPECT_EQ(status["camera"]["state"], "streaming");
+    EXPECT_EQ(status["camera"]["source"], "sim 640x480@30");
+    EXPECT_GE(status["camera"]["frames"].get<std::uint64_t>(), settled_at + 15);
+    EXPECT_EQ(status["pipeline"]["policy"], "lossless");
+    EXPECT_EQ(status["log"]["file"], daemon.log().current_path());
+    EXPECT_EQ(status["responsive"], true);
+    const nlohmann::json rig_status = client.call({{"cmd", "rig.status"}});
+    ASSERT_EQ(rig_status["ok"], true) << rig_status.dump();
+    EXPECT_NE(rig_status.dump().find("650"), std::string::npos) << rig_status.dump();
+    const nlohmann::json cameras = client.call({{"cmd", "cameras"}});
+    ASSERT_EQ(cameras["ok"], true) << cameras.dump();
+    EXPECT_TRUE(cameras["v4l2"].is_array());
+    EXPECT_TRUE(cameras["libcamera"].is_array());
+
+    ControlClient follower(dir_ / "control.sock");
+    follower.send({{"cmd", "detections"}});
+    int records = 0;
+    for (int lines = 0; records < 3 && lines < 20; ++lines) {
+      const auto line = follower.read_line(std::chrono::milliseconds(10000));
+      ASSERT_TRUE(line.has_value());
+      const auto record = nlohmann::json::parse(*line);
+      if (!record.contains("schema")) continue;  // the stream's own acknowledgement
+      ++records;
+      EXPECT_EQ(record["detections"][0]["id"], 165) << *line;
+    }
+    EXPECT_EQ(records, 3);
+  }
   const std::string log_path = daemon.log().current_path();
   daemon.stop();
 

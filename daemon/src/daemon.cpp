@@ -1,5 +1,9 @@
 #include "markerd/daemon/daemon.hpp"
 
+#include "markerd/daemon/capture/v4l2_source.hpp"
+#include "markerd/daemon/control/rig_commands.hpp"
+#include "markerd/daemon/daemon_status.hpp"
+
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -25,6 +29,13 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
           // Without a rig the simulated camera shows its fixed positions
           // through the default geometry.
           return std::make_unique<SimCamera>(settings, *camera.model, rig ? rig->geometry : rig::RigGeometry{});
+        } else if constexpr (std::is_same_v<T, V4l2Settings>) {
+          return make_v4l2_source(settings);
+        } else if constexpr (std::is_same_v<T, LibcameraSettings>) {
+          return make_libcamera_source(settings);
+        } else {
+          static_assert(std::is_same_v<T, FileSourceSettings>);
+          return make_file_source(settings);
         }
       },
       camera.source);
@@ -33,6 +44,14 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
 Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
   if (config_.rig) rig_ = rig::make_rig(*config_.rig);
   source_ = make_capture_source(config_.camera, config_.rig);
+  const CaptureGeometry geometry = source_->geometry();
+  if (config_.camera.model && geometry.width > 0 &&
+      (geometry.width != config_.camera.model->width || geometry.height != config_.camera.model->height)) {
+    // Poses through a calibration of another resolution would be wrong, not just imprecise.
+    throw ConfigError(fmt::format("{}: camera.model: {} is calibrated for {}x{}, but the camera ({}) delivers {}x{}",
+                                  config_.source, config_.camera.model_path.string(), config_.camera.model->width,
+                                  config_.camera.model->height, source_->name(), geometry.width, geometry.height));
+  }
 
   LogWriterConfig writer;
   writer.directory = config_.log.directory;
@@ -51,11 +70,38 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
   for (std::size_t i = 0; i < config_.detector.workers; ++i) detectors.push_back(make_detector(detector));
   pipeline_ = std::make_unique<Pipeline>(pipeline, std::move(detectors), *sink_);
   capture_loop_ = std::make_unique<CaptureLoop>(*source_, *pipeline_, rig_.get(), config_.camera.loop);
+
+  detections_ = std::make_unique<LineBroadcast>("detections");
+  sink_->set_line_observer([broadcast = detections_.get()](std::string_view line) { broadcast->publish(line); });
+  ControlSettings control;
+  control.socket_path = config_.control.socket;
+  control.group = config_.control.group;
+  control_ = std::make_unique<ControlServer>(control);
+  register_commands();
+}
+
+void Daemon::register_commands() {
+  control_->register_command(
+      "status", [this](const nlohmann::json&) { return status_json(*this); },
+      "the camera, the pipeline's counters and latencies, the detection log, the rig");
+  control_->register_command(
+      "cameras",
+      [](const nlohmann::json&) {
+        nlohmann::json v4l2 = nlohmann::json::array();
+        for (const auto& device : list_v4l2_devices()) v4l2.push_back(nlohmann::json(to_json(device)));
+        nlohmann::json libcamera = nlohmann::json::array();
+        for (const auto& camera : list_libcamera_cameras()) libcamera.push_back(nlohmann::json(to_json(camera)));
+        return nlohmann::json{{"v4l2", std::move(v4l2)}, {"libcamera", std::move(libcamera)}};
+      },
+      "the cameras this machine has, through V4L2 and libcamera: formats, sizes, intervals, controls");
+  control_->register_stream(*detections_, "follow the detection log live: one JSON line per frame");
+  if (rig_) register_rig_commands(*control_, *rig_);
 }
 
 Daemon::~Daemon() { stop(); }
 
 void Daemon::start() {
+  control_->start();
   capture_thread_ = std::jthread([this](const std::stop_token& stop) {
     name_this_thread("markerd-capture");
     capture_loop_->run(stop);
@@ -65,6 +111,7 @@ void Daemon::start() {
 void Daemon::stop() {
   if (stopped_) return;
   stopped_ = true;
+  control_->stop();
   if (capture_thread_.joinable()) {
     capture_thread_.request_stop();
     capture_thread_.join();

@@ -87,8 +87,19 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
     s.cut_hole = marker.cut_hole;
     if (!c.model) t.fail("model", "is required by the simulated camera (it renders through the camera model)");
     c.source = s;
-  } else {
-    t.fail("source", fmt::format("the \"{}\" source is not built into this markerd", c.source_kind));
+  } else if (c.source_kind == "file") {
+    const FileSourceSettings f = parse_file_source_settings(t.table("file"), dir);
+    // A replay paced slower than the stall timeout would be reopened (and
+    // restarted) before each frame.
+    if (f.fps > 0 && 1000.0 / f.fps >= static_cast<double>(c.loop.frame_timeout.count())) {
+      t.fail("frame_timeout_ms", fmt::format("must be longer than the file source's frame period ({:g} ms at {:g} fps)",
+                                             1000.0 / f.fps, f.fps));
+    }
+    c.source = f;
+  } else if (c.source_kind == "v4l2") {
+    c.source = parse_v4l2_settings(t.table("v4l2"));
+  } else if (c.source_kind == "libcamera") {
+    c.source = parse_libcamera_settings(t.table("libcamera"));
   }
   return c;
 }

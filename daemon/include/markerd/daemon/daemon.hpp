@@ -12,6 +12,8 @@
 
 #include "markerd/daemon/capture/capture_loop.hpp"
 #include "markerd/daemon/capture/capture_source.hpp"
+#include "markerd/daemon/control/control_server.hpp"
+#include "markerd/daemon/control/line_broadcast.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/daemon/detection_log_sink.hpp"
 #include "markerd/daemon/pipeline.hpp"
@@ -34,10 +36,12 @@ class Daemon {
   Daemon(const Daemon&) = delete;
   Daemon& operator=(const Daemon&) = delete;
 
-  // Starts the capture thread.
+  // Opens the control socket (ControlSocketError when it cannot: another
+  // markerd on it, a missing group) and starts the capture thread.
   void start();
-  // Stops capture, detects and logs what is in flight (by the pipeline's
-  // policy), stops the axes and disables them, and syncs the log. Idempotent.
+  // Closes the control socket, stops capture, detects and logs what is in
+  // flight (by the pipeline's policy), stops the axes and disables them, and
+  // syncs the log. Idempotent.
   void stop();
   // SIGHUP: the detection log reopens its file (logrotate renamed it).
   void reopen_logs() noexcept { sink_->request_reopen(); }
@@ -51,13 +55,17 @@ class Daemon {
 
   [[nodiscard]] const DaemonConfig& config() const { return config_; }
   [[nodiscard]] rig::Rig* rig() { return rig_.get(); }
+  [[nodiscard]] const rig::Rig* rig() const { return rig_.get(); }
   [[nodiscard]] const CaptureLoop& capture() const { return *capture_loop_; }
   [[nodiscard]] const CaptureSource& source() const { return *source_; }
   [[nodiscard]] const Pipeline& pipeline() const { return *pipeline_; }
   [[nodiscard]] DetectionLogSink& log() { return *sink_; }
+  [[nodiscard]] const DetectionLogSink& log() const { return *sink_; }
+  [[nodiscard]] const ControlServer& control() const { return *control_; }
 
  private:
   void stop_motion() noexcept;
+  void register_commands();
 
   DaemonConfig config_;
   std::unique_ptr<rig::Rig> rig_;
@@ -65,6 +73,9 @@ class Daemon {
   std::unique_ptr<DetectionLogSink> sink_;
   std::unique_ptr<Pipeline> pipeline_;
   std::unique_ptr<CaptureLoop> capture_loop_;
+  // The detection log's lines, as `markerctl detections` follows them.
+  std::unique_ptr<LineBroadcast> detections_;
+  std::unique_ptr<ControlServer> control_;
   std::jthread capture_thread_;
   bool stopped_ = false;
 };

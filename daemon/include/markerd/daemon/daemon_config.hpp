@@ -1,5 +1,5 @@
 #pragma once
-// markerd's configuration: one TOML file (reference: docs/daemon-config.md),
+// markerd's configuration: one TOML file (reference: docs/daemon.md),
 // parsed once into these structs. Every mistake is a ConfigError naming the
 // file, the line and the key, and keys nobody reads are mistakes too, so a
 // typo cannot pass silently. Nothing deeper than this reads TOML.
@@ -11,7 +11,10 @@
 #include <variant>
 
 #include "markerd/daemon/capture/capture_loop.hpp"
+#include "markerd/daemon/capture/file_source.hpp"
+#include "markerd/daemon/capture/libcamera_source.hpp"
 #include "markerd/daemon/capture/sim_camera.hpp"
+#include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/log_writer.hpp"
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/detector/camera_model.hpp"
@@ -29,7 +32,7 @@ struct MarkerSettings {
 };
 
 // One alternative per capture backend.
-using CameraSourceSettings = std::variant<SimCameraSettings>;
+using CameraSourceSettings = std::variant<SimCameraSettings, V4l2Settings, LibcameraSettings, FileSourceSettings>;
 
 struct CameraSettings {
   CameraSourceSettings source;
