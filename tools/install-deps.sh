@@ -24,6 +24,9 @@ packages=(
   python3-serial python3-serial-asyncio
   # hardware-in-the-loop tests: Debian's kernel under qemu, a busybox initramfs
   qemu-system-x86 busybox-static cpio
+  # v4l2-ctl, the reference reader bench/bench_v4l2_capture.cpp measures
+  # markerd's V4L2 capture path against inside the guest
+  v4l-utils
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd

@@ -1,0 +1,331 @@
+#pragma once
+// Rendered frame markers fed through vivid's video loop, for what runs in the
+// guest against the real driver and needs a camera that sees markers:
+// tests/hil/test_markerd_vivid.cpp (markerd itself on the capture node) and
+// bench/bench_v4l2_capture.cpp (markerd's capture path against v4l2-ctl).
+//
+// vivid loops its HDMI output to its HDMI capture input byte for byte when
+// both ends have the same DV timings, format and field, the capture has
+// "Loop Video" on and its OSD text off, and the output queue never runs dry
+// (a dry queue makes the capture fall back to its test pattern): see
+// docs/capture.md, "How it is tested". A scene's grey image goes out as YUYV
+// with the grey as Y and neutral chroma, so the capture's Y plane is the
+// rendered image again.
+
+#include <fcntl.h>
+#include <linux/videodev2.h>
+#include <poll.h>
+#include <sys/ioctl.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "markerd/detector/camera_model.hpp"
+#include "markerd/detector/image.hpp"
+#include "markerd/detector/render.hpp"
+
+namespace markerd::hil {
+
+constexpr int kWidth = 640;
+constexpr int kHeight = 480;
+constexpr int kHdmiInput = 1;  // vivid's capture inputs with input_types=0x0c: 0 a webcam, 1 HDMI
+
+inline std::string errno_text(const std::string& what) { return what + ": " + std::strerror(errno); }
+
+inline int xioctl(int fd, unsigned long request, void* arg) {
+  int result = 0;
+  do {
+    result = ::ioctl(fd, request, arg);
+  } while (result == -1 && errno == EINTR);
+  return result;
+}
+
+inline void must(int fd, unsigned long request, void* arg, const std::string& what) {
+  if (xioctl(fd, request, arg) != 0) throw std::runtime_error(errno_text(what));
+}
+
+class Node {
+ public:
+  explicit Node(const std::string& path) : fd_(::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC)) {
+    if (fd_ < 0) throw std::runtime_error(errno_text("open " + path));
+  }
+  ~Node() { ::close(fd_); }
+  Node(const Node&) = delete;
+  Node& operator=(const Node&) = delete;
+  [[nodiscard]] int fd() const { return fd_; }
+
+ private:
+  int fd_;
+};
+
+// 640x480 progressive at 60 Hz (V4L2_DV_BT_DMT_640X480P60), on both HDMI ends.
+inline v4l2_dv_timings timings_640x480p60() {
+  v4l2_dv_timings t{};
+  t.type = V4L2_DV_BT_656_1120;
+  t.bt.width = kWidth;
+  t.bt.height = kHeight;
+  t.bt.pixelclock = 25175000;
+  t.bt.hfrontporch = 16;
+  t.bt.hsync = 96;
+  t.bt.hbackporch = 48;
+  t.bt.vfrontporch = 10;
+  t.bt.vsync = 2;
+  t.bt.vbackporch = 33;
+  t.bt.standards = V4L2_DV_BT_STD_DMT | V4L2_DV_BT_STD_CEA861;
+  t.bt.flags = V4L2_DV_FL_HAS_CEA861_VIC;
+  t.bt.cea861_vic = 1;
+  return t;
+}
+
+// Puts the capture node on its HDMI input with the timings the feeder sends.
+// vivid's HDMI input starts at 1280x720p60 and scales that to any size asked
+// for, so a reader that opened it first would get a scaled test pattern and
+// no loop: this must come before anyone streams from the node.
+inline void select_hdmi_input(const std::string& capture) {
+  Node n(capture);
+  int input = kHdmiInput;
+  must(n.fd(), VIDIOC_S_INPUT, &input, "capture VIDIOC_S_INPUT");
+  auto timings = timings_640x480p60();
+  must(n.fd(), VIDIOC_S_DV_TIMINGS, &timings, "capture VIDIOC_S_DV_TIMINGS");
+}
+
+struct VividNodes {
+  std::string capture, output;
+};
+
+// vivid's capture and output nodes by their sysfs names, as the vivid-loop
+// setup step finds them; nothing while the driver has no device bound.
+inline std::optional<VividNodes> find_vivid_nodes() {
+  namespace fs = std::filesystem;
+  VividNodes nodes;
+  std::error_code ec;
+  for (fs::directory_iterator it("/sys/class/video4linux", ec), end; !ec && it != end; it.increment(ec)) {
+    std::ifstream file(it->path() / "name");
+    std::string name;
+    if (!std::getline(file, name)) continue;
+    const auto ends_with = [&](const char* suffix) {
+      const std::size_t n = std::strlen(suffix);
+      return name.rfind("vivid-", 0) == 0 && name.size() > n && name.compare(name.size() - n, n, suffix) == 0;
+    };
+    if (ends_with("-vid-cap")) nodes.capture = "/dev/" + it->path().filename().string();
+    if (ends_with("-vid-out")) nodes.output = "/dev/" + it->path().filename().string();
+  }
+  if (nodes.capture.empty() || nodes.output.empty()) return std::nullopt;
+  return nodes;
+}
+
+// ---------------------------------------------------------------- scenes
+
+// What the feeder shows, in turn: two frame8 markers of different ids at
+// 0.5 m, turned away from the camera by different angles (far enough from
+// facing it that the pose has no flip ambiguity), over the renderer's
+// clutter, through the thesis camera's lens with its distortion. The blur
+// and noise of the simulated camera's defaults.
+inline std::vector<Scene> feeder_scenes() {
+  Scene a;
+  a.family = Family::frame8;
+  a.id = 165;
+  a.marker_size_m = 0.08;
+  a.pose = facing_pose(0.5, 30, 0, 0, 0.02, -0.01);
+  a.blur_sigma_px = 0.6;
+  a.noise_sigma = 2.0;
+  a.supersample = 3;
+  a.seed = 11;
+  Scene b = a;
+  b.id = 77;
+  b.pose = facing_pose(0.5, -40, 0, 10, -0.03, 0.02);
+  b.seed = 12;
+  return {a, b};
+}
+
+inline CameraModel feeder_camera() { return CameraModel::thesis_640x480(); }
+
+// A grey image as YUYV: Y the grey, U and V 128 (no colour).
+inline std::vector<std::uint8_t> to_yuyv(const GreyImage& image) {
+  std::vector<std::uint8_t> yuyv(static_cast<std::size_t>(image.width()) * image.height() * 2, 128);
+  for (int y = 0; y < image.height(); ++y) {
+    const std::uint8_t* in = image.row(y);
+    std::uint8_t* out = yuyv.data() + static_cast<std::size_t>(y) * image.width() * 2;
+    for (int x = 0; x < image.width(); ++x) out[2 * x] = in[x];
+  }
+  return yuyv;
+}
+
+// ---------------------------------------------------------------- the feeder
+
+// Writes YUYV frames into vivid's HDMI output from a thread of its own,
+// queueing each buffer again the moment the driver is done with it: scene 0
+// for `frames_per_scene` frames, then scene 1, and so on round. It records
+// when each run of a scene was queued, so that a reader can tell which
+// scene a frame captured at a given time may show. A buffer is rewritten
+// only when its scene changes: steady state costs a DQBUF and a QBUF per
+// frame, so the feeder takes little of the guest's one CPU from what is
+// measured beside it.
+//
+// When the device goes away under it (vivid unbound), the thread stops and
+// device_gone() says so; the output node is closed by the destructor.
+class SceneFeeder {
+ public:
+  struct Run {
+    std::chrono::steady_clock::time_point queued;  // the run's first buffer went into the queue
+    std::size_t scene = 0;
+  };
+
+  SceneFeeder(const std::string& output, std::vector<std::vector<std::uint8_t>> frames, std::uint32_t frames_per_scene)
+      : node_(output), frames_(std::move(frames)), frames_per_scene_(frames_per_scene) {
+    if (frames_.empty() || frames_per_scene_ == 0) throw std::invalid_argument("SceneFeeder: no frames to feed");
+    const int fd = node_.fd();
+    int index = 0;
+    must(fd, VIDIOC_S_OUTPUT, &index, "output VIDIOC_S_OUTPUT");
+    auto timings = timings_640x480p60();
+    must(fd, VIDIOC_S_DV_TIMINGS, &timings, "output VIDIOC_S_DV_TIMINGS");
+    v4l2_format f{};
+    f.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    f.fmt.pix.width = kWidth;
+    f.fmt.pix.height = kHeight;
+    f.fmt.pix.pixelformat = V4L2_PIX_FMT_YUYV;
+    f.fmt.pix.field = V4L2_FIELD_NONE;
+    must(fd, VIDIOC_S_FMT, &f, "output VIDIOC_S_FMT");
+    if (f.fmt.pix.pixelformat != V4L2_PIX_FMT_YUYV || f.fmt.pix.width != kWidth || f.fmt.pix.height != kHeight) {
+      throw std::runtime_error(output + ": vivid's output refuses YUYV 640x480");
+    }
+    stride_ = f.fmt.pix.bytesperline;
+    size_ = f.fmt.pix.sizeimage;
+    for (const auto& frame : frames_) {
+      if (frame.size() != static_cast<std::size_t>(kWidth) * kHeight * 2) {
+        throw std::invalid_argument("SceneFeeder: a frame is not YUYV 640x480");
+      }
+    }
+    v4l2_requestbuffers request{};
+    request.count = 8;
+    request.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    request.memory = V4L2_MEMORY_MMAP;
+    must(fd, VIDIOC_REQBUFS, &request, "output VIDIOC_REQBUFS");
+    for (std::uint32_t i = 0; i < request.count; ++i) {
+      v4l2_buffer b{};
+      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+      b.memory = V4L2_MEMORY_MMAP;
+      b.index = i;
+      must(fd, VIDIOC_QUERYBUF, &b, "output VIDIOC_QUERYBUF");
+      void* data = ::mmap(nullptr, b.length, PROT_READ | PROT_WRITE, MAP_SHARED, fd, b.m.offset);
+      if (data == MAP_FAILED) throw std::runtime_error(errno_text("output mmap"));
+      buffers_.push_back({static_cast<std::uint8_t*>(data), b.length, kNoScene});
+    }
+    for (std::uint32_t i = 0; i < buffers_.size(); ++i) {
+      if (const int e = queue(i); e != 0) {
+        throw std::runtime_error("output VIDIOC_QBUF: " + std::string(std::strerror(e)));
+      }
+    }
+    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    must(fd, VIDIOC_STREAMON, &type, "output VIDIOC_STREAMON");
+    thread_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
+  }
+
+  ~SceneFeeder() {
+    thread_.request_stop();
+    thread_.join();
+    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    xioctl(node_.fd(), VIDIOC_STREAMOFF, &type);  // fails with ENODEV once the device is gone: nothing to do then
+    for (const auto& b : buffers_) ::munmap(b.data, b.length);
+  }
+  SceneFeeder(const SceneFeeder&) = delete;
+  SceneFeeder& operator=(const SceneFeeder&) = delete;
+
+  [[nodiscard]] std::uint32_t queued() const { return next_.load(); }
+  [[nodiscard]] bool device_gone() const { return gone_.load(); }
+  [[nodiscard]] std::vector<Run> runs() const {
+    const std::lock_guard lock(mutex_);
+    return runs_;
+  }
+  // What stopped the thread other than the device going away; empty if nothing.
+  [[nodiscard]] std::string error() const {
+    const std::lock_guard lock(mutex_);
+    return error_;
+  }
+
+ private:
+  static constexpr std::size_t kNoScene = static_cast<std::size_t>(-1);
+
+  struct Buffer {
+    std::uint8_t* data;
+    std::size_t length;
+    std::size_t scene;  // what the buffer holds now
+  };
+
+  // 0, or the errno of VIDIOC_QBUF.
+  int queue(std::uint32_t index) {
+    const std::uint32_t number = next_.fetch_add(1);
+    const std::size_t scene = (number / frames_per_scene_) % frames_.size();
+    if (number % frames_per_scene_ == 0) {
+      const std::lock_guard lock(mutex_);
+      runs_.push_back({std::chrono::steady_clock::now(), scene});
+    }
+    Buffer& buffer = buffers_[index];
+    if (buffer.scene != scene) {
+      const std::uint8_t* in = frames_[scene].data();
+      for (int y = 0; y < kHeight; ++y) {
+        std::memcpy(buffer.data + static_cast<std::size_t>(y) * stride_, in + static_cast<std::size_t>(y) * kWidth * 2,
+                    static_cast<std::size_t>(kWidth) * 2);
+      }
+      buffer.scene = scene;
+    }
+    v4l2_buffer b{};
+    b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+    b.memory = V4L2_MEMORY_MMAP;
+    b.index = index;
+    b.bytesused = size_;
+    b.field = V4L2_FIELD_NONE;
+    return xioctl(node_.fd(), VIDIOC_QBUF, &b) == 0 ? 0 : errno;
+  }
+
+  void run(const std::stop_token& stop) {
+    const auto failed = [this](const char* what, int e) {
+      if (e == ENODEV) {
+        gone_.store(true);
+      } else {
+        const std::lock_guard lock(mutex_);
+        error_ = std::string(what) + ": " + std::strerror(e);
+      }
+    };
+    while (!stop.stop_requested()) {
+      pollfd p{node_.fd(), POLLOUT, 0};
+      if (::poll(&p, 1, 50) <= 0) continue;
+      v4l2_buffer b{};
+      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+      b.memory = V4L2_MEMORY_MMAP;
+      if (xioctl(node_.fd(), VIDIOC_DQBUF, &b) != 0) {
+        if (errno == EAGAIN) continue;
+        return failed("output VIDIOC_DQBUF", errno);
+      }
+      if (const int e = queue(b.index); e != 0) return failed("output VIDIOC_QBUF", e);
+    }
+  }
+
+  Node node_;
+  std::vector<std::vector<std::uint8_t>> frames_;
+  std::uint32_t frames_per_scene_;
+  std::uint32_t stride_ = 0;
+  std::uint32_t size_ = 0;
+  std::vector<Buffer> buffers_;
+  std::atomic<std::uint32_t> next_{0};
+  std::atomic<bool> gone_{false};
+  mutable std::mutex mutex_;
+  std::vector<Run> runs_;  // under mutex_
+  std::string error_;      // under mutex_
+  std::jthread thread_;
+};
+
+}  // namespace markerd::hil
