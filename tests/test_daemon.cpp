@@ -9,6 +9,10 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
+#include <fcntl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -306,6 +310,66 @@ TEST_F(DaemonTest, ReopeningTheLogAfterARenameStartsANewFile) {
   const auto record = nlohmann::json::parse(rotated.substr(0, rotated.find('\n')));
   EXPECT_TRUE(record["rig"].is_null());
   EXPECT_TRUE(record["truth"].is_null());
+}
+
+// The markerd binary's --check-config, what systemd's ExecStartPre runs:
+// exit 0 and a summary for a good file, 1 and the file:line:key for a bad one.
+struct Outcome {
+  int code = -1;
+  std::string out, err;
+};
+
+Outcome run_markerd(const fs::path& dir, const std::vector<std::string>& args) {
+  const fs::path out_path = dir / ".stdout", err_path = dir / ".stderr";
+  const pid_t pid = fork();
+  if (pid == 0) {
+    const int out = open(out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    const int err = open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    if (out < 0 || err < 0 || dup2(out, 1) < 0 || dup2(err, 2) < 0) _exit(126);
+    std::string program = MARKERD_PATH;
+    std::vector<std::string> copies = args;
+    std::vector<char*> argv{program.data()};
+    for (auto& a : copies) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    execv(program.c_str(), argv.data());
+    _exit(127);
+  }
+  Outcome r;
+  int status = 0;
+  while (waitpid(pid, &status, 0) < 0) {
+  }
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  r.out = read_file(out_path);
+  r.err = read_file(err_path);
+  return r;
+}
+
+TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
+  const fs::path path = dir_ / "markerd.toml";
+  write_file(path, base_config());
+  const Outcome good = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  EXPECT_EQ(good.code, 0) << good.err;
+  EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165", 0), 0U) << good.out;
+
+  std::string text = base_config();
+  text.replace(text.find("fps = 30"), 8, "fps = -1");
+  write_file(path, text);
+  const Outcome bad = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  EXPECT_EQ(bad.code, 1);
+  EXPECT_NE(bad.err.find(path.string() + ":"), std::string::npos) << bad.err;
+  EXPECT_NE(bad.err.find("camera.sim.fps: must be > 0 and <= 1000, got -1"), std::string::npos) << bad.err;
+  // Nothing started: no detection log, no socket.
+  EXPECT_TRUE(fs::is_empty(dir_ / "logs"));
+  EXPECT_FALSE(fs::exists(dir_ / "control.sock"));
+
+  // Run for real with the bad file: the same error, exit 1, nothing written.
+  const Outcome start = run_markerd(dir_, {"--config", path.string()});
+  EXPECT_EQ(start.code, 1);
+  EXPECT_NE(start.err.find("camera.sim.fps: must be > 0 and <= 1000, got -1"), std::string::npos) << start.err;
+  EXPECT_TRUE(fs::is_empty(dir_ / "logs"));
+
+  const Outcome usage = run_markerd(dir_, {"--no-such-option"});
+  EXPECT_EQ(usage.code, 2);
 }
 
 }  // namespace
