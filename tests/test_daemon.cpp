@@ -52,6 +52,7 @@ class DaemonTest : public testing::Test {
            ("markerd-daemon-" + std::to_string(::getpid()) + "-" + testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_ / "logs");
+    fs::create_directories(dir_ / "state");
     // The example rig, with simulated time running 50 times faster than real
     // time, so that homing and moves take about a second.
     std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
@@ -89,6 +90,9 @@ fsync_interval_ms = 100
 
 [control]
 socket = "control.sock"
+
+[sweep]
+directory = "state"
 )",
                        MARKERD_SOURCE_DIR);
   }

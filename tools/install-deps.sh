@@ -30,6 +30,9 @@ packages=(
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd
+  # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
+  # renders SVG from the scripts the report writes; -nox leaves out X and Qt
+  gnuplot-nox
 )
 
 if [[ $(id -u) -ne 0 ]]; then

@@ -2,6 +2,7 @@
 
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
+#include "markerd/daemon/control/sweep_commands.hpp"
 #include "markerd/daemon/daemon_status.hpp"
 
 #include <fmt/format.h>
@@ -18,7 +19,80 @@ namespace {
 
 void name_this_thread(const char* name) { pthread_setname_np(pthread_self(), name); }
 
+double configured_fps(const CameraSourceSettings& source) {
+  return std::visit([](const auto& settings) { return settings.fps; }, source);
+}
+
 }  // namespace
+
+// What the sweep runner asks of the daemon around it.
+class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
+ public:
+  explicit SweepEnvironment(const Daemon& daemon) : daemon_(daemon) {
+    try {
+      config_text_ = sweep::read_text_file(daemon.config_.source);
+    } catch (const std::exception&) {
+      // A config given as text (the tests) has no file: the record keeps its name only.
+    }
+  }
+
+  [[nodiscard]] std::optional<std::string> camera_problem() const override {
+    const CaptureStatus s = daemon_.capture_loop_->status();
+    switch (s.state) {
+      case CaptureState::streaming: {
+        // A camera that stopped delivering without an error yet (the
+        // capture loop reports the stall at frame_timeout).
+        const auto age = Clock::now() - s.last_frame_time;
+        if (s.frames > 0 && age > daemon_.config_.camera.loop.frame_timeout) {
+          return fmt::format("{}: no frame for {} ms", s.source,
+                             std::chrono::duration_cast<std::chrono::milliseconds>(age).count());
+        }
+        return std::nullopt;
+      }
+      case CaptureState::opening:
+        // Starting up is no fault; opening again after a loss is.
+        if (s.failures == 0 && s.stalls == 0) return std::nullopt;
+        [[fallthrough]];
+      case CaptureState::waiting:
+        return fmt::format("{}: {}", s.source, s.last_error.empty() ? std::string(to_string(s.state)) : s.last_error);
+      case CaptureState::ended:
+      case CaptureState::stopped:
+        return fmt::format("{}: {}", s.source, to_string(s.state));
+    }
+    return std::nullopt;
+  }
+
+  [[nodiscard]] double camera_fps() const override { return configured_fps(daemon_.config_.camera.source); }
+
+  [[nodiscard]] nlohmann::json config_record() const override {
+    return {{"file", daemon_.config_.source}, {"text", config_text_}};
+  }
+
+  [[nodiscard]] nlohmann::json camera_record() const override {
+    const CameraSettings& camera = daemon_.config_.camera;
+    nlohmann::json j{{"source", daemon_.source_->name()}, {"kind", camera.source_kind}, {"fps", camera_fps()}};
+    if (camera.model) {
+      const CameraModel& m = *camera.model;
+      j["model"] = {{"file", camera.model_path.string()},
+                    {"width", m.width},
+                    {"height", m.height},
+                    {"fx", m.fx},
+                    {"fy", m.fy},
+                    {"cx", m.cx},
+                    {"cy", m.cy},
+                    {"distortion", m.dist}};
+    } else {
+      j["model"] = nullptr;
+    }
+    return j;
+  }
+
+  [[nodiscard]] std::string detection_log_path() const override { return daemon_.sink_->current_path(); }
+
+ private:
+  const Daemon& daemon_;
+  std::string config_text_;
+};
 
 std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
                                                    const std::optional<rig::RigConfig>& rig) {
@@ -77,6 +151,31 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
   control.socket_path = config_.control.socket;
   control.group = config_.control.group;
   control_ = std::make_unique<ControlServer>(control);
+
+  if (rig_) {
+    sweep::RunnerSettings runner;
+    runner.runs_directory = config_.sweep.directory / "runs";
+    runner.journal = config_.sweep.directory / "sweep-journal.json";
+    runner.software_version = MARKERD_VERSION;
+    std::error_code ec;
+    std::filesystem::create_directory(runner.runs_directory, ec);
+    if (ec) {
+      throw ConfigError(fmt::format("{}: sweep.directory: cannot create {}: {}", config_.source,
+                                    runner.runs_directory.string(), ec.message()));
+    }
+    sweep_environment_ = std::make_unique<SweepEnvironment>(*this);
+    sweep_ = std::make_unique<sweep::SweepRunner>(*rig_, *config_.rig, *sweep_environment_, std::move(runner));
+    sink_->set_frame_observer([runner = sweep_.get()](const FrameRecordInput& frame) {
+      sweep::FrameObservation o;
+      o.capture_time = frame.capture_time;
+      o.sequence = frame.sequence;
+      o.readable = frame.status == FrameStatus::ok;
+      o.rig = frame.rig;
+      o.truth = frame.truth;
+      o.detections = frame.detections;
+      runner->observe(o);
+    });
+  }
   register_commands();
 }
 
@@ -96,6 +195,7 @@ void Daemon::register_commands() {
       "the cameras this machine has, through V4L2 and libcamera: formats, sizes, intervals, controls");
   control_->register_stream(*detections_, "follow the detection log live: one JSON line per frame");
   if (rig_) register_rig_commands(*control_, *rig_);
+  if (sweep_) register_sweep_commands(*control_, *sweep_);
 }
 
 Daemon::~Daemon() { stop(); }
@@ -106,12 +206,22 @@ void Daemon::start() {
     name_this_thread("markerd-capture");
     capture_loop_->run(stop);
   });
+  if (sweep_) {
+    // A journal that cannot be read is reported, not fatal: markerd keeps
+    // serving, and the operator decides what becomes of that run.
+    try {
+      sweep_->resume_from_journal();
+    } catch (const std::exception& e) {
+      spdlog::error("sweep: the interrupted run cannot be resumed: {}", e.what());
+    }
+  }
 }
 
 void Daemon::stop() {
   if (stopped_) return;
   stopped_ = true;
   control_->stop();
+  if (sweep_) sweep_->stop();  // the run stays in the journal, to be resumed
   if (capture_thread_.joinable()) {
     capture_thread_.request_stop();
     capture_thread_.join();
@@ -164,6 +274,13 @@ std::string Daemon::status_line() const {
     const rig::RigSnapshot s = rig_->snapshot();
     line += fmt::format("; rig: rail {:.1f} mm ({}), turntable {:.2f} deg ({})", s.rail.position,
                         rig::to_string(s.rail.state), s.turntable.position, rig::to_string(s.turntable.state));
+  }
+  if (sweep_) {
+    const sweep::SweepProgress run = sweep_->progress();
+    if (run.state != sweep::RunState::idle) {
+      line += fmt::format("; sweep {}: {}, step {}/{}", run.run_id, sweep::to_string(run.state), run.steps_done,
+                          run.steps_total);
+    }
   }
   // One line: systemd's notification protocol separates assignments by newlines.
   std::replace(line.begin(), line.end(), '\n', ' ');

@@ -194,10 +194,21 @@ ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& d
   return c;
 }
 
+SweepSettings parse_sweep(const ConfigTable& t, const std::filesystem::path& dir) {
+  t.allow_only({"directory"});
+  SweepSettings s;
+  if (auto d = t.maybe<std::string>("directory")) {
+    s.directory = resolve(dir, *d);
+  } else {
+    s.directory = from_environment("STATE_DIRECTORY", "/var/lib/markerd");
+  }
+  return s;
+}
+
 }  // namespace
 
 DaemonConfig parse_daemon_config(const ConfigTable& root) {
-  root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "rig"});
+  root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "sweep", "rig"});
   DaemonConfig config;
   config.source = root.source();
   config.config_dir = std::filesystem::path(root.source()).parent_path();
@@ -218,6 +229,7 @@ DaemonConfig parse_daemon_config(const ConfigTable& root) {
   if (auto t = root.maybe_table("pipeline")) config.pipeline = parse_pipeline(*t);
   config.log = parse_log(root.maybe_table("log").value_or(ConfigTable::parse("", root.source())), dir);
   config.control = parse_control(root.maybe_table("control").value_or(ConfigTable::parse("", root.source())), dir);
+  config.sweep = parse_sweep(root.maybe_table("sweep").value_or(ConfigTable::parse("", root.source())), dir);
   return config;
 }
 

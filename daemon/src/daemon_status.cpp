@@ -84,6 +84,7 @@ nlohmann::json status_json(const Daemon& daemon) {
   log["file"] = daemon.log().current_path();
   j["log"] = std::move(log);
   j["rig"] = daemon.rig() != nullptr ? rig_status_json(*daemon.rig()) : nlohmann::json();
+  j["sweep"] = daemon.sweep() != nullptr ? sweep::to_json(daemon.sweep()->progress()) : nlohmann::json();
   j["control"] = {{"socket", daemon.control().settings().socket_path.string()},
                   {"clients", daemon.control().stats().clients}};
   j["status"] = daemon.status_line();

@@ -50,6 +50,7 @@ void DetectionLogSink::write(const Frame& frame) {
     lines_lost_.fetch_add(1, std::memory_order_relaxed);
     report(e);
   }
+  if (frame_observer_) frame_observer_(in);
   note_path_if_changed();  // rotated
 }
 

@@ -97,10 +97,13 @@ int main(int argc, char** argv) {
   markerctl::add_rig_command(app, commands);
   markerctl::add_cameras_command(app, commands);
   markerctl::add_daemon_commands(app, commands);
+  markerctl::add_report_command(app, commands);
 
   if (argc <= 1) {
     std::cerr << app.help();
-    print_error("", "no command given (marker, render, detect, evaluate, rig, cameras, status, detections or call)");
+    print_error("",
+                "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call or "
+                "report)");
     return markerctl::exit_usage;
   }
   try {

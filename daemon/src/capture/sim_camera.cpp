@@ -80,12 +80,19 @@ CaptureGeometry SimCamera::geometry() const {
 }
 
 void SimCamera::open() {
+  if (unplugged_.load(std::memory_order_relaxed)) {
+    throw CaptureError(CaptureError::Kind::not_found, name_ + ": unplugged (simulated)");
+  }
   open_ = true;
   next_frame_ = std::chrono::steady_clock::now();
 }
 
 bool SimCamera::wait_frame(std::chrono::milliseconds timeout) {
   if (!open_) throw CaptureError(CaptureError::Kind::io, name_ + ": not open");
+  if (unplugged_.load(std::memory_order_relaxed)) {
+    open_ = false;
+    throw CaptureError(CaptureError::Kind::vanished, name_ + ": unplugged (simulated)");
+  }
   const auto now = std::chrono::steady_clock::now();
   if (next_frame_ > now + timeout) {
     std::this_thread::sleep_for(timeout);

@@ -18,6 +18,7 @@
 #include "markerd/daemon/detection_log_sink.hpp"
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/rig/rig.hpp"
+#include "markerd/sweep/runner.hpp"
 
 namespace markerd::daemon {
 
@@ -37,7 +38,8 @@ class Daemon {
   Daemon& operator=(const Daemon&) = delete;
 
   // Opens the control socket (ControlSocketError when it cannot: another
-  // markerd on it, a missing group) and starts the capture thread.
+  // markerd on it, a missing group), starts the capture thread, and resumes
+  // the sweep the journal names, if one was cut off.
   void start();
   // Closes the control socket, stops capture, detects and logs what is in
   // flight (by the pipeline's policy), stops the axes and disables them, and
@@ -58,14 +60,19 @@ class Daemon {
   [[nodiscard]] const rig::Rig* rig() const { return rig_.get(); }
   [[nodiscard]] const CaptureLoop& capture() const { return *capture_loop_; }
   [[nodiscard]] const CaptureSource& source() const { return *source_; }
+  [[nodiscard]] CaptureSource& source() { return *source_; }  // fault injection (the tests)
   [[nodiscard]] const Pipeline& pipeline() const { return *pipeline_; }
   [[nodiscard]] DetectionLogSink& log() { return *sink_; }
   [[nodiscard]] const DetectionLogSink& log() const { return *sink_; }
   [[nodiscard]] const ControlServer& control() const { return *control_; }
+  // The sweep runner; null without a rig.
+  [[nodiscard]] sweep::SweepRunner* sweep() { return sweep_.get(); }
+  [[nodiscard]] const sweep::SweepRunner* sweep() const { return sweep_.get(); }
 
  private:
   void stop_motion() noexcept;
   void register_commands();
+  class SweepEnvironment;
 
   DaemonConfig config_;
   std::unique_ptr<rig::Rig> rig_;
@@ -76,6 +83,8 @@ class Daemon {
   // The detection log's lines, as `markerctl detections` follows them.
   std::unique_ptr<LineBroadcast> detections_;
   std::unique_ptr<ControlServer> control_;
+  std::unique_ptr<SweepEnvironment> sweep_environment_;
+  std::unique_ptr<sweep::SweepRunner> sweep_;  // after everything it uses
   std::jthread capture_thread_;
   bool stopped_ = false;
 };

@@ -63,6 +63,11 @@ struct ControlConfig {
   std::string group;  // empty: the daemon's own group
 };
 
+// [sweep]: where runs keep their records and the journal that resumes them.
+struct SweepSettings {
+  std::filesystem::path directory;  // runs/ and the journal live here; must exist
+};
+
 struct DaemonConfig {
   std::string source;                // the file it was read from
   std::filesystem::path config_dir;  // relative paths are relative to it
@@ -72,13 +77,14 @@ struct DaemonConfig {
   PipelineConfig pipeline;
   LogSettings log;
   ControlConfig control;
+  SweepSettings sweep;
   std::optional<rig::RigConfig> rig;  // absent: a daemon that only watches
 };
 
 // Reads and checks the whole file. ConfigError on any mistake. Directories
 // left unset default to systemd's LOGS_DIRECTORY and RUNTIME_DIRECTORY when
-// set (the unit's LogsDirectory=, RuntimeDirectory=), else /var/log/markerd
-// and /run/markerd.
+// set (the unit's LogsDirectory=, RuntimeDirectory=, StateDirectory=), else
+// /var/log/markerd, /run/markerd and /var/lib/markerd.
 DaemonConfig load_daemon_config(const std::filesystem::path& path);
 DaemonConfig parse_daemon_config(const ConfigTable& root);
 

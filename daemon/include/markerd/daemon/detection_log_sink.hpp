@@ -41,6 +41,13 @@ class DetectionLogSink final : public FrameSink {
   // pipeline starts.
   void set_line_observer(std::function<void(std::string_view line)> observer) { observer_ = std::move(observer); }
 
+  // Called with every frame outcome after its line was appended (the sweep
+  // runner collects its frames here), on the log stage's thread; must be
+  // brief and must not block. Set before the pipeline starts.
+  void set_frame_observer(std::function<void(const FrameRecordInput& frame)> observer) {
+    frame_observer_ = std::move(observer);
+  }
+
   void write(const Frame& frame) override;
   [[nodiscard]] std::chrono::milliseconds idle_period() const override { return std::chrono::milliseconds(100); }
   void idle() override;
@@ -67,6 +74,7 @@ class DetectionLogSink final : public FrameSink {
   std::vector<std::string> source_names_;
   std::optional<rig::RigGeometry> geometry_;
   std::function<void(std::string_view)> observer_;
+  std::function<void(const FrameRecordInput&)> frame_observer_;
   std::atomic<bool> reopen_requested_{false};
   std::atomic<std::uint64_t> lines_lost_{0};
   std::uint64_t files_opened_seen_ = 0;

@@ -92,6 +92,9 @@ class Axis {
 
   [[nodiscard]] const AxisSettings& settings() const { return settings_; }
   [[nodiscard]] const Drive& drive() const { return *drive_; }
+  // For fault injection into a simulated drive (SimDrive's inject_* are
+  // thread-safe); commands go through the axis, never straight to the drive.
+  [[nodiscard]] Drive& drive() { return *drive_; }
 
   void enable();
   void disable();

@@ -13,6 +13,7 @@
 // while an axis moves every frame is a new render (tens of milliseconds at
 // 640x480, more with supersampling), and the frame rate drops accordingly.
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <memory>
@@ -71,6 +72,11 @@ class SimCamera final : public CaptureSource {
   void fill(Frame& frame) override;
   void skip() noexcept override;
 
+  // Fault injection, from any thread: an unplugged camera vanishes at its
+  // next frame (CaptureError vanished) and cannot be opened (not_found)
+  // until it is plugged in again, as a USB camera pulled from its socket.
+  void set_unplugged(bool unplugged) noexcept { unplugged_.store(unplugged, std::memory_order_relaxed); }
+
   // Renders so far (one per distinct pair of positions shown).
   [[nodiscard]] std::uint64_t renders() const noexcept { return renders_; }
 
@@ -84,6 +90,7 @@ class SimCamera final : public CaptureSource {
   std::chrono::steady_clock::duration period_{};
 
   bool open_ = false;
+  std::atomic<bool> unplugged_{false};
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 

@@ -1,0 +1,449 @@
+#include "markerd/sweep/records.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <fmt/format.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+#include <system_error>
+#include <utility>
+
+namespace markerd::sweep {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr const char* kStartFile = "start.json";
+constexpr const char* kPlanFile = "plan.toml";
+constexpr const char* kPointsFile = "points.jsonl";
+constexpr const char* kEventsFile = "events.jsonl";
+constexpr const char* kStopFile = "stop.json";
+
+[[noreturn]] void fail(const fs::path& path, std::string_view action, int error) {
+  throw std::runtime_error(
+      fmt::format("sweep records {}: cannot {}: {}", path.string(), action, std::generic_category().message(error)));
+}
+
+// UTC with milliseconds, "2026-12-01T06:15:00.123Z": sortable, and what
+// every tool reads.
+std::string to_iso(std::chrono::system_clock::time_point t) {
+  using namespace std::chrono;
+  const auto ms = floor<milliseconds>(t);
+  const auto day = floor<days>(ms);
+  const year_month_day date{day};
+  const hh_mm_ss time{ms - day};
+  return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", static_cast<int>(date.year()),
+                     static_cast<unsigned>(date.month()), static_cast<unsigned>(date.day()), time.hours().count(),
+                     time.minutes().count(), time.seconds().count(), time.subseconds().count());
+}
+
+std::chrono::system_clock::time_point from_iso(const std::string& text) {
+  using namespace std::chrono;
+  int y = 0;
+  unsigned mo = 0, d = 0, h = 0, mi = 0, s = 0, ms = 0;
+  char z = 0;
+  if (std::sscanf(text.c_str(), "%d-%u-%uT%u:%u:%u.%3u%c", &y, &mo, &d, &h, &mi, &s, &ms, &z) != 8 || z != 'Z') {
+    throw std::runtime_error(fmt::format("not a UTC time of the form 2026-12-01T06:15:00.123Z: \"{}\"", text));
+  }
+  const year_month_day date{year{y}, month{mo}, day{d}};
+  if (!date.ok()) throw std::runtime_error(fmt::format("not a date: \"{}\"", text));
+  return sys_days{date} + hours{h} + minutes{mi} + seconds{s} + milliseconds{ms};
+}
+
+// Non-finite numbers are written as null (JSON has no NaN) and read back as NaN.
+double number(const nlohmann::json& json, const char* key) {
+  const auto it = json.find(key);
+  if (it == json.end()) throw std::runtime_error(fmt::format("missing \"{}\"", key));
+  if (it->is_null()) return std::numeric_limits<double>::quiet_NaN();
+  return it->get<double>();
+}
+
+std::array<double, 3> vec3(const nlohmann::json& json, const char* key) {
+  const auto& a = json.at(key);
+  if (!a.is_array() || a.size() != 3) throw std::runtime_error(fmt::format("\"{}\" is not three numbers", key));
+  std::array<double, 3> v{};
+  for (std::size_t i = 0; i < 3; ++i) v[i] = a[i].is_null() ? std::numeric_limits<double>::quiet_NaN() : a[i].get<double>();
+  return v;
+}
+
+nlohmann::json json_vec3(const std::array<double, 3>& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
+
+void sync_directory(const fs::path& directory) {
+  const int fd = ::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) fail(directory, "open the directory to sync it", errno);
+  const int rc = ::fsync(fd);
+  const int error = errno;
+  ::close(fd);
+  if (rc != 0) fail(directory, "sync the directory", error);
+}
+
+int open_for_append(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) fail(path, "open for appending", errno);
+  return fd;
+}
+
+// A file that does not end in '\n' ends in a line a crash cut short: it is
+// cut off, so the next line starts a line of its own and the reader never
+// sees half a record. Record files are small; reading them whole is fine.
+void cut_partial_last_line(const fs::path& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return;
+  const std::string content = read_text_file(path);
+  if (content.empty() || content.back() == '\n') return;
+  const std::size_t newline = content.rfind('\n');
+  const off_t keep = newline == std::string::npos ? 0 : static_cast<off_t>(newline + 1);
+  if (::truncate(path.c_str(), keep) != 0) fail(path, "cut off its partial last line", errno);
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC);
+  if (fd < 0) fail(path, "open to sync", errno);
+  const int rc = ::fsync(fd);
+  const int error = errno;
+  ::close(fd);
+  if (rc != 0) fail(path, "sync", error);
+}
+
+// One line in one write() to a file opened O_APPEND, then synced. A write
+// that fails part way is cut back, so the file keeps only whole lines.
+void append_line(int fd, const fs::path& path, const std::string& line) {
+  struct stat before {};
+  if (::fstat(fd, &before) != 0) fail(path, "stat", errno);
+  std::size_t written = 0;
+  while (written < line.size()) {
+    const ssize_t n = ::write(fd, line.data() + written, line.size() - written);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int error = n < 0 ? errno : EIO;
+      if (written > 0) (void)::ftruncate(fd, before.st_size);
+      fail(path, "append a record", error);
+    }
+    written += static_cast<std::size_t>(n);
+  }
+  if (::fdatasync(fd) != 0) fail(path, "sync", errno);
+}
+
+// Calls `take` for every whole line of a .jsonl file; returns the number of
+// partial last lines skipped (0 or 1). A line that is whole but not a
+// record is an error naming the file and the line.
+template <class Take>
+std::size_t read_lines(const fs::path& path, Take&& take) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return 0;
+  const std::string content = read_text_file(path);
+  std::size_t begin = 0;
+  std::size_t line_number = 0;
+  while (begin < content.size()) {
+    const std::size_t end = content.find('\n', begin);
+    if (end == std::string::npos) return 1;  // cut short by a crash: not a record
+    ++line_number;
+    try {
+      take(nlohmann::json::parse(std::string_view(content).substr(begin, end - begin)));
+    } catch (const std::exception& e) {
+      throw std::runtime_error(fmt::format("{}:{}: not a record: {}", path.string(), line_number, e.what()));
+    }
+    begin = end + 1;
+  }
+  return 0;
+}
+
+void check_schema(const nlohmann::json& json) {
+  const int schema = json.value("schema", 0);
+  if (schema != kRunRecordSchema) {
+    throw std::runtime_error(fmt::format("record schema {} (this markerd reads {})", schema, kRunRecordSchema));
+  }
+}
+
+}  // namespace
+
+std::string read_text_file(const fs::path& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) fail(path, "read", errno);
+  std::string content;
+  std::array<char, 65536> chunk{};
+  for (;;) {
+    const ssize_t n = ::read(fd, chunk.data(), chunk.size());
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int error = errno;
+      ::close(fd);
+      fail(path, "read", error);
+    }
+    if (n == 0) break;
+    content.append(chunk.data(), static_cast<std::size_t>(n));
+  }
+  ::close(fd);
+  return content;
+}
+
+std::string_view to_string(ExitStatus status) {
+  switch (status) {
+    case ExitStatus::done: return "done";
+    case ExitStatus::aborted: return "aborted";
+    case ExitStatus::failed: return "failed";
+  }
+  return "?";
+}
+
+nlohmann::json to_json(const PointRecord& r) {
+  nlohmann::json frames = nlohmann::json::array();
+  for (const FrameSample& f : r.frames) {
+    nlohmann::json frame{{"seq", f.sequence}, {"detected", f.detected}, {"others", f.other_markers}};
+    if (f.has_pose) {
+      frame["tvec_m"] = json_vec3(f.tvec_m);
+      frame["rvec"] = json_vec3(f.rvec);
+      frame["reprojection_px"] = f.reprojection_error_px;
+    }
+    if (f.has_error) {
+      frame["error"] = {{"translation_mm", f.translation_error_mm},
+                        {"distance_mm", f.distance_error_mm},
+                        {"rotation_deg", f.rotation_error_deg}};
+    }
+    frames.push_back(std::move(frame));
+  }
+  return {{"schema", kRunRecordSchema},
+          {"step", r.step},
+          {"grid", r.grid},
+          {"point", r.point},
+          {"repeat", r.repeat},
+          {"distance_m", r.distance_m},
+          {"angle_deg", r.angle_deg},
+          {"rail", r.rail},
+          {"turntable", r.turntable},
+          {"truth", {{"tvec_m", json_vec3(r.truth_tvec_m)}, {"distance_m", r.truth_distance_m}, {"yaw_deg", r.truth_yaw_deg}}},
+          {"frames_corrupt", r.frames_corrupt},
+          {"started", to_iso(r.started)},
+          {"finished", to_iso(r.finished)},
+          {"frames", std::move(frames)}};
+}
+
+PointRecord point_from_json(const nlohmann::json& j) {
+  check_schema(j);
+  PointRecord r;
+  r.step = j.at("step").get<std::size_t>();
+  r.grid = j.at("grid").get<std::size_t>();
+  r.point = j.at("point").get<std::size_t>();
+  r.repeat = j.at("repeat").get<int>();
+  r.distance_m = number(j, "distance_m");
+  r.angle_deg = number(j, "angle_deg");
+  r.rail = number(j, "rail");
+  r.turntable = number(j, "turntable");
+  const auto& truth = j.at("truth");
+  r.truth_tvec_m = vec3(truth, "tvec_m");
+  r.truth_distance_m = number(truth, "distance_m");
+  r.truth_yaw_deg = number(truth, "yaw_deg");
+  r.frames_corrupt = j.at("frames_corrupt").get<int>();
+  r.started = from_iso(j.at("started").get<std::string>());
+  r.finished = from_iso(j.at("finished").get<std::string>());
+  for (const auto& f : j.at("frames")) {
+    FrameSample s;
+    s.sequence = f.at("seq").get<std::uint64_t>();
+    s.detected = f.at("detected").get<bool>();
+    s.other_markers = f.at("others").get<int>();
+    if (f.contains("tvec_m")) {
+      s.has_pose = true;
+      s.tvec_m = vec3(f, "tvec_m");
+      s.rvec = vec3(f, "rvec");
+      s.reprojection_error_px = number(f, "reprojection_px");
+    }
+    if (const auto e = f.find("error"); e != f.end()) {
+      s.has_error = true;
+      s.translation_error_mm = number(*e, "translation_mm");
+      s.distance_error_mm = number(*e, "distance_mm");
+      s.rotation_error_deg = number(*e, "rotation_deg");
+    }
+    r.frames.push_back(s);
+  }
+  return r;
+}
+
+nlohmann::json to_json(const RunStart& s) {
+  return {{"schema", kRunRecordSchema},
+          {"run_id", s.run_id},
+          {"time", to_iso(s.time)},
+          {"software_version", s.software_version},
+          {"hostname", s.hostname},
+          {"plan", {{"source", s.plan.source}, {"name", s.plan.name}, {"text", s.plan.text}}},
+          {"steps", s.steps},
+          {"config", s.config},
+          {"camera", s.camera},
+          {"rig", s.rig},
+          {"detection_log", s.detection_log}};
+}
+
+RunStart start_from_json(const nlohmann::json& j) {
+  check_schema(j);
+  RunStart s;
+  s.run_id = j.at("run_id").get<std::string>();
+  s.time = from_iso(j.at("time").get<std::string>());
+  s.software_version = j.value("software_version", "");
+  s.hostname = j.value("hostname", "");
+  const auto& plan = j.at("plan");
+  // The plan as it ran, from its own text: the record holds what was read,
+  // not this markerd's idea of it.
+  s.plan = parse_plan(plan.at("text").get<std::string>(), plan.value("source", "<run record>"));
+  s.steps = j.at("steps").get<std::size_t>();
+  s.config = j.value("config", nlohmann::json::object());
+  s.camera = j.value("camera", nlohmann::json::object());
+  s.rig = j.value("rig", nlohmann::json::object());
+  s.detection_log = j.value("detection_log", "");
+  return s;
+}
+
+nlohmann::json to_json(const RunEvent& e) {
+  return {{"schema", kRunRecordSchema}, {"time", to_iso(e.time)}, {"event", e.kind}, {"reason", e.reason}, {"step", e.step}};
+}
+
+RunEvent event_from_json(const nlohmann::json& j) {
+  check_schema(j);
+  RunEvent e;
+  e.time = from_iso(j.at("time").get<std::string>());
+  e.kind = j.at("event").get<std::string>();
+  e.reason = j.value("reason", "");
+  e.step = j.value("step", std::size_t{0});
+  return e;
+}
+
+nlohmann::json to_json(const RunStop& s) {
+  return {{"schema", kRunRecordSchema},
+          {"time", to_iso(s.time)},
+          {"exit_status", to_string(s.status)},
+          {"reason", s.reason},
+          {"steps_done", s.steps_done}};
+}
+
+RunStop stop_from_json(const nlohmann::json& j) {
+  check_schema(j);
+  RunStop s;
+  s.time = from_iso(j.at("time").get<std::string>());
+  const std::string status = j.at("exit_status").get<std::string>();
+  if (status == "done") s.status = ExitStatus::done;
+  else if (status == "aborted") s.status = ExitStatus::aborted;
+  else if (status == "failed") s.status = ExitStatus::failed;
+  else throw std::runtime_error(fmt::format("unknown exit_status \"{}\"", status));
+  s.reason = j.value("reason", "");
+  s.steps_done = j.value("steps_done", std::size_t{0});
+  return s;
+}
+
+RunRecords read_run(const fs::path& directory) {
+  RunRecords records;
+  records.directory = directory;
+  const fs::path start_path = directory / kStartFile;
+  std::error_code ec;
+  if (!fs::is_directory(directory, ec)) {
+    throw std::runtime_error(fmt::format("sweep run {}: not a directory", directory.string()));
+  }
+  if (!fs::exists(start_path, ec)) {
+    throw std::runtime_error(fmt::format("sweep run {}: no {} (not a run directory?)", directory.string(), kStartFile));
+  }
+  try {
+    records.start = start_from_json(nlohmann::json::parse(read_text_file(start_path)));
+  } catch (const std::exception& e) {
+    throw std::runtime_error(fmt::format("{}: {}", start_path.string(), e.what()));
+  }
+  records.torn_lines += read_lines(directory / kPointsFile,
+                                   [&](const nlohmann::json& j) { records.points.push_back(point_from_json(j)); });
+  records.torn_lines += read_lines(directory / kEventsFile,
+                                   [&](const nlohmann::json& j) { records.events.push_back(event_from_json(j)); });
+  const fs::path stop_path = directory / kStopFile;
+  if (fs::exists(stop_path, ec)) {
+    try {
+      records.stop = stop_from_json(nlohmann::json::parse(read_text_file(stop_path)));
+    } catch (const std::exception& e) {
+      throw std::runtime_error(fmt::format("{}: {}", stop_path.string(), e.what()));
+    }
+  }
+  return records;
+}
+
+void write_file_atomically(const fs::path& path, std::string_view text) {
+  const fs::path temporary = fs::path(path).concat(".tmp");
+  const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) fail(temporary, "create", errno);
+  std::size_t written = 0;
+  while (written < text.size()) {
+    const ssize_t n = ::write(fd, text.data() + written, text.size() - written);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int error = n < 0 ? errno : EIO;
+      ::close(fd);
+      fail(temporary, "write", error);
+    }
+    written += static_cast<std::size_t>(n);
+  }
+  if (::fsync(fd) != 0) {
+    const int error = errno;
+    ::close(fd);
+    fail(temporary, "sync", error);
+  }
+  ::close(fd);
+  if (::rename(temporary.c_str(), path.c_str()) != 0) fail(path, "rename into place", errno);
+  sync_directory(path.has_parent_path() ? path.parent_path() : fs::path("."));
+}
+
+RunRecorder RunRecorder::create(const fs::path& directory, const RunStart& start) {
+  if (::mkdir(directory.c_str(), 0755) != 0) fail(directory, "create the run directory", errno);
+  sync_directory(directory.has_parent_path() ? directory.parent_path() : fs::path("."));
+  write_file_atomically(directory / kPlanFile, start.plan.text);
+  // start.json last: a directory with it is a run, whatever else is there.
+  write_file_atomically(directory / kStartFile, to_json(start).dump(2) + "\n");
+  return resume(directory);
+}
+
+RunRecorder RunRecorder::resume(const fs::path& directory) {
+  RunRecorder recorder;
+  recorder.directory_ = directory;
+  cut_partial_last_line(directory / kPointsFile);
+  cut_partial_last_line(directory / kEventsFile);
+  recorder.points_fd_ = open_for_append(directory / kPointsFile);
+  recorder.events_fd_ = open_for_append(directory / kEventsFile);
+  sync_directory(directory);  // the two files' names are on disk
+  return recorder;
+}
+
+RunRecorder::RunRecorder(RunRecorder&& other) noexcept
+    : directory_(std::move(other.directory_)),
+      points_fd_(std::exchange(other.points_fd_, -1)),
+      events_fd_(std::exchange(other.events_fd_, -1)) {}
+
+RunRecorder& RunRecorder::operator=(RunRecorder&& other) noexcept {
+  if (this != &other) {
+    if (points_fd_ >= 0) ::close(points_fd_);
+    if (events_fd_ >= 0) ::close(events_fd_);
+    directory_ = std::move(other.directory_);
+    points_fd_ = std::exchange(other.points_fd_, -1);
+    events_fd_ = std::exchange(other.events_fd_, -1);
+  }
+  return *this;
+}
+
+RunRecorder::~RunRecorder() {
+  if (points_fd_ >= 0) ::close(points_fd_);
+  if (events_fd_ >= 0) ::close(events_fd_);
+}
+
+void RunRecorder::append_point(const PointRecord& record) {
+  if (points_fd_ < 0) throw std::logic_error("sweep records: the run is finished");
+  append_line(points_fd_, directory_ / kPointsFile, to_json(record).dump() + "\n");
+}
+
+void RunRecorder::append_event(const RunEvent& event) {
+  if (events_fd_ < 0) throw std::logic_error("sweep records: the run is finished");
+  append_line(events_fd_, directory_ / kEventsFile, to_json(event).dump() + "\n");
+}
+
+void RunRecorder::finish(const RunStop& stop) {
+  write_file_atomically(directory_ / kStopFile, to_json(stop).dump(2) + "\n");
+  if (points_fd_ >= 0) ::close(std::exchange(points_fd_, -1));
+  if (events_fd_ >= 0) ::close(std::exchange(events_fd_, -1));
+}
+
+}  // namespace markerd::sweep

@@ -1,0 +1,337 @@
+// Sweeps in markerd, in-process, on the simulated rig and camera: a whole
+// sweep against the simulated ground truth; pause, resume and abort; a camera
+// unplugged and a drive alarm in the middle of a run, which suspend it and
+// from which it resumes by itself; a run that is cut off and resumed from its
+// journal by the next daemon.
+
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include "markerd/daemon/capture/sim_camera.hpp"
+#include "markerd/daemon/daemon.hpp"
+#include "markerd/daemon/daemon_config.hpp"
+#include "markerd/rig/sim_drive.hpp"
+#include "markerd/sweep/records.hpp"
+#include "markerd/sweep/runner.hpp"
+
+namespace markerd {
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+using daemon::Daemon;
+using sweep::RunState;
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void write_file(const fs::path& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+}
+
+// Four points on the rail at angle 0, then two angles at 0.5 m; two
+// measurements of four frames each.
+constexpr const char* kPlan = R"(name = "small"
+frames_per_point = 4
+repeats = 2
+settle_s = 0.1
+point_timeout_s = 20
+detection_threshold = 0.9
+fault_timeout_s = 60
+
+[marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[[grid]]
+name = "distance"
+distance_m = [0.4, 0.7, 1.0, 1.3]
+angle_deg = [0.0]
+
+[[grid]]
+name = "angle"
+distance_m = [0.5]
+angle_deg = { from = 20, to = 40, step = 20 }
+)";
+
+class SweepRunTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("markerd-sweep-" + std::to_string(::getpid()) + "-" +
+                                        testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_ / "logs");
+    fs::create_directories(dir_ / "state");
+    // The example rig with simulated time 100 times faster than real time:
+    // homing and the longest move take well under a second.
+    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
+    const std::string scale = "time_scale = 1.0";
+    rig.replace(rig.find(scale), scale.size(), "time_scale = 100.0");
+    write_file(dir_ / "rig.toml", rig);
+    write_file(dir_ / "markerd.toml", fmt::format(R"(rig = "rig.toml"
+
+[marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[camera]
+source = "sim"
+model = "{}/config/cameras/thesis-640x480.yaml"
+frame_timeout_ms = 500
+reopen_delay_ms = 100
+reopen_max_delay_ms = 200
+
+[camera.sim]
+fps = 30
+noise_sigma = 2.0
+supersample = 2
+
+[pipeline]
+policy = "lossless"
+
+[log]
+directory = "logs"
+fsync = "never"
+
+[control]
+socket = "control.sock"
+
+[sweep]
+directory = "state"
+)",
+                                                  MARKERD_SOURCE_DIR));
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::unique_ptr<Daemon> make_daemon() {
+    auto d = std::make_unique<Daemon>(daemon::load_daemon_config(dir_ / "markerd.toml"));
+    d->start();
+    return d;
+  }
+
+  static sweep::SweepRunner& runner(Daemon& d) {
+    EXPECT_NE(d.sweep(), nullptr);
+    return *d.sweep();
+  }
+
+  // Waits until `predicate` holds, or fails the test after `timeout`.
+  template <class Predicate>
+  static bool eventually(Predicate predicate, std::chrono::milliseconds timeout = 30s) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+      if (predicate()) return true;
+      std::this_thread::sleep_for(10ms);
+    }
+    return predicate();
+  }
+
+  static void expect_axes_stopped_and_disabled(Daemon& d) {
+    const rig::RigSnapshot s = d.rig()->snapshot();
+    EXPECT_EQ(s.rail.state, rig::AxisState::disabled);
+    EXPECT_EQ(s.turntable.state, rig::AxisState::disabled);
+    EXPECT_FALSE(s.rail.moving);
+    EXPECT_FALSE(s.turntable.moving);
+  }
+
+  // Every step recorded once, in order.
+  static void expect_every_step_once(const sweep::RunRecords& records) {
+    ASSERT_EQ(records.points.size(), records.start.steps);
+    for (std::size_t i = 0; i < records.points.size(); ++i) EXPECT_EQ(records.points[i].step, i);
+    EXPECT_EQ(records.torn_lines, 0U);
+  }
+
+  static std::size_t count_events(const sweep::RunRecords& records, std::string_view kind) {
+    std::size_t n = 0;
+    for (const auto& e : records.events) n += e.kind == kind ? 1 : 0;
+    return n;
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(SweepRunTest, ASimulatedSweepMeasuresTheGroundTruth) {
+  auto d = make_daemon();
+  const fs::path run = runner(*d).start(sweep::parse_plan(kPlan, "small.toml"));
+  EXPECT_EQ(runner(*d).wait_finished(120s), RunState::done) << runner(*d).progress().reason;
+  expect_axes_stopped_and_disabled(*d);
+
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::done);
+  EXPECT_EQ(records.start.plan.name, "small");
+  EXPECT_EQ(records.start.rig["rail"]["units_per_step"], 0.025);
+  EXPECT_EQ(records.start.camera["model"]["width"], 640);
+  for (const sweep::PointRecord& p : records.points) {
+    SCOPED_TRACE(fmt::format("step {} at {} m, {} deg", p.step, p.distance_m, p.angle_deg));
+    // The rig stood where the plan asked, and the truth says so.
+    EXPECT_NEAR(p.truth_distance_m, p.distance_m, 1e-6);
+    EXPECT_NEAR(p.truth_yaw_deg, p.angle_deg, 1e-6);
+    ASSERT_EQ(p.frames.size(), 4U);
+    double distance_error_sum_mm = 0;
+    for (const sweep::FrameSample& f : p.frames) {
+      EXPECT_TRUE(f.detected);
+      ASSERT_TRUE(f.has_error);
+      // Single noisy frames: the distance within 1.5%, the rotation of a
+      // facing marker (weakly determined: its flip ambiguity) within 5 deg.
+      EXPECT_LT(std::abs(f.distance_error_mm), 15 * p.distance_m);
+      EXPECT_LT(f.rotation_error_deg, 5.0);
+      distance_error_sum_mm += f.distance_error_mm;
+    }
+    // A measurement, the mean of its frames: within 1% of the distance.
+    EXPECT_LT(std::abs(distance_error_sum_mm / 4), 10 * p.distance_m);
+  }
+  EXPECT_EQ(count_events(records, "started"), 1U);
+  EXPECT_EQ(count_events(records, "suspended"), 0U);
+  EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
+}
+
+TEST_F(SweepRunTest, PauseHoldsTheRunAndAbortLeavesTheAxesDisabled) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 2; }));
+  r.pause();
+  ASSERT_TRUE(eventually([&] { return r.progress().state == RunState::paused; }));
+  const std::size_t held = r.progress().steps_done;
+  std::this_thread::sleep_for(1s);
+  EXPECT_EQ(r.progress().steps_done, held);  // nothing recorded while paused
+  const rig::RigSnapshot s = d->rig()->snapshot();
+  EXPECT_FALSE(s.rail.moving);
+  EXPECT_FALSE(s.turntable.moving);
+  EXPECT_THROW(r.pause(), sweep::SweepError);
+  EXPECT_THROW(r.start(sweep::parse_plan(kPlan, "again.toml")), sweep::SweepError);
+
+  r.resume();
+  ASSERT_TRUE(eventually([&] { return r.progress().steps_done > held; }));
+  r.abort("the operator needs the rig");
+  EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
+  expect_axes_stopped_and_disabled(*d);
+
+  const sweep::RunRecords records = sweep::read_run(run);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::aborted);
+  EXPECT_EQ(records.stop->reason, "the operator needs the rig");
+  EXPECT_EQ(records.stop->steps_done, records.points.size());
+  EXPECT_EQ(count_events(records, "paused"), 1U);
+  EXPECT_EQ(count_events(records, "resumed"), 1U);
+  for (std::size_t i = 0; i < records.points.size(); ++i) EXPECT_EQ(records.points[i].step, i);
+  EXPECT_THROW(r.resume(), sweep::SweepError);
+}
+
+TEST_F(SweepRunTest, ACameraUnpluggedMidRunSuspendsItAndItCompletesWhenTheCameraIsBack) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  auto* camera = dynamic_cast<daemon::SimCamera*>(&d->source());
+  ASSERT_NE(camera, nullptr);
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 3; }));
+  camera->set_unplugged(true);
+  ASSERT_TRUE(eventually([&] { return r.progress().state == RunState::suspended; }, 10s));
+  EXPECT_NE(r.progress().reason.find("camera"), std::string::npos) << r.progress().reason;
+  const std::size_t held = r.progress().steps_done;
+  std::this_thread::sleep_for(1s);
+  EXPECT_EQ(r.progress().state, RunState::suspended);
+  EXPECT_EQ(r.progress().steps_done, held);
+  camera->set_unplugged(false);
+  EXPECT_EQ(r.wait_finished(120s), RunState::done) << r.progress().reason;
+
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  ASSERT_GE(count_events(records, "suspended"), 1U);
+  EXPECT_GE(count_events(records, "fault_cleared"), 1U);
+  bool named = false;
+  for (const auto& e : records.events) named |= e.kind == "suspended" && e.reason.find("unplugged") != std::string::npos;
+  EXPECT_TRUE(named) << "the suspension's record names the cause";
+  for (const auto& p : records.points) {
+    for (const auto& f : p.frames) EXPECT_TRUE(f.detected) << "step " << p.step;
+  }
+}
+
+TEST_F(SweepRunTest, ADriveAlarmMidRunSuspendsItAndItCompletesOnceTheAlarmIsReset) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  auto* rail = dynamic_cast<rig::SimDrive*>(&d->rig()->rail().drive());
+  ASSERT_NE(rail, nullptr);
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 3; }));
+  rail->inject_alarm_at(0, "overcurrent (simulated)");  // in the past: at once
+  ASSERT_TRUE(eventually([&] { return r.progress().state == RunState::suspended; }, 10s));
+  EXPECT_NE(r.progress().reason.find("rail"), std::string::npos) << r.progress().reason;
+  // The runner resets the alarm (after fault_retry_first), homes the rail
+  // again (the open-loop stepper lost its reference) and goes on.
+  EXPECT_EQ(r.wait_finished(120s), RunState::done) << r.progress().reason;
+
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  bool named = false;
+  for (const auto& e : records.events) named |= e.kind == "suspended" && e.reason.find("overcurrent") != std::string::npos;
+  EXPECT_TRUE(named);
+  EXPECT_GE(count_events(records, "fault_cleared"), 1U);
+  for (const auto& p : records.points) EXPECT_NEAR(p.truth_distance_m, p.distance_m, 1e-6) << "step " << p.step;
+}
+
+TEST_F(SweepRunTest, ARunCutOffIsResumedByTheNextDaemonAtTheStepItWasIn) {
+  fs::path run;
+  std::size_t done_before = 0;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 3; }));
+    d->stop();  // as on SIGTERM: the journal stays
+    done_before = sweep::read_run(run).points.size();
+  }
+  ASSERT_TRUE(fs::exists(dir_ / "state/sweep-journal.json"));
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  EXPECT_EQ(r.progress().run_directory, run);
+  EXPECT_EQ(r.wait_finished(120s), RunState::done) << r.progress().reason;
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  ASSERT_GE(records.events.size(), 2U);
+  EXPECT_EQ(count_events(records, "restarted"), 1U);
+  for (const auto& e : records.events) {
+    if (e.kind == "restarted") {
+      EXPECT_EQ(e.step, done_before);
+    }
+  }
+}
+
+TEST_F(SweepRunTest, APlanBeyondTheRigsLimitsIsRefusedBeforeAnythingMoves) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  std::string plan = kPlan;
+  plan.replace(plan.find("1.3]"), 4, "3.3]");
+  try {
+    r.start(sweep::parse_plan(plan, "far.toml"));
+    FAIL() << "a point beyond the rail was accepted";
+  } catch (const sweep::SweepError& e) {
+    EXPECT_NE(std::string(e.what()).find("3.3"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("rail"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(r.progress().state, RunState::idle);
+  EXPECT_TRUE(fs::is_empty(dir_ / "state/runs"));
+  const rig::RigSnapshot s = d->rig()->snapshot();
+  EXPECT_FALSE(s.rail.moving);
+}
+
+}  // namespace
+}  // namespace markerd
