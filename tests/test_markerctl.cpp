@@ -153,6 +153,28 @@ class Markerctl : public ::testing::Test {
   fs::path dir_;
 };
 
+// ---------------------------------------------------------------- sweep check
+
+TEST_F(Markerctl, SweepCheckOfflineListsThePlanAndRefusesPointsBeyondTheRail) {
+  const std::string source = MARKERD_SOURCE_DIR;
+  const Outcome ok = run({"sweep", "check", source + "/config/plans/thesis.toml", "--config",
+                          source + "/config/markerd-sim.toml"});
+  EXPECT_EQ(ok.code, 0) << ok.describe();
+  EXPECT_NE(ok.out.find("62 points in 3 grids"), std::string::npos) << ok.describe();
+  EXPECT_NE(ok.out.find("estimated duration"), std::string::npos) << ok.describe();
+
+  // The simulated rail ends at 2.8 m from the marker.
+  std::string plan = "name = \"far\"\n[[grid]]\ndistance_m = [1.0, 3.5]\nangle_deg = [0.0]\n";
+  {
+    std::ofstream out(path("far.toml"));
+    out << plan;
+  }
+  const Outcome far = run({"sweep", "check", path("far.toml"), "--config", source + "/config/markerd-sim.toml"});
+  EXPECT_EQ(far.code, 1) << far.describe();
+  EXPECT_NE(far.out.find("3.5"), std::string::npos) << far.describe();
+  EXPECT_NE(far.out.find("max_position"), std::string::npos) << far.describe();
+}
+
 // ---------------------------------------------------------------- usage
 
 TEST_F(Markerctl, HelpListsTheCommands) {

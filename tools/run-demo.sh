@@ -1,13 +1,70 @@
 #!/usr/bin/env bash
 # The README's main job: installs the dependencies, builds, and runs the
-# end-to-end demonstration of the detector: markers rendered through the
-# thesis's camera at several distances and viewing angles, detected, and
-# summed up as tables, frame8 beside ArUco and AprilTag. Extra arguments go
-# to `markerctl evaluate`.
+# thesis's experiments unattended on the simulated rig. markerd starts with
+# the simulated camera, rail and turntable (config/markerd-sim.toml, its rig
+# time-scaled so the run takes a few minutes), markerctl starts the plan
+# config/plans/thesis.toml (the viewing-angle sweeps at 50 and 95 cm and the
+# distance sweep, five measurements per point) and follows it, and
+# markerctl report writes the report with its plots and prints Table 6.1.
+#
+#   bash tools/run-demo.sh [PLAN] [--time-scale N]
+#
+# Everything it writes is under build/demo/ (config, logs, run records,
+# report); markerd is stopped when the script ends, however it ends.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+top=$PWD
+
+plan=config/plans/thesis.toml
+time_scale=20
+while [[ $# -gt 0 ]]; do
+  case $1 in
+    --time-scale) time_scale=$2; shift 2 ;;
+    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    *) plan=$1; shift ;;
+  esac
+done
 
 bash tools/install-deps.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo
-cmake --build build -j"$(nproc)" --target markerctl
-./build/tools/markerctl evaluate --family all "$@"
+cmake --build build -j"$(nproc)" --target markerd markerctl
+
+demo=$top/build/demo
+rm -rf "$demo"
+mkdir -p "$demo/logs" "$demo/state"
+# The shipped simulated rig, with its simulated time running faster than
+# real time: moves and homing shrink, frames still come at the camera's rate.
+sed "s/^time_scale = .*/time_scale = $time_scale/" config/rig-sim.toml > "$demo/rig-sim.toml"
+grep -q "^time_scale = $time_scale" "$demo/rig-sim.toml" || { echo "run-demo: config/rig-sim.toml has no time_scale line" >&2; exit 1; }
+# config/markerd-sim.toml with this directory's rig, logs, state and socket
+# in place of systemd's directories.
+sed -e "s|^rig = .*|rig = \"rig-sim.toml\"|" \
+    -e "s|^model = \"cameras/|model = \"$top/config/cameras/|" \
+    -e "s|^group = .*||" \
+    config/markerd-sim.toml > "$demo/markerd.toml"
+cat >> "$demo/markerd.toml" <<'EOF'
+
+# run-demo.sh: the demo's own directories
+[sweep]
+directory = "state"
+EOF
+sed -i -e '/^\[log\]/a directory = "logs"' -e '/^\[control\]/a socket = "control.sock"' "$demo/markerd.toml"
+
+markerctl=$top/build/tools/markerctl
+export MARKERD_SOCKET=$demo/control.sock
+"$top/build/daemon/markerd" --config "$demo/markerd.toml" > "$demo/markerd.log" 2>&1 &
+markerd_pid=$!
+trap 'kill "$markerd_pid" 2>/dev/null; wait "$markerd_pid" 2>/dev/null || true' EXIT
+for _ in $(seq 100); do
+  [[ -S $MARKERD_SOCKET ]] && break
+  kill -0 "$markerd_pid" 2>/dev/null || { cat "$demo/markerd.log" >&2; exit 1; }
+  sleep 0.1
+done
+
+echo "== dry run"
+"$markerctl" sweep check "$plan"
+echo "== the sweep (markerd's log: $demo/markerd.log)"
+"$markerctl" sweep start --wait "$plan"
+run_dir=$(ls -d "$demo"/state/runs/*/ | tail -1)
+echo "== report"
+"$markerctl" report "$run_dir"

@@ -39,50 +39,7 @@ std::string control_socket_path(const std::string& option) {
 
 namespace {
 
-// A connection to markerd for one markerctl command: errors carry the
-// command's name ("markerctl: status: cannot connect to ...").
-class Daemon {
- public:
-  Daemon(const std::string& socket_option, std::string context) : context_(std::move(context)) {
-    try {
-      client_.emplace(control_socket_path(socket_option));
-    } catch (const ControlClientError& e) {
-      throw runtime_error(context_, e.what());
-    }
-  }
-
-  // The reply of a command that must succeed, without "id" and "ok".
-  json call(json request, std::chrono::milliseconds timeout = 10s) {
-    json reply = raw_call(std::move(request), timeout);
-    if (!reply.value("ok", false)) throw runtime_error(context_, reply.value("error", std::string("refused")));
-    reply.erase("id");
-    reply.erase("ok");
-    return reply;
-  }
-
-  // The reply as it came, whatever "ok" says.
-  json raw_call(json request, std::chrono::milliseconds timeout = 10s, std::string* line = nullptr) {
-    try {
-      return client_->call(std::move(request), timeout, line);
-    } catch (const ControlClientError& e) {
-      throw runtime_error(context_, e.what());
-    }
-  }
-
-  std::optional<std::string> read_line(std::optional<std::chrono::milliseconds> timeout) {
-    try {
-      return client_->read_line(timeout);
-    } catch (const ControlClientError& e) {
-      throw runtime_error(context_, e.what());
-    }
-  }
-
-  [[nodiscard]] const std::string& context() const { return context_; }
-
- private:
-  std::string context_;
-  std::optional<ControlClient> client_;
-};
+using Daemon = DaemonConnection;
 
 // ---------------------------------------------------------------- status
 

@@ -5,10 +5,13 @@
 
 #include <chrono>
 #include <functional>
+#include <nlohmann/json.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "common.hpp"
+#include "markerd/daemon/control/control_client.hpp"
 
 namespace markerctl {
 
@@ -17,6 +20,52 @@ void add_daemon_commands(CLI::App& parent, Commands& commands);
 // The socket markerctl talks to: --socket when given, else $MARKERD_SOCKET,
 // else /run/markerd/control.sock.
 std::string control_socket_path(const std::string& option);
+
+// A connection to markerd for one markerctl command: errors carry the
+// command's name ("markerctl: status: cannot connect to ...").
+class DaemonConnection {
+ public:
+  DaemonConnection(const std::string& socket_option, std::string context) : context_(std::move(context)) {
+    try {
+      client_.emplace(control_socket_path(socket_option));
+    } catch (const markerd::daemon::ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  // The reply of a command that must succeed, without "id" and "ok".
+  nlohmann::json call(nlohmann::json request, std::chrono::milliseconds timeout = std::chrono::seconds(10)) {
+    nlohmann::json reply = raw_call(std::move(request), timeout);
+    if (!reply.value("ok", false)) throw runtime_error(context_, reply.value("error", std::string("refused")));
+    reply.erase("id");
+    reply.erase("ok");
+    return reply;
+  }
+
+  // The reply as it came, whatever "ok" says.
+  nlohmann::json raw_call(nlohmann::json request, std::chrono::milliseconds timeout = std::chrono::seconds(10),
+                          std::string* line = nullptr) {
+    try {
+      return client_->call(std::move(request), timeout, line);
+    } catch (const markerd::daemon::ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  std::optional<std::string> read_line(std::optional<std::chrono::milliseconds> timeout) {
+    try {
+      return client_->read_line(timeout);
+    } catch (const markerd::daemon::ControlClientError& e) {
+      throw runtime_error(context_, e.what());
+    }
+  }
+
+  [[nodiscard]] const std::string& context() const { return context_; }
+
+ private:
+  std::string context_;
+  std::optional<markerd::daemon::ControlClient> client_;
+};
 
 // One axis's part of `markerctl rig move|jog` sent to markerd.
 struct DaemonRigTarget {

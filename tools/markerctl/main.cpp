@@ -97,6 +97,7 @@ int main(int argc, char** argv) {
   markerctl::add_rig_command(app, commands);
   markerctl::add_cameras_command(app, commands);
   markerctl::add_daemon_commands(app, commands);
+  markerctl::add_sweep_command(app, commands);
   markerctl::add_report_command(app, commands);
 
   if (argc <= 1) {

@@ -39,6 +39,8 @@ json check_json(const sweep::PlanCheck& check, const sweep::SweepPlan& plan) {
           {"estimated_s", check.estimated_duration.count()},
           {"problems", check.problems},
           {"fits", check.ok()},
+          {"warnings", check.warnings},
+          {"text", sweep::format_plan_check(plan, check)},
           {"point_list", std::move(steps)}};
 }
 

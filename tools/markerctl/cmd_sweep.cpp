@@ -1,0 +1,231 @@
+// markerctl sweep: plans run by markerd's sweep runner (docs/sweep.md).
+//
+//   sweep check PLAN [--config FILE]   the dry run: points, limits, estimated duration
+//   sweep start PLAN [--wait]          starts a run; --wait follows it to its end
+//   sweep status [--follow]            a progress bar, the step, the rate, the time left
+//   sweep pause | resume | abort [--reason TEXT]
+//
+// The plan file is read here and sent as text: markerd may not be allowed to
+// read where the operator keeps it, and the run's records keep the text.
+
+#include <unistd.h>
+
+#include <fmt/format.h>
+
+#include <CLI/CLI.hpp>
+#include <chrono>
+#include <cmath>
+#include <iostream>
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <thread>
+#include <variant>
+
+#include "cmd_daemon.hpp"
+#include "common.hpp"
+#include "markerd/daemon/daemon_config.hpp"
+#include "markerd/sweep/plan.hpp"
+#include "markerd/sweep/records.hpp"
+
+namespace markerctl {
+
+namespace {
+
+using nlohmann::json;
+using namespace std::chrono_literals;
+
+std::string read_plan_text(const std::string& context, const std::string& path) {
+  try {
+    return markerd::sweep::read_text_file(path);
+  } catch (const std::exception& e) {
+    throw runtime_error(context, e.what());
+  }
+}
+
+std::string duration_text(double seconds) {
+  if (!std::isfinite(seconds) || seconds < 0) return "?";
+  const auto s = static_cast<long>(std::lround(seconds));
+  if (s >= 3600) return fmt::format("{}h{:02}m", s / 3600, (s % 3600) / 60);
+  if (s >= 60) return fmt::format("{}m{:02}s", s / 60, s % 60);
+  return fmt::format("{}s", s);
+}
+
+// One line: "[#######-------------]  23/62  running  0.95 m 30.0 deg  collecting 3/6  rate 100%  about 2m10s left"
+std::string progress_line(const json& p) {
+  const auto done = p.value("steps_done", std::size_t{0});
+  const auto total = p.value("steps_total", std::size_t{0});
+  constexpr int kWidth = 24;
+  const int filled = total == 0 ? 0 : static_cast<int>(kWidth * done / total);
+  std::string line = fmt::format("[{}{}] {:>4}/{:<4} {}", std::string(static_cast<std::size_t>(filled), '#'),
+                                 std::string(static_cast<std::size_t>(kWidth - filled), '-'), done, total,
+                                 p.value("state", std::string("?")));
+  const json& step = p["step"];
+  if (step.is_object()) {
+    line += fmt::format("  {:.2f} m {:.1f} deg #{}", step.value("distance_m", 0.0), step.value("angle_deg", 0.0),
+                        step.value("repeat", 0) + 1);
+  }
+  const std::string phase = p.value("phase", std::string());
+  if (phase == "collecting") {
+    line += fmt::format("  collecting {}/{}", p.value("frames_collected", 0), p.value("frames_per_point", 0));
+  } else if (!phase.empty()) {
+    line += "  " + phase;
+  }
+  if (p["last_rate"].is_number()) line += fmt::format("  rate {:.0f}%", 100 * p["last_rate"].get<double>());
+  if (p["remaining_s"].is_number()) line += "  about " + duration_text(p["remaining_s"].get<double>()) + " left";
+  const std::string reason = p.value("reason", std::string());
+  if (!reason.empty()) line += "  (" + reason + ")";
+  return line;
+}
+
+bool finished(const std::string& state) { return state == "done" || state == "aborted" || state == "failed"; }
+
+// Follows the run until it ends; on a terminal the bar redraws in place.
+// Exit status: 0 done, 1 aborted or failed.
+int follow(DaemonConnection& daemon) {
+  const bool tty = ::isatty(STDOUT_FILENO) != 0;
+  std::string last;
+  for (;;) {
+    const json p = daemon.call({{"cmd", "sweep.status"}});
+    const std::string line = progress_line(p);
+    if (tty) {
+      std::cout << "\r\033[K" << line << std::flush;
+    } else if (line != last) {
+      std::cout << line << '\n' << std::flush;
+    }
+    last = line;
+    const std::string state = p.value("state", std::string());
+    if (finished(state) || state == "idle") {
+      if (tty) std::cout << '\n';
+      std::cout << fmt::format("run {}: {}; records in {}\n", p.value("run_id", std::string()), state,
+                               p.value("run_directory", std::string()));
+      return state == "done" ? 0 : exit_runtime;
+    }
+    std::this_thread::sleep_for(tty ? 250ms : 1s);
+  }
+}
+
+int run_check(const std::string& socket, const std::string& plan_path, const std::string& config_path, bool as_json) {
+  const std::string context = "sweep check";
+  const std::string text = read_plan_text(context, plan_path);
+  if (!config_path.empty()) {
+    // Offline: against the rig and camera of a config, without markerd.
+    try {
+      const markerd::sweep::SweepPlan plan = markerd::sweep::parse_plan(text, plan_path);
+      const markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
+      if (!config.rig) throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
+      const double fps = std::visit([](const auto& s) { return s.fps; }, config.camera.source);
+      const markerd::sweep::PlanCheck check = markerd::sweep::check_plan(plan, *config.rig, fps);
+      std::cout << markerd::sweep::format_plan_check(plan, check);
+      return check.ok() ? 0 : exit_runtime;
+    } catch (const markerd::ConfigError& e) {
+      throw runtime_error(context, e.what());
+    }
+  }
+  DaemonConnection daemon(socket, context);
+  const json reply = daemon.call({{"cmd", "sweep.check"}, {"plan", text}, {"source", plan_path}});
+  if (as_json) {
+    std::cout << reply.dump() << '\n';
+  } else {
+    std::cout << reply.value("text", std::string());
+  }
+  return reply.value("fits", false) ? 0 : exit_runtime;
+}
+
+int run_start(const std::string& socket, const std::string& plan_path, bool wait, bool as_json) {
+  const std::string context = "sweep start";
+  const std::string text = read_plan_text(context, plan_path);
+  DaemonConnection daemon(socket, context);
+  const json reply = daemon.call({{"cmd", "sweep.start"}, {"plan", text}, {"source", plan_path}});
+  if (as_json) {
+    std::cout << reply.dump() << '\n';
+  } else {
+    std::cout << fmt::format("run {} started: {} steps; records in {}\n", reply.value("run_id", std::string()),
+                             reply.value("steps", 0), reply.value("run_directory", std::string()));
+  }
+  return wait ? follow(daemon) : 0;
+}
+
+int run_status(const std::string& socket, bool follow_run, bool as_json) {
+  DaemonConnection daemon(socket, "sweep status");
+  if (follow_run) return follow(daemon);
+  const json p = daemon.call({{"cmd", "sweep.status"}});
+  if (as_json) {
+    std::cout << p.dump() << '\n';
+    return 0;
+  }
+  if (p.value("state", std::string()) == "idle") {
+    std::cout << "no run since markerd started\n";
+    return 0;
+  }
+  std::cout << fmt::format("run {} (plan {}), records in {}\n", p.value("run_id", std::string()),
+                           p.value("plan", std::string()), p.value("run_directory", std::string()))
+            << progress_line(p) << '\n';
+  return 0;
+}
+
+int run_simple(const std::string& socket, const std::string& command, json arguments) {
+  DaemonConnection daemon(socket, "sweep " + command);
+  arguments["cmd"] = "sweep." + command;
+  (void)daemon.call(std::move(arguments));
+  const json p = daemon.call({{"cmd", "sweep.status"}});
+  std::cout << progress_line(p) << '\n';
+  return 0;
+}
+
+}  // namespace
+
+void add_sweep_command(CLI::App& parent, Commands& commands) {
+  const char* socket_help = "markerd's control socket (default: $MARKERD_SOCKET, else /run/markerd/control.sock)";
+  CLI::App* sweep = parent.add_subcommand("sweep", "Unattended sweeps of distance and viewing angle, run by markerd");
+  sweep->require_subcommand(1);
+  sweep->footer("Plans: docs/sweep.md; examples in config/plans/. Reports: markerctl report RUN_DIR.");
+
+  struct Options {
+    std::string socket;
+    std::string plan;
+    std::string config;
+    std::string reason = "aborted by the operator";
+    bool wait = false;
+    bool follow = false;
+    bool json = false;
+  };
+  auto o = std::make_shared<Options>();
+
+  CLI::App* check = sweep->add_subcommand("check", "Dry run: the plan's points, what does not fit the rig, the duration");
+  check->add_option("plan", o->plan, "The plan (TOML)")->required()->type_name("PLAN");
+  check->add_option("--config", o->config,
+                    "Check against this markerd config's rig and camera instead of the running markerd's")
+      ->type_name("FILE");
+  check->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  check->add_flag("--json", o->json, "The reply as JSON");
+  commands.push_back({check, [o] { return run_check(o->socket, o->plan, o->config, o->json); }});
+
+  CLI::App* start = sweep->add_subcommand("start", "Start a run of a plan");
+  start->add_option("plan", o->plan, "The plan (TOML)")->required()->type_name("PLAN");
+  start->add_flag("--wait", o->wait, "Follow the run to its end (exit 0 when done, 1 when aborted or failed)");
+  start->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  start->add_flag("--json", o->json, "The reply as JSON");
+  commands.push_back({start, [o] { return run_start(o->socket, o->plan, o->wait, o->json); }});
+
+  CLI::App* status = sweep->add_subcommand("status", "The run's progress, step, last detection rate and time left");
+  status->add_flag("--follow", o->follow, "Follow the run to its end");
+  status->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  status->add_flag("--json", o->json, "sweep.status's reply as JSON");
+  commands.push_back({status, [o] { return run_status(o->socket, o->follow, o->json); }});
+
+  CLI::App* pause = sweep->add_subcommand("pause", "Stop the axes and hold the run at its step");
+  pause->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  commands.push_back({pause, [o] { return run_simple(o->socket, "pause", json::object()); }});
+
+  CLI::App* resume = sweep->add_subcommand("resume", "Resume a paused run at its step");
+  resume->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  commands.push_back({resume, [o] { return run_simple(o->socket, "resume", json::object()); }});
+
+  CLI::App* abort = sweep->add_subcommand("abort", "End the run; the axes stop and are disabled");
+  abort->add_option("--reason", o->reason, "Why, for the run's stop record")->type_name("TEXT");
+  abort->add_option("--socket", o->socket, socket_help)->type_name("PATH");
+  commands.push_back({abort, [o] { return run_simple(o->socket, "abort", json{{"reason", o->reason}}); }});
+}
+
+}  // namespace markerctl
