@@ -232,6 +232,27 @@ TEST(LogWriter, APartialLastLineIsCutOffOnOpen) {
   }
 }
 
+TEST(LogWriter, ANewRunCutsThePartialLastLineAKilledEarlierRunLeft) {
+  const TempDir dir;
+  // The earlier run's last file, cut off mid-line by a kill; an older file
+  // of it and another prefix's file, which are not this writer's business.
+  const fs::path killed = dir.path() / "detections-20261201T070000Z-001.jsonl";
+  const fs::path older = dir.path() / "detections-20261201T070000Z-000.jsonl";
+  const fs::path other = dir.path() / "points-20261201T080000Z-000.jsonl";
+  write_file(killed, numbered_line(0) + "{\"n\":1,\"pa");
+  write_file(older, numbered_line(5));
+  write_file(other, "{\"x\":");
+  {
+    LogWriter writer(config_for(dir.path(), "20261201T073000Z"));
+    EXPECT_EQ(writer.stats().tails_repaired, 1U);
+    writer.append(numbered_line(2));
+  }
+  EXPECT_EQ(read_file(killed), numbered_line(0));
+  EXPECT_EQ(read_file(older), numbered_line(5));
+  EXPECT_EQ(read_file(other), "{\"x\":");
+  EXPECT_EQ(read_file(dir.path() / "detections-20261201T073000Z-000.jsonl"), numbered_line(2));
+}
+
 TEST(LogWriter, ReopenFollowsLogrotate) {
   const TempDir dir;
   const fs::path file = dir.path() / "detections-run1-000.jsonl";

@@ -315,6 +315,22 @@ TEST_F(SweepRunTest, ARunCutOffIsResumedByTheNextDaemonAtTheStepItWasIn) {
   }
 }
 
+TEST_F(SweepRunTest, AJournalNamingARunThatNeverStartedIsForgotten) {
+  // markerd killed inside sweep.start, after the journal and before the
+  // run's start record.
+  fs::create_directories(dir_ / "state/runs/20261201T000000Z-small");
+  write_file(dir_ / "state/sweep-journal.json",
+             fmt::format(R"({{"run_directory": "{}", "paused": false}})", (dir_ / "state/runs/20261201T000000Z-small").string()));
+  auto d = make_daemon();
+  EXPECT_EQ(runner(*d).progress().state, RunState::idle);
+  EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
+  // And the runner takes a new run.
+  const fs::path run = runner(*d).start(sweep::parse_plan(kPlan, "small.toml"));
+  EXPECT_TRUE(fs::exists(run / "start.json"));
+  runner(*d).abort();
+  EXPECT_EQ(runner(*d).wait_finished(10s), RunState::aborted);
+}
+
 TEST_F(SweepRunTest, APlanBeyondTheRigsLimitsIsRefusedBeforeAnythingMoves) {
   auto d = make_daemon();
   auto& r = runner(*d);

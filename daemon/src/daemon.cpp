@@ -201,7 +201,6 @@ void Daemon::register_commands() {
 Daemon::~Daemon() { stop(); }
 
 void Daemon::start() {
-  control_->start();
   capture_thread_ = std::jthread([this](const std::stop_token& stop) {
     name_this_thread("markerd-capture");
     capture_loop_->run(stop);
@@ -215,6 +214,8 @@ void Daemon::start() {
       spdlog::error("sweep: the interrupted run cannot be resumed: {}", e.what());
     }
   }
+  // Last: no command can start a run before an interrupted one is resumed.
+  control_->start();
 }
 
 void Daemon::stop() {

@@ -248,21 +248,19 @@ void ground_truth(JsonOut& json, const rig::MarkerGroundTruth& truth) {
 }
 
 void pose_error(JsonOut& json, const MarkerPose& pose, const rig::MarkerGroundTruth& truth) {
-  const double offset_m = (pose.translation - truth.translation).norm();
-  const double truth_distance_m = truth.translation.norm();  // a zero distance gives null, not a division error
-  const double rotation_rad = Eigen::AngleAxisd(truth.rotation.transpose() * pose.rotation).angle();
+  const rig::PoseError e = rig::pose_error(pose.rotation, pose.translation, truth);
   json.raw("{");
   json.key("translation_mm");
-  json.number(1e3 * offset_m, kMmDecimals);
+  json.number(e.translation_mm, kMmDecimals);
   json.raw(",");
   json.key("translation_pct");
-  json.number(100 * offset_m / truth_distance_m, kRatioDecimals);
+  json.number(e.translation_pct, kRatioDecimals);  // a zero distance gives null, not a division error
   json.raw(",");
   json.key("distance_mm");
-  json.number(1e3 * (pose.translation.norm() - truth_distance_m), kMmDecimals);
+  json.number(e.distance_mm, kMmDecimals);
   json.raw(",");
   json.key("rotation_deg");
-  json.number(rotation_rad * 180 / std::numbers::pi, kDegreeDecimals);
+  json.number(e.rotation_deg, kDegreeDecimals);
   json.raw("}");
 }
 

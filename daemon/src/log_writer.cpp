@@ -130,9 +130,49 @@ void LogWriter::open_run() {
     if (config_.max_bytes == 0 || file_bytes_ < config_.max_bytes) return;
     rotate();
   } else {
+    repair_previous_run();
     index_ = 0;
     if (!open_file(0, true)) rotate();  // created meanwhile by someone else: never append to it
   }
+}
+
+// A writer killed inside write() leaves a partial line at the end of its
+// run's last file, and the next markerd starts a run of its own, in files of
+// its own: so before it does, it cuts that tail, and every file in the
+// directory holds whole lines only. Run ids sort as text, so the newest file
+// of the prefix is the greatest name.
+void LogWriter::repair_previous_run() {
+  const std::string prefix = config_.prefix + "-";
+  std::filesystem::path newest;
+  std::error_code error;
+  for (std::filesystem::directory_iterator it(config_.directory, error), end; !error && it != end;
+       it.increment(error)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() > prefix.size() + 6 && name.compare(0, prefix.size(), prefix) == 0 && name.ends_with(".jsonl") &&
+        name > newest.filename().string()) {
+      newest = it->path();
+    }
+  }
+  if (newest.empty()) return;
+  const int fd = ::open(newest.c_str(), O_RDWR | O_CLOEXEC);
+  struct stat st {};
+  if (fd < 0 || ::fstat(fd, &st) != 0) {
+    spdlog::warn("detection log {}: cannot open it to check its last line: {}", newest.string(), std::strerror(errno));
+    if (fd >= 0) ::close(fd);
+    return;
+  }
+  fd_ = fd;
+  path_ = newest;
+  file_bytes_ = static_cast<std::uint64_t>(st.st_size);
+  try {
+    if (file_bytes_ > 0) cut_partial_last_line();
+  } catch (const LogWriteError& e) {
+    spdlog::warn("{} (the lines before it are intact)", e.what());
+  }
+  ::close(std::exchange(fd_, -1));
+  path_.clear();
+  file_bytes_ = 0;
+  oldest_unsynced_.reset();
 }
 
 // Opens the file of `index`: with `create_only` a new file or nothing (false

@@ -20,4 +20,16 @@ MarkerGroundTruth ground_truth(const RigGeometry& g, double rail_mm, double turn
   return truth;
 }
 
+PoseError pose_error(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation,
+                     const MarkerGroundTruth& truth) {
+  const double offset_m = (translation - truth.translation).norm();
+  const double truth_distance_m = truth.translation.norm();
+  PoseError e;
+  e.translation_mm = 1e3 * offset_m;
+  e.translation_pct = 100 * offset_m / truth_distance_m;
+  e.distance_mm = 1e3 * (translation.norm() - truth_distance_m);
+  e.rotation_deg = Eigen::AngleAxisd(truth.rotation.transpose() * rotation).angle() * 180 / std::numbers::pi;
+  return e;
+}
+
 }  // namespace markerd::rig

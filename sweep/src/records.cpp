@@ -164,8 +164,11 @@ void check_schema(const nlohmann::json& json) {
 }  // namespace
 
 std::string read_text_file(const fs::path& path) {
+  const auto fail = [&](int error) {
+    throw std::runtime_error(fmt::format("{}: cannot read: {}", path.string(), std::generic_category().message(error)));
+  };
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) fail(path, "read", errno);
+  if (fd < 0) fail(errno);
   std::string content;
   std::array<char, 65536> chunk{};
   for (;;) {
@@ -174,7 +177,7 @@ std::string read_text_file(const fs::path& path) {
     if (n < 0) {
       const int error = errno;
       ::close(fd);
-      fail(path, "read", error);
+      fail(error);
     }
     if (n == 0) break;
     content.append(chunk.data(), static_cast<std::size_t>(n));

@@ -54,13 +54,12 @@ FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& m
   }
   sample.reprojection_error_px = pose.reprojection_error_px;
   if (frame.truth) {
-    // The same three errors as the detection log's (docs/detection-log.md).
-    const rig::MarkerGroundTruth& truth = *frame.truth;
+    // The same errors as the detection log's (docs/detection-log.md).
+    const rig::PoseError error = rig::pose_error(pose.rotation, pose.translation, *frame.truth);
     sample.has_error = true;
-    sample.translation_error_mm = 1e3 * (pose.translation - truth.translation).norm();
-    sample.distance_error_mm = 1e3 * (pose.translation.norm() - truth.translation.norm());
-    sample.rotation_error_deg =
-        Eigen::AngleAxisd(truth.rotation.transpose() * pose.rotation).angle() * 180 / std::numbers::pi;
+    sample.translation_error_mm = error.translation_mm;
+    sample.distance_error_mm = error.distance_mm;
+    sample.rotation_error_deg = error.rotation_deg;
   }
   return sample;
 }
@@ -231,6 +230,10 @@ fs::path SweepRunner::start(SweepPlan plan) {
   start.camera = environment_.camera_record();
   start.rig = rig_record(rig_config_);
   start.detection_log = environment_.detection_log_path();
+  // The journal first: a markerd killed between here and the run's first
+  // record finds a journal naming a run that never started, and forgets it,
+  // rather than a started run that no journal names.
+  write_journal(run->directory, false);
   run->recorder = RunRecorder::create(run->directory, start);
   run->recorder.append_event({now, "started", {}, 0});
   run->plan = std::move(plan);
@@ -252,6 +255,12 @@ bool SweepRunner::resume_from_journal() {
     throw std::runtime_error(fmt::format("sweep journal {}: cannot be read: {}", settings_.journal.string(), e.what()));
   }
   const fs::path directory = journal.value("run_directory", "");
+  if (!fs::exists(directory / "start.json", ec)) {
+    spdlog::warn("sweep journal {}: run {} never started (markerd stopped while starting it); forgetting it",
+                 settings_.journal.string(), directory.string());
+    fs::remove(settings_.journal, ec);
+    return false;
+  }
   RunRecords records = read_run(directory);
   if (records.stop) {
     // The run ended but markerd stopped before it removed the journal.
@@ -309,7 +318,7 @@ void SweepRunner::launch(std::unique_ptr<Run> run) {
     reason_.clear();
     phase_.clear();
   }
-  write_journal(paused);
+  write_journal(run_->directory, paused);
   changed_.notify_all();
   thread_ = std::jthread([this](const std::stop_token& stop) { run_thread(stop); });
 }
@@ -693,7 +702,7 @@ void SweepRunner::wait_paused() {
     phase_.clear();
   }
   changed_.notify_all();
-  write_journal(true);
+  write_journal(run_->directory, true);
   const std::size_t at = run_->done;
   run_->recorder.append_event({std::chrono::system_clock::now(), "paused", {}, at});
   spdlog::info("sweep {}: paused at step {}", run_->run_id, at);
@@ -707,7 +716,7 @@ void SweepRunner::wait_paused() {
     state_ = RunState::running;
   }
   changed_.notify_all();
-  write_journal(false);
+  write_journal(run_->directory, false);
   run_->recorder.append_event({std::chrono::system_clock::now(), "resumed", {}, at});
   spdlog::info("sweep {}: resumed at step {}", run_->run_id, at);
 }
@@ -832,13 +841,8 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   }
 }
 
-void SweepRunner::write_journal(bool paused) {
-  fs::path directory;
-  {
-    const std::lock_guard lock(mutex_);
-    directory = run_->directory;
-  }
-  const nlohmann::json journal{{"run_directory", directory.string()}, {"paused", paused}};
+void SweepRunner::write_journal(const fs::path& run_directory, bool paused) {
+  const nlohmann::json journal{{"run_directory", run_directory.string()}, {"paused", paused}};
   write_file_atomically(settings_.journal, journal.dump() + "\n");
 }
 

@@ -76,7 +76,9 @@ struct LogWriterStats {
 class LogWriter {
  public:
   // Continues the run's newest file when one exists and has room (after
-  // cutting a partial last line), otherwise creates the run's next file.
+  // cutting a partial last line), otherwise creates the run's next file (a
+  // new run first cuts a partial last line off the newest file of an
+  // earlier run of the prefix: a killed writer's).
   // Throws LogWriteError when it can do neither, std::invalid_argument for a
   // bad run id or prefix.
   explicit LogWriter(LogWriterConfig config);
@@ -116,6 +118,7 @@ class LogWriter {
   void open_run();  // the run's newest file if it has room, else its next one
   bool open_file(unsigned index, bool create_only);
   void cut_partial_last_line();
+  void repair_previous_run();
   void rotate();
   void close_file();  // syncs, then closes; throws on failure
   void write_whole(std::string_view line);

@@ -45,4 +45,16 @@ struct MarkerGroundTruth {
 
 [[nodiscard]] MarkerGroundTruth ground_truth(const RigGeometry& geometry, double rail_mm, double turntable_deg);
 
+// How far an estimated marker pose (x_camera = rotation * x_marker +
+// translation, metres) is from the truth: what the detection log and the
+// sweep records report for every pose.
+struct PoseError {
+  double translation_mm = 0;   // |t - t_truth|
+  double translation_pct = 0;  // of |t_truth| (inf or nan for a zero truth distance)
+  double distance_mm = 0;      // |t| - |t_truth|, signed
+  double rotation_deg = 0;     // the angle of R_truth^T R
+};
+[[nodiscard]] PoseError pose_error(const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation,
+                                   const MarkerGroundTruth& truth);
+
 }  // namespace markerd::rig

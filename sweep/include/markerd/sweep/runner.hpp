@@ -164,7 +164,7 @@ class SweepRunner {
   void stop_motion() noexcept;
   void stop_and_disable() noexcept;
   [[nodiscard]] std::optional<std::string> fault() const;
-  void write_journal(bool paused);
+  void write_journal(const std::filesystem::path& run_directory, bool paused);
   void set_phase(const char* phase);
 
   rig::Rig& rig_;

@@ -3,8 +3,8 @@
 // the detection rate and the mean and spread of the pose and of its error
 // against the ground truth; the maximum detection distance and the maximum
 // viewing angle at each distance; the thesis's Table 6.1 and its appendix C
-// table. The same function serves the daemon at the end of a run and
-// `markerctl report` afterwards, so both say the same.
+// table. Only the records go in, so `markerctl report` can summarise a run
+// at any time after (or during) it, on any machine.
 
 #include <array>
 #include <cstddef>

@@ -1,0 +1,476 @@
+// kill -9 of the real markerd at random moments of a sweep, for several
+// seeds; each time markerd is started again with the same config and resumes
+// the run from its journal by itself. Afterwards: every step recorded exactly
+// once and in order, every line of the run's records and of the detection log
+// whole, one "restarted" event per kill that cut the run off (at the step the
+// records then held), and a summary equal to that of an uninterrupted run.
+// The simulated camera has no noise, so frames at a point are identical and
+// the summary is deterministic.
+
+#include <gtest/gtest.h>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <random>
+#include <sstream>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include "markerd/daemon/control/control_client.hpp"
+#include "markerd/sweep/records.hpp"
+#include "markerd/sweep/summary.hpp"
+
+namespace markerd {
+namespace {
+
+using namespace std::chrono_literals;
+namespace fs = std::filesystem;
+using daemon::ControlClient;
+using nlohmann::json;
+using Clock = std::chrono::steady_clock;
+
+std::string read_file(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+void write_file(const fs::path& path, const std::string& text) {
+  std::ofstream out(path);
+  out << text;
+}
+
+// Five points (three distances facing the camera, two angles at 0.5 m), two
+// measurements of four frames each: ten steps.
+constexpr const char* kPlan = R"(name = "kill"
+frames_per_point = 4
+repeats = 2
+settle_s = 0.1
+point_timeout_s = 20
+detection_threshold = 0.9
+fault_timeout_s = 60
+
+[marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[[grid]]
+name = "distance"
+distance_m = [0.4, 0.8, 1.2]
+angle_deg = [0.0]
+
+[[grid]]
+name = "angle"
+distance_m = [0.5]
+angle_deg = [20.0, 40.0]
+)";
+
+// A markerd child process. Whatever happens to the test, it does not outlive
+// the guard (nor the test process: PR_SET_PDEATHSIG).
+class MarkerdProcess {
+ public:
+  MarkerdProcess() = default;
+  MarkerdProcess(const MarkerdProcess&) = delete;
+  MarkerdProcess& operator=(const MarkerdProcess&) = delete;
+  ~MarkerdProcess() {
+    if (pid_ > 0) (void)kill9();
+  }
+
+  // Starts markerd --config `config`; its stdout and stderr are appended to `output`.
+  void start(const fs::path& config, const fs::path& output) {
+    ASSERT_LE(pid_, 0) << "markerd is running already";
+    const pid_t parent = ::getpid();
+    const pid_t pid = ::fork();
+    ASSERT_GE(pid, 0) << "fork failed";
+    if (pid == 0) {
+      ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+      if (::getppid() != parent) _exit(125);
+      const int out = ::open(output.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+      if (out < 0 || ::dup2(out, 1) < 0 || ::dup2(out, 2) < 0) _exit(126);
+      std::string program = MARKERD_PATH;
+      std::string option = "--config";
+      std::string path = config.string();
+      std::array<char*, 4> argv{program.data(), option.data(), path.data(), nullptr};
+      ::execv(program.c_str(), argv.data());
+      _exit(127);
+    }
+    pid_ = pid;
+  }
+
+  [[nodiscard]] bool running() const { return pid_ > 0; }
+
+  // Has it ended by itself? Reaps it then.
+  [[nodiscard]] std::optional<int> exited() {
+    if (pid_ <= 0) return std::nullopt;
+    int status = 0;
+    if (::waitpid(pid_, &status, WNOHANG) != pid_) return std::nullopt;
+    pid_ = -1;
+    return status;
+  }
+
+  // SIGKILL and reap; the wait status.
+  int kill9() {
+    ::kill(pid_, SIGKILL);
+    return reap();
+  }
+
+  // SIGTERM and reap, with a SIGKILL after `timeout`; the wait status.
+  int terminate(std::chrono::milliseconds timeout) {
+    ::kill(pid_, SIGTERM);
+    const auto deadline = Clock::now() + timeout;
+    while (Clock::now() < deadline) {
+      int status = 0;
+      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
+        pid_ = -1;
+        return status;
+      }
+      std::this_thread::sleep_for(10ms);
+    }
+    ADD_FAILURE() << "markerd did not stop within " << timeout.count() << " ms of SIGTERM";
+    return kill9();
+  }
+
+ private:
+  int reap() {
+    int status = 0;
+    while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
+    }
+    pid_ = -1;
+    return status;
+  }
+
+  pid_t pid_ = -1;
+};
+
+// One markerd setup in a directory of its own: rig, config, logs/, state/.
+struct Workspace {
+  fs::path dir;
+
+  explicit Workspace(fs::path directory) : dir(std::move(directory)) {
+    fs::remove_all(dir);
+    fs::create_directories(dir / "logs");
+    fs::create_directories(dir / "state");
+    // The example rig, its simulated time 100 times faster than real time.
+    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
+    const std::string scale = "time_scale = 1.0";
+    rig.replace(rig.find(scale), scale.size(), "time_scale = 100.0");
+    write_file(dir / "rig.toml", rig);
+    write_file(config(), fmt::format(R"(rig = "rig.toml"
+
+[marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[camera]
+source = "sim"
+model = "{}/config/cameras/thesis-640x480.yaml"
+frame_timeout_ms = 500
+reopen_delay_ms = 100
+reopen_max_delay_ms = 200
+
+[camera.sim]
+fps = 30
+noise_sigma = 0.0
+supersample = 2
+
+[pipeline]
+policy = "lossless"
+
+[log]
+directory = "logs"
+fsync = "never"
+
+[control]
+socket = "control.sock"
+
+[sweep]
+directory = "state"
+)",
+                                     MARKERD_SOURCE_DIR));
+  }
+
+  [[nodiscard]] fs::path config() const { return dir / "markerd.toml"; }
+  [[nodiscard]] fs::path socket() const { return dir / "control.sock"; }
+  [[nodiscard]] fs::path output() const { return dir / "markerd.out"; }
+  [[nodiscard]] fs::path journal() const { return dir / "state/sweep-journal.json"; }
+};
+
+std::string describe(int status) {
+  if (WIFEXITED(status)) return fmt::format("exit status {}", WEXITSTATUS(status));
+  if (WIFSIGNALED(status)) return fmt::format("killed by signal {}", WTERMSIG(status));
+  return fmt::format("wait status {}", status);
+}
+
+// markerd's control socket, once it accepts; fails (and returns nothing)
+// when markerd ends first or `timeout` passes.
+std::unique_ptr<ControlClient> connect_control(MarkerdProcess& markerd, const Workspace& setup,
+                                       std::chrono::milliseconds timeout = 30s) {
+  const auto deadline = Clock::now() + timeout;
+  std::string last_error;
+  for (;;) {
+    if (const auto status = markerd.exited()) {
+      ADD_FAILURE() << "markerd ended (" << describe(*status) << ") before its control socket accepted:\n"
+                    << read_file(setup.output());
+      return nullptr;
+    }
+    try {
+      return std::make_unique<ControlClient>(setup.socket());
+    } catch (const daemon::ControlClientError& e) {
+      last_error = e.what();
+    }
+    if (Clock::now() > deadline) {
+      ADD_FAILURE() << "markerd's control socket did not accept within " << timeout.count() << " ms: " << last_error;
+      return nullptr;
+    }
+    std::this_thread::sleep_for(20ms);
+  }
+}
+
+json sweep_status(ControlClient& client) {
+  json reply = client.call({{"cmd", "sweep.status"}});
+  EXPECT_EQ(reply.value("ok", false), true) << reply.dump();
+  return reply;
+}
+
+// Polls sweep.status until `done(reply)` holds; the last reply, or nothing
+// (a failure) when the run failed, was aborted, or `timeout` passed.
+template <class Predicate>
+std::optional<json> wait_status(ControlClient& client, Predicate done, std::chrono::milliseconds timeout) {
+  const auto deadline = Clock::now() + timeout;
+  json reply;
+  for (;;) {
+    reply = sweep_status(client);
+    const std::string state = reply.value("state", "");
+    if (state == "failed" || state == "aborted") {
+      ADD_FAILURE() << "the run ended " << state << ": " << reply.dump();
+      return std::nullopt;
+    }
+    if (done(reply)) return reply;
+    if (Clock::now() > deadline) {
+      ADD_FAILURE() << "timed out after " << timeout.count() << " ms; sweep.status: " << reply.dump();
+      return std::nullopt;
+    }
+    std::this_thread::sleep_for(50ms);
+  }
+}
+
+std::vector<std::string> split_lines(const std::string& text) {
+  std::vector<std::string> lines;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);) lines.push_back(line);
+  return lines;
+}
+
+// Every line of `file` whole: the file ends with '\n' (or is empty) and every
+// line is a JSON document.
+void expect_whole_json_lines(const fs::path& file) {
+  SCOPED_TRACE(file.string());
+  const std::string text = read_file(file);
+  if (text.empty()) return;
+  EXPECT_EQ(text.back(), '\n') << "the last line is torn: ..."
+                               << text.substr(text.size() - std::min<std::size_t>(text.size(), 200));
+  std::size_t number = 0;
+  for (const std::string& line : split_lines(text)) {
+    ++number;
+    try {
+      const json document = json::parse(line);
+      EXPECT_TRUE(document.is_object()) << "line " << number << ": " << line.substr(0, 200);
+    } catch (const json::exception& e) {
+      ADD_FAILURE() << "line " << number << " is not whole JSON (" << e.what() << "): " << line.substr(0, 200);
+    }
+  }
+}
+
+std::size_t count_events(const sweep::RunRecords& records, std::string_view kind) {
+  std::size_t n = 0;
+  for (const auto& e : records.events) n += e.kind == kind ? 1 : 0;
+  return n;
+}
+
+class SweepKillTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    root_ = fs::temp_directory_path() / ("markerd-kill-" + std::to_string(::getpid()));
+    fs::remove_all(root_);
+    fs::create_directories(root_);
+  }
+  void TearDown() override { fs::remove_all(root_); }
+
+  static int failures() {
+    return testing::UnitTest::GetInstance()->current_test_info()->result()->total_part_count();
+  }
+
+  // Starts the plan; the run's directory, or empty (a failure).
+  static fs::path start_sweep(ControlClient& client) {
+    const json reply = client.call({{"cmd", "sweep.start"}, {"plan", kPlan}, {"source", "kill.toml"}});
+    EXPECT_EQ(reply.value("ok", false), true) << reply.dump();
+    if (!reply.value("ok", false)) return {};
+    return reply.value("run_directory", "");
+  }
+
+  // Waits until the run has ended (done), then stops markerd with SIGTERM:
+  // exit status 0.
+  static void finish(MarkerdProcess& markerd, ControlClient& client, const fs::path& run) {
+    // "idle": this markerd found the run already finished (its journal stale).
+    const auto ended = wait_status(
+        client,
+        [&](const json& s) {
+          const std::string state = s.value("state", "");
+          return state == "done" || (state == "idle" && fs::exists(run / "stop.json"));
+        },
+        120s);
+    EXPECT_TRUE(ended.has_value());
+    const int status = markerd.terminate(30s);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << describe(status);
+  }
+
+  // The run's records after markerd stopped: complete, whole, done.
+  static sweep::RunRecords check_records(const Workspace& setup, const fs::path& run) {
+    sweep::RunRecords records = sweep::read_run(run);
+    EXPECT_EQ(records.start.steps, 10U);
+    EXPECT_EQ(records.points.size(), records.start.steps) << "every step recorded";
+    for (std::size_t i = 0; i < records.points.size(); ++i) {
+      EXPECT_EQ(records.points[i].step, i) << "every step exactly once, in order";
+    }
+    EXPECT_EQ(records.torn_lines, 0U);
+    EXPECT_TRUE(records.stop.has_value());
+    if (records.stop) {
+      EXPECT_EQ(records.stop->status, sweep::ExitStatus::done) << records.stop->reason;
+      EXPECT_EQ(records.stop->steps_done, records.start.steps);
+    }
+    EXPECT_EQ(count_events(records, "started"), 1U);
+    EXPECT_FALSE(fs::exists(setup.journal())) << "a finished run's journal is removed";
+    expect_whole_json_lines(run / "points.jsonl");
+    expect_whole_json_lines(run / "events.jsonl");
+    std::size_t logs = 0;
+    for (const auto& entry : fs::directory_iterator(setup.dir / "logs")) {
+      ++logs;
+      expect_whole_json_lines(entry.path());
+    }
+    EXPECT_GE(logs, 1U);
+    return records;
+  }
+
+  fs::path root_;
+};
+
+TEST_F(SweepKillTest, KilledAtRandomMomentsTheRunCompletesAsIfUninterrupted) {
+  // The reference: one run, uninterrupted.
+  std::string reference_csv;              // per point
+  std::string reference_measurements_csv;  // per measurement (appendix C)
+  {
+    const Workspace setup(root_ / "reference");
+    MarkerdProcess markerd;
+    ASSERT_NO_FATAL_FAILURE(markerd.start(setup.config(), setup.output()));
+    auto client = connect_control(markerd, setup);
+    ASSERT_NE(client, nullptr);
+    const fs::path run = start_sweep(*client);
+    ASSERT_FALSE(run.empty());
+    ASSERT_NO_FATAL_FAILURE(finish(markerd, *client, run));
+    const sweep::RunRecords records = check_records(setup, run);
+    ASSERT_FALSE(HasFailure()) << read_file(setup.output());
+    EXPECT_EQ(count_events(records, "restarted"), 0U);
+    const sweep::RunSummary summary = sweep::summarize(records);
+    ASSERT_EQ(summary.status, "done");
+    ASSERT_EQ(summary.points.size(), 5U);
+    for (const auto& p : summary.points) {
+      EXPECT_EQ(p.frames, 8) << "point " << p.point;
+      EXPECT_EQ(p.detected, 8) << "point " << p.point;
+    }
+    reference_csv = sweep::points_csv(summary);
+    reference_measurements_csv = sweep::translation_csv(summary);
+  }
+
+  std::size_t runs_cut_off = 0;
+  for (const unsigned seed : {1U, 2U, 3U}) {
+    SCOPED_TRACE(fmt::format("seed {}", seed));
+    const int failures_before = failures();
+    std::mt19937 rng(seed);
+    std::uniform_int_distribution<int> pause_ms(300, 2500);
+    const Workspace setup(root_ / fmt::format("seed{}", seed));
+    MarkerdProcess markerd;
+    ASSERT_NO_FATAL_FAILURE(markerd.start(setup.config(), setup.output()));
+    auto client = connect_control(markerd, setup);
+    ASSERT_NE(client, nullptr);
+    const fs::path run = start_sweep(*client);
+    ASSERT_FALSE(run.empty());
+
+    // The step each restarted event must name: what the records held when
+    // markerd was killed, for each kill that cut the run off.
+    std::vector<std::size_t> cut_at;
+    std::vector<std::string> moments;
+    for (int k = 0; k < 2; ++k) {
+      const auto pause = std::chrono::milliseconds(pause_ms(rng));
+      std::this_thread::sleep_for(pause);
+      client.reset();
+      const int status = markerd.kill9();
+      ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL)
+          << describe(status) << "\n" << read_file(setup.output());
+      const sweep::RunRecords at_kill = sweep::read_run(run);
+      const bool cut_off = !at_kill.stop.has_value();
+      moments.push_back(fmt::format("kill {} after {} ms: {} of {} steps recorded, {} torn line(s){}", k + 1,
+                                    pause.count(), at_kill.points.size(), at_kill.start.steps, at_kill.torn_lines,
+                                    cut_off ? "" : ", the run had ended"));
+      if (cut_off) cut_at.push_back(at_kill.points.size());
+
+      // Again, with the same config: it resumes the run from its journal.
+      ASSERT_NO_FATAL_FAILURE(markerd.start(setup.config(), setup.output()));
+      client = connect_control(markerd, setup);
+      ASSERT_NE(client, nullptr);
+      // Until the new markerd has taken the run up again (its "restarted"
+      // event written), so that every later kill lands in the run itself.
+      const auto resumed = wait_status(
+          *client,
+          [&](const json& s) {
+            const std::string state = s.value("state", "");
+            if (!cut_off) return state == "idle" || state == "done";
+            return state != "idle" && s.value("run_directory", "") == run.string();
+          },
+          30s);
+      ASSERT_TRUE(resumed.has_value()) << read_file(setup.output());
+    }
+    runs_cut_off += cut_at.size();
+    SCOPED_TRACE(fmt::format("{}; {}", moments[0], moments[1]));
+    fmt::print("seed {}: {}; {}\n", seed, moments[0], moments[1]);
+    ASSERT_NO_FATAL_FAILURE(finish(markerd, *client, run));
+    client.reset();
+
+    const sweep::RunRecords records = check_records(setup, run);
+    std::vector<std::size_t> restarted_at;
+    for (const auto& e : records.events) {
+      if (e.kind == "restarted") restarted_at.push_back(e.step);
+    }
+    EXPECT_EQ(restarted_at, cut_at) << "one restarted event per kill that cut the run off, at the step it was in";
+    const sweep::RunSummary summary = sweep::summarize(records);
+    EXPECT_EQ(summary.status, "done");
+    EXPECT_EQ(sweep::points_csv(summary), reference_csv);
+    EXPECT_EQ(sweep::translation_csv(summary), reference_measurements_csv);
+    if (failures() != failures_before) ADD_FAILURE() << "markerd's output:\n" << read_file(setup.output());
+  }
+  // Kills that all came after the runs had ended would have shown nothing.
+  EXPECT_GT(runs_cut_off, 0U) << "no kill cut a run off: the runs are too short for the kills' times";
+}
+
+}  // namespace
+}  // namespace markerd
