@@ -42,13 +42,11 @@ sed -e "s|^rig = .*|rig = \"rig-sim.toml\"|" \
     -e "s|^model = \"cameras/|model = \"$top/config/cameras/|" \
     -e "s|^group = .*||" \
     config/markerd-sim.toml > "$demo/markerd.toml"
-cat >> "$demo/markerd.toml" <<'EOF'
-
-# run-demo.sh: the demo's own directories
-[sweep]
-directory = "state"
-EOF
-sed -i -e '/^\[log\]/a directory = "logs"' -e '/^\[control\]/a socket = "control.sock"' "$demo/markerd.toml"
+sed -i -e '/^\[log\]/a directory = "logs"' -e '/^\[control\]/a socket = "control.sock"' \
+       -e '/^\[sweep\]/a directory = "state"' "$demo/markerd.toml"
+for table in log control sweep; do
+  grep -q "^\[$table\]" "$demo/markerd.toml" || { echo "run-demo: config/markerd-sim.toml has no [$table] table" >&2; exit 1; }
+done
 
 markerctl=$top/build/tools/markerctl
 export MARKERD_SOCKET=$demo/control.sock
