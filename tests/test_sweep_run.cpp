@@ -23,6 +23,7 @@
 #include "markerd/rig/sim_drive.hpp"
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/runner.hpp"
+#include "markerd/sweep/summary.hpp"
 
 namespace markerd {
 namespace {
@@ -200,6 +201,29 @@ TEST_F(SweepRunTest, ASimulatedSweepMeasuresTheGroundTruth) {
   }
   EXPECT_EQ(count_events(records, "started"), 1U);
   EXPECT_EQ(count_events(records, "suspended"), 0U);
+
+  // The summary against the simulated truth: every point detected, so the
+  // range reaches the last facing point and the angles the last ones swept.
+  const sweep::RunSummary summary = sweep::summarize(records);
+  EXPECT_EQ(summary.status, "done");
+  ASSERT_EQ(summary.points.size(), 6U);
+  for (const sweep::PointSummary& p : summary.points) {
+    SCOPED_TRACE(fmt::format("point {} at {} m, {} deg", p.point, p.distance_m, p.angle_deg));
+    EXPECT_EQ(p.frames, 8);
+    EXPECT_EQ(p.rate, 1.0);
+    EXPECT_TRUE(p.reached);
+    EXPECT_NEAR(p.tvec_m[2].mean, p.truth_tvec_m[2], 0.01 * p.distance_m);
+    EXPECT_LT(std::abs(p.distance_error_pct.mean), 1.0);
+    ASSERT_EQ(p.measurements.size(), 2U);
+  }
+  ASSERT_TRUE(summary.max_distance_m.has_value());
+  EXPECT_DOUBLE_EQ(*summary.max_distance_m, 1.3);
+  ASSERT_FALSE(summary.max_angle.empty());
+  EXPECT_DOUBLE_EQ(summary.max_angle.front().distance_m, 0.5);
+  ASSERT_TRUE(summary.max_angle.front().positive_deg.has_value());
+  EXPECT_DOUBLE_EQ(*summary.max_angle.front().positive_deg, 40.0);
+  ASSERT_TRUE(summary.median_distance_error_pct.has_value());
+  EXPECT_LT(*summary.median_distance_error_pct, 0.5);
   EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
 }
 
@@ -286,6 +310,38 @@ TEST_F(SweepRunTest, ADriveAlarmMidRunSuspendsItAndItCompletesOnceTheAlarmIsRese
   EXPECT_TRUE(named);
   EXPECT_GE(count_events(records, "fault_cleared"), 1U);
   for (const auto& p : records.points) EXPECT_NEAR(p.truth_distance_m, p.distance_m, 1e-6) << "step " << p.step;
+}
+
+TEST_F(SweepRunTest, AFaultThatOutlastsTheTimeoutFailsTheRunWithTheAxesStoppedAndDisabled) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  auto* rail = dynamic_cast<rig::SimDrive*>(&d->rig()->rail().drive());
+  ASSERT_NE(rail, nullptr);
+  std::string plan = kPlan;
+  plan.replace(plan.find("fault_timeout_s = 60"), 20, "fault_timeout_s = 2");
+  const fs::path run = r.start(sweep::parse_plan(plan, "small.toml"));
+  ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 2; }));
+  rail->set_communication_lost(true);  // the drive stops answering, for good
+  ASSERT_TRUE(eventually([&] { return r.progress().state == RunState::suspended; }, 10s));
+  EXPECT_EQ(r.wait_finished(30s), RunState::failed);
+  const std::string reason = r.progress().reason;
+  EXPECT_NE(reason.find("rail"), std::string::npos) << reason;
+  EXPECT_NE(reason.find("fault_timeout"), std::string::npos) << reason;
+
+  // Stopped and without power: the turntable disabled, the rail (which no
+  // longer answers) cut off by its emergency stop, the hard-wired enable.
+  const rig::RigSnapshot s = d->rig()->snapshot();
+  EXPECT_FALSE(s.rail.moving);
+  EXPECT_EQ(s.turntable.state, rig::AxisState::disabled);
+  rail->set_communication_lost(false);
+  EXPECT_FALSE(rail->status().enabled);
+
+  const sweep::RunRecords records = sweep::read_run(run);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::failed);
+  EXPECT_EQ(records.stop->reason, reason);
+  EXPECT_EQ(records.stop->steps_done, records.points.size());
+  EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
 }
 
 TEST_F(SweepRunTest, ARunCutOffIsResumedByTheNextDaemonAtTheStepItWasIn) {
