@@ -18,6 +18,7 @@
 #include <thread>
 
 #include "markerd/daemon/capture/sim_camera.hpp"
+#include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/rig/sim_drive.hpp"
@@ -385,6 +386,49 @@ TEST_F(SweepRunTest, AJournalNamingARunThatNeverStartedIsForgotten) {
   EXPECT_TRUE(fs::exists(run / "start.json"));
   runner(*d).abort();
   EXPECT_EQ(runner(*d).wait_finished(10s), RunState::aborted);
+}
+
+TEST_F(SweepRunTest, TheControlSocketsSweepCommands) {
+  auto d = make_daemon();
+  daemon::ControlClient client(dir_ / "control.sock");
+  using nlohmann::json;
+
+  json check = client.call({{"cmd", "sweep.check"}, {"plan", kPlan}, {"source", "small.toml"}});
+  ASSERT_TRUE(check.value("ok", false)) << check.dump();
+  EXPECT_EQ(check["points"], 6);
+  EXPECT_EQ(check["steps"], 12);
+  EXPECT_EQ(check["fits"], true);
+  EXPECT_NE(check["text"].get<std::string>().find("6 points in 2 grids"), std::string::npos) << check.dump();
+
+  // A plan with a mistake: the error names the plan's source, line and key.
+  std::string bad = kPlan;
+  bad.replace(bad.find("repeats = 2"), 11, "repeats = 0");
+  json refused = client.call({{"cmd", "sweep.start"}, {"plan", bad}, {"source", "bad.toml"}});
+  EXPECT_FALSE(refused.value("ok", true));
+  EXPECT_EQ(refused.value("error", std::string()).rfind("bad.toml:3: repeats", 0), 0U) << refused.dump();
+  json no_plan = client.call({{"cmd", "sweep.start"}});
+  EXPECT_FALSE(no_plan.value("ok", true)) << no_plan.dump();
+  json nothing_to_pause = client.call({{"cmd", "sweep.pause"}});
+  EXPECT_FALSE(nothing_to_pause.value("ok", true));
+  EXPECT_NE(nothing_to_pause.value("error", std::string()).find("idle"), std::string::npos) << nothing_to_pause.dump();
+
+  json started = client.call({{"cmd", "sweep.start"}, {"plan", kPlan}, {"source", "small.toml"}});
+  ASSERT_TRUE(started.value("ok", false)) << started.dump();
+  EXPECT_EQ(started["steps"], 12);
+  const fs::path run = started["run_directory"].get<std::string>();
+  EXPECT_TRUE(fs::exists(run / "start.json"));
+  ASSERT_TRUE(eventually([&] { return client.call({{"cmd", "sweep.status"}})["steps_done"].get<int>() >= 1; }));
+  EXPECT_TRUE(client.call({{"cmd", "sweep.pause"}}).value("ok", false));
+  ASSERT_TRUE(eventually([&] { return client.call({{"cmd", "sweep.status"}})["state"] == "paused"; }));
+  EXPECT_TRUE(client.call({{"cmd", "sweep.resume"}}).value("ok", false));
+  EXPECT_TRUE(client.call({{"cmd", "sweep.abort"}, {"reason", "end of the test"}}).value("ok", false));
+  ASSERT_TRUE(eventually([&] { return client.call({{"cmd", "sweep.status"}})["state"] == "aborted"; }));
+  const json status = client.call({{"cmd", "sweep.status"}});
+  EXPECT_EQ(status["reason"], "end of the test");
+  EXPECT_EQ(status["run_directory"], run.string());
+  EXPECT_EQ(status["step"], nullptr);
+  // markerd's status carries the run too.
+  EXPECT_EQ(client.call({{"cmd", "status"}})["sweep"]["state"], "aborted");
 }
 
 TEST_F(SweepRunTest, APlanBeyondTheRigsLimitsIsRefusedBeforeAnythingMoves) {

@@ -179,6 +179,7 @@ struct SweepRunner::Run {
   std::optional<PlanStep> current;
   // This markerd's share of the run, for the estimate of what remains.
   Clock::time_point began = Clock::now();
+  std::optional<Clock::time_point> ended;
   std::size_t done_at_begin = 0;
   std::chrono::duration<double> estimate_per_step{0};
 };
@@ -373,7 +374,7 @@ SweepProgress SweepRunner::progress() const {
   p.step = run_->current;
   p.frames_per_point = run_->plan.frames_per_point;
   p.last_rate = run_->last_rate;
-  p.elapsed = Clock::now() - run_->began;
+  p.elapsed = run_->ended.value_or(Clock::now()) - run_->began;
   const std::size_t remaining = p.steps_total - p.steps_done;
   const std::size_t done_here = run_->done - run_->done_at_begin;
   if (state_ == RunState::running || state_ == RunState::paused || state_ == RunState::suspended) {
@@ -832,6 +833,7 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
     reason_ = reason;
     phase_.clear();
     run_->current.reset();
+    run_->ended = Clock::now();
   }
   changed_.notify_all();
   if (state == RunState::done) {

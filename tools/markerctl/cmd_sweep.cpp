@@ -87,6 +87,10 @@ int follow(DaemonConnection& daemon) {
   std::string last;
   for (;;) {
     const json p = daemon.call({{"cmd", "sweep.status"}});
+    if (p.value("state", std::string()) == "idle") {
+      std::cout << "no run since markerd started\n";
+      return exit_runtime;
+    }
     const std::string line = progress_line(p);
     if (tty) {
       std::cout << "\r\033[K" << line << std::flush;
@@ -95,7 +99,7 @@ int follow(DaemonConnection& daemon) {
     }
     last = line;
     const std::string state = p.value("state", std::string());
-    if (finished(state) || state == "idle") {
+    if (finished(state)) {
       if (tty) std::cout << '\n';
       std::cout << fmt::format("run {}: {}; records in {}\n", p.value("run_id", std::string()), state,
                                p.value("run_directory", std::string()));

@@ -82,6 +82,8 @@ int main(int argc, char** argv) {
       "  markerctl rig --config config/rig-sim.toml move --home --rail 250mm --turntable 30deg\n"
       "  markerctl cameras\n"
       "  markerctl status                  (and detections, call, rig without --config: a running markerd)\n"
+      "  markerctl sweep start --wait config/plans/thesis.toml\n"
+      "  markerctl report /var/lib/markerd/runs/RUN\n"
       "Run 'markerctl <command> --help' for a command's options. Exit status: 0 on success,\n"
       "1 when something failed while running, 2 for a mistake on the command line.");
 
@@ -103,8 +105,8 @@ int main(int argc, char** argv) {
   if (argc <= 1) {
     std::cerr << app.help();
     print_error("",
-                "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call or "
-                "report)");
+                "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call, "
+                "sweep or report)");
     return markerctl::exit_usage;
   }
   try {
