@@ -226,6 +226,9 @@ TEST_F(SweepRunTest, ASimulatedSweepMeasuresTheGroundTruth) {
   ASSERT_TRUE(summary.median_distance_error_pct.has_value());
   EXPECT_LT(*summary.median_distance_error_pct, 0.5);
   EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
+  // markerd wrote the summary's tables when the run ended.
+  EXPECT_TRUE(fs::exists(run / "report/report.md"));
+  EXPECT_EQ(read_file(run / "report/summary.csv"), sweep::points_csv(summary));
 }
 
 TEST_F(SweepRunTest, PauseHoldsTheRunAndAbortLeavesTheAxesDisabled) {

@@ -7,6 +7,7 @@
 #include <spdlog/spdlog.h>
 
 #include "markerd/rig/motion_profile.hpp"
+#include "markerd/sweep/report.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -826,6 +827,17 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   } catch (const std::exception& e) {
     // The journal stays: the next markerd finds the run unfinished and says so.
     spdlog::error("sweep {}: cannot write its stop record: {}", run_->run_id, e.what());
+  }
+  // The summary the operator finds in the morning, from the records alone:
+  // the tables now; `markerctl report` draws the plots (running gnuplot is
+  // not a device daemon's business).
+  try {
+    ReportOptions options;
+    options.output_directory = run_->directory / "report";
+    options.plots = false;
+    write_report({read_run(run_->directory)}, options);
+  } catch (const std::exception& e) {
+    spdlog::error("sweep {}: cannot write its summary: {}", run_->run_id, e.what());
   }
   {
     const std::lock_guard lock(mutex_);
