@@ -63,6 +63,20 @@ namespace {
 
 constexpr int kTile = 4;  // threshold tile side, working-image pixels
 
+// ceil(2^32 / n) for every pixel count n of a 3x3-tile neighbourhood. For
+// s up to kMaxTileSum, (s * r[n]) >> 32 is s / n exactly: the product
+// overshoots s / n by under s / 2^32, less than the 1/n that separates a
+// fraction s/n from the next integer.
+constexpr int kMaxNeighbourhood = 9 * kTile * kTile;
+constexpr std::uint64_t kMaxTileSum = 256ULL * kMaxNeighbourhood;  // the pixels' sum, plus n/2 for rounding
+static_assert(kMaxTileSum * kMaxNeighbourhood < (1ULL << 32));
+constexpr std::array<std::uint64_t, kMaxNeighbourhood + 1> make_reciprocals() {
+  std::array<std::uint64_t, kMaxNeighbourhood + 1> r{};
+  for (std::uint64_t n = 1; n <= kMaxNeighbourhood; ++n) r[n] = ((1ULL << 32) + n - 1) / n;
+  return r;
+}
+constexpr std::array<std::uint64_t, kMaxNeighbourhood + 1> kReciprocal = make_reciprocals();
+
 // Maps the unit square (0,0) (1,0) (1,1) (0,1) onto a quad (Heckbert's closed form).
 struct Homography {
   double a = 1, b = 0, c = 0, d = 0, e = 1, f = 0, g = 0, h = 0;
@@ -317,41 +331,78 @@ class Frame8Detector final : public MarkerDetector {
     work_ = {decimated_.data(), w, h, w};
   }
 
+  // Sums each kTile x kTile tile of the working image into tile_sum_
+  // (tiles at the right and bottom edges may be partial).
+  void sum_tiles(int tw, int th) {
+    const int w = work_.width, h = work_.height;
+    const int full_tiles = w / kTile;
+    for (int ty = 0; ty < th; ++ty) {
+      std::uint32_t* sums = tile_sum_.data() + static_cast<std::size_t>(ty) * tw;
+      const int y0 = ty * kTile, y1 = std::min(h, y0 + kTile);
+      int t = 0;
+#if defined(__SSE2__)
+      // Four tiles per 16 bytes: each mask keeps every other group of four
+      // bytes, and _mm_sad_epu8 against zero sums each half's kept group.
+      const __m128i even = _mm_set_epi32(0, -1, 0, -1), odd = _mm_set_epi32(-1, 0, -1, 0), zero = _mm_setzero_si128();
+      for (; t + 4 <= full_tiles; t += 4) {
+        __m128i a = zero, b = zero;
+        for (int y = y0; y < y1; ++y) {
+          const __m128i v = _mm_loadu_si128(reinterpret_cast<const __m128i*>(work_.row(y) + t * kTile));
+          a = _mm_add_epi64(a, _mm_sad_epu8(_mm_and_si128(v, even), zero));
+          b = _mm_add_epi64(b, _mm_sad_epu8(_mm_and_si128(v, odd), zero));
+        }
+        sums[t] = static_cast<std::uint32_t>(_mm_cvtsi128_si32(a));
+        sums[t + 1] = static_cast<std::uint32_t>(_mm_cvtsi128_si32(b));
+        sums[t + 2] = static_cast<std::uint32_t>(_mm_cvtsi128_si32(_mm_srli_si128(a, 8)));
+        sums[t + 3] = static_cast<std::uint32_t>(_mm_cvtsi128_si32(_mm_srli_si128(b, 8)));
+      }
+#endif
+      for (int y = y0; y < y1; ++y) {
+        const std::uint8_t* row = work_.row(y);
+        for (int tt = t; tt < full_tiles; ++tt) {
+          const std::uint8_t* p = row + tt * kTile;
+          sums[tt] += static_cast<std::uint32_t>(p[0] + p[1] + p[2] + p[3]);
+        }
+        for (int x = full_tiles * kTile; x < w; ++x) sums[full_tiles] += row[x];
+      }
+    }
+  }
+
   void threshold_and_runs() {
     const int w = work_.width, h = work_.height;
     const int tw = (w + kTile - 1) / kTile, th = (h + kTile - 1) / kTile;
     tile_sum_.assign(static_cast<std::size_t>(tw) * th, 0);
-    tile_count_.assign(static_cast<std::size_t>(tw) * th, 0);
-    for (int y = 0; y < h; ++y) {
-      const std::uint8_t* row = work_.row(y);
-      std::uint32_t* sums = tile_sum_.data() + static_cast<std::size_t>(y / kTile) * tw;
-      std::uint16_t* counts = tile_count_.data() + static_cast<std::size_t>(y / kTile) * tw;
-      const int full_tiles = w / kTile;
-      for (int t = 0; t < full_tiles; ++t) {
-        const std::uint8_t* p = row + t * kTile;
-        sums[t] += static_cast<std::uint32_t>(p[0] + p[1] + p[2] + p[3]);
-        counts[t] += kTile;
-      }
-      for (int x = full_tiles * kTile; x < w; ++x) {
-        sums[full_tiles] += row[x];
-        counts[full_tiles] += 1;
+    sum_tiles(tw, th);
+    // Threshold per tile: mean of the 3x3 tiles around it, minus the offset.
+    // The 3x3 sums are separable; the pixel count of a neighbourhood is the
+    // product of its width and height, and the rounding division by it is a
+    // multiplication by its reciprocal (exact for these sums, see kMaxTileSum).
+    tile_row_sum_.resize(static_cast<std::size_t>(tw) * th);
+    for (int ty = 0; ty < th; ++ty) {
+      const std::uint32_t* in = tile_sum_.data() + static_cast<std::size_t>(ty) * tw;
+      std::uint32_t* out = tile_row_sum_.data() + static_cast<std::size_t>(ty) * tw;
+      for (int tx = 0; tx < tw; ++tx) {
+        out[tx] = in[tx] + (tx > 0 ? in[tx - 1] : 0) + (tx + 1 < tw ? in[tx + 1] : 0);
       }
     }
-    // Threshold per tile: mean of the 3x3 tiles around it, minus the offset.
+    auto span = [](int t, int tiles, int pixels) {  // pixels covered by tiles t-1 .. t+1
+      const int lo = std::max(0, t - 1) * kTile;
+      const int hi = std::min(tiles, t + 2) * kTile;
+      return std::min(hi, pixels) - lo;
+    };
     tile_threshold_.resize(static_cast<std::size_t>(tw) * th);
     const int offset = config_.frame8.threshold_offset;
     for (int ty = 0; ty < th; ++ty) {
+      const std::uint32_t* mid = tile_row_sum_.data() + static_cast<std::size_t>(ty) * tw;
+      const std::uint32_t* up = ty > 0 ? mid - tw : nullptr;
+      const std::uint32_t* down = ty + 1 < th ? mid + tw : nullptr;
+      const int rows = span(ty, th, h);
+      std::uint8_t* out = tile_threshold_.data() + static_cast<std::size_t>(ty) * tw;
       for (int tx = 0; tx < tw; ++tx) {
-        std::uint32_t s = 0, n = 0;
-        for (int j = std::max(0, ty - 1); j <= std::min(th - 1, ty + 1); ++j) {
-          for (int i = std::max(0, tx - 1); i <= std::min(tw - 1, tx + 1); ++i) {
-            s += tile_sum_[static_cast<std::size_t>(j) * tw + i];
-            n += tile_count_[static_cast<std::size_t>(j) * tw + i];
-          }
-        }
-        const int mean = static_cast<int>((s + n / 2) / n);
-        tile_threshold_[static_cast<std::size_t>(ty) * tw + tx] =
-            static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
+        const std::uint32_t sum = mid[tx] + (up ? up[tx] : 0) + (down ? down[tx] : 0);
+        const auto n = static_cast<std::uint32_t>(rows * span(tx, tw, w));
+        const auto mean = static_cast<int>(((sum + n / 2) * kReciprocal[n]) >> 32);
+        out[tx] = static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
       }
     }
 
@@ -364,8 +415,12 @@ class Frame8Detector final : public MarkerDetector {
     light_bits_.resize(static_cast<std::size_t>(words) + 1);
     for (int y = 0; y < h; ++y) {
       if (y % kTile == 0) {
+        static_assert(kTile == 4);  // one tile's threshold fills one 32-bit word
         const std::uint8_t* t = tile_threshold_.data() + static_cast<std::size_t>(y / kTile) * tw;
-        for (int x = 0; x < w; ++x) pixel_threshold_[static_cast<std::size_t>(x)] = t[x / kTile];
+        for (int tx = 0; tx < tw; ++tx) {
+          const std::uint32_t four = t[tx] * 0x01010101U;
+          std::memcpy(pixel_threshold_.data() + static_cast<std::size_t>(tx) * kTile, &four, sizeof four);
+        }
       }
       row_first_[static_cast<std::size_t>(y)] = static_cast<std::int32_t>(runs_.size());
       local_max_row(y);
@@ -521,10 +576,14 @@ class Frame8Detector final : public MarkerDetector {
 
   // Largest-area quadrilateral on the vertices of a convex polygon (hull_),
   // by rotating the two free vertices monotonically for each diagonal.
-  bool max_area_quad(std::array<Point2, 4>& quad) const {
+  bool max_area_quad(std::array<Point2, 4>& quad) {
     const int n = static_cast<int>(hull_.size());
     if (n < 4) return false;
-    auto at = [&](int i) { return hull_[static_cast<std::size_t>(i % n)]; };
+    // Indices run up to 2n - 1: the hull twice over instead of i % n, whose
+    // division would cost more than the cross products of this O(n^2) walk.
+    hull_twice_.assign(hull_.begin(), hull_.end());
+    hull_twice_.insert(hull_twice_.end(), hull_.begin(), hull_.end());
+    auto at = [&](int i) { return hull_twice_[static_cast<std::size_t>(i)]; };
     double best = 0;
     for (int i = 0; i < n; ++i) {
       int k = i + 1;
@@ -1551,7 +1610,7 @@ class Frame8Detector final : public MarkerDetector {
   int decimate_ = 1;
   std::vector<std::uint8_t> decimated_;
   std::vector<std::uint32_t> tile_sum_;
-  std::vector<std::uint16_t> tile_count_;
+  std::vector<std::uint32_t> tile_row_sum_;
   std::vector<std::uint8_t> tile_threshold_;
   std::vector<std::uint8_t> pixel_threshold_;
   std::vector<std::uint8_t> column_max_, local_max_;
@@ -1561,7 +1620,7 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<Component> components_;
   std::vector<std::int32_t> roots_;
   std::vector<std::int32_t> line_min_, line_max_;
-  std::vector<Point2> points_, hull_;
+  std::vector<Point2> points_, hull_, hull_twice_;
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
   std::array<int, 4> edge_count_{};
   std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};
