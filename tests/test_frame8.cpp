@@ -221,6 +221,41 @@ TEST(Frame8, PoseDistanceWithinOnePercentAtOneMetre) {
   }
 }
 
+// At 2.6 m the thesis's 8 cm marker is 16 px wide: a cell is 1.6 px and the
+// black line under a pixel, too thin against the blur for its edge to be
+// found by the gradient. Read through the fitted edge profiles.
+TEST(Frame8, CellsOfOnePointSixPixelsAreRead) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  std::mt19937 rng(26);
+  std::uniform_int_distribution<int> any_id(1, 254);
+  std::uniform_real_distribution<double> jitter(-1, 1);
+  constexpr int kFrames = 30;
+  int found_right = 0, wrong = 0;
+  std::string misreads;
+  for (int k = 0; k < kFrames; ++k) {
+    Scene s = scene(any_id(rng), 2.6, 0, 5 * jitter(rng), static_cast<std::uint64_t>(2600 + k));
+    s.pose.translation.x() = 0.1 * jitter(rng);
+    s.pose.translation.y() = 0.1 * jitter(rng);
+    for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
+      if (d.id == s.id) {
+        ++found_right;
+        EXPECT_LT(mean_corner_error(d.corners, project_marker_corners(kCamera, s)), 1.0) << "frame " << k;
+      } else {
+        ++wrong;
+        misreads += " frame " + std::to_string(k) + ": id " + std::to_string(d.id) + " for " + std::to_string(s.id) + ";";
+      }
+    }
+  }
+  // Measured: 25 found, 1 misread (without the fitted profiles and the
+  // unmixed ring samples: 16 found, 4 misread; without the unmixing alone:
+  // 20 found, 4 misread).
+  EXPECT_GE(found_right, 23);
+  EXPECT_LE(wrong, 2) << misreads;
+}
+
 // Clutter with dark frames, checkered patches and text: nothing.
 TEST(Frame8, NoDetectionOnClutter) {
   auto det = make_detector(DetectorConfig{});

@@ -10,9 +10,13 @@
 #include <utility>
 
 #include "markerd/detector/frame8.hpp"
+#include "normal_table.hpp"
 
 namespace markerd::frame8 {
 namespace {
+
+using detail::NormalTable;
+using detail::normal_table;
 
 // Beyond a box of this many pixels, cells are several pixels wide and
 // sampling them is better and cheaper. An area, not a side: a marker turned
@@ -70,45 +74,8 @@ constexpr std::array<Rect, RingModel::kRegions> make_rects() {
 }
 constexpr std::array<Rect, RingModel::kRegions> kRects = make_rects();
 
-// The standard normal distribution and density, tabulated: a pixel needs
-// thirty of each, and erfc costs more than the rest of the pixel's work.
-struct NormalTable {
-  static constexpr double kRange = 8;
-  static constexpr int kPerUnit = 64;
-  static constexpr int kSize = static_cast<int>(2 * kRange * kPerUnit) + 2;
-  std::array<double, kSize> cdf{}, pdf{};
-  NormalTable() {
-    for (int i = 0; i < kSize; ++i) {
-      const double z = -kRange + static_cast<double>(i) / kPerUnit;
-      cdf[static_cast<std::size_t>(i)] = 0.5 * std::erfc(-z / std::numbers::sqrt2);
-      pdf[static_cast<std::size_t>(i)] = std::exp(-0.5 * z * z) / std::sqrt(2 * std::numbers::pi);
-    }
-  }
-  void at(double z, double& c, double& p) const {
-    if (z <= -kRange) {
-      c = p = 0;
-      return;
-    }
-    if (z >= kRange) {
-      c = 1;
-      p = 0;
-      return;
-    }
-    const double f = (z + kRange) * kPerUnit;
-    const auto i = static_cast<std::size_t>(f);
-    const double t = f - static_cast<double>(i);
-    c = cdf[i] + t * (cdf[i + 1] - cdf[i]);
-    p = pdf[i] + t * (pdf[i + 1] - pdf[i]);
-  }
-};
-
 // The marker's outer corners in grid coordinates.
 constexpr std::array<std::pair<int, int>, 4> kOuterCorners{{{0, 0}, {grid, 0}, {grid, grid}, {0, grid}}};
-
-const NormalTable& normal_table() {
-  static const NormalTable table;
-  return table;
-}
 
 }  // namespace
 

@@ -29,7 +29,8 @@ struct Frame8Options {
   // Adaptive threshold: a pixel is dark when it is this many grey levels
   // below the mean of its neighbourhood.
   int threshold_offset = 6;
-  // Smallest hole side, in full-resolution pixels, that is worth decoding.
+  // Smallest hole side, in full-resolution pixels, that is worth decoding
+  // (the long side; the short side, of a marker turned far, may be 2 px less).
   double min_hole_side_px = 5.0;
   // Least decoding margin (0..1) that a detection must reach.
   double min_margin = 0.12;
