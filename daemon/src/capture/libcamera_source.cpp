@@ -300,6 +300,11 @@ void Session::open(const LibcameraSettings& settings) {
     const std::lock_guard lock(requeue_mutex_);
     running_ = true;
   }
+  // Some pipeline handlers ignore the controls given to start(): 0.0.3's UVC
+  // handler applies only a request's own (found against a real uvcvideo
+  // camera in the HIL guest, tests/hil/test_uvc_hil.cpp). The first request
+  // carries them too; the device keeps them for the requests after it.
+  if (!slots_.empty()) slots_.front().request->controls().merge(controls);
   for (auto& slot : slots_) {
     if (const int ret = camera_->queueRequest(slot.request.get()); ret < 0) {
       fail(CaptureError::Kind::io, fmt::format("cannot queue a request: {}", std::strerror(-ret)));
