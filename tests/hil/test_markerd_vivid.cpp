@@ -50,6 +50,7 @@
 #include <vector>
 
 #include "markerd/daemon/control/control_client.hpp"
+#include "markerd_child.hpp"
 #include "vivid_scene_feeder.hpp"
 
 namespace markerd::hil {
@@ -79,141 +80,6 @@ constexpr double kMaxRotationErrorDeg = 3.0;
 // built with the sanitizers, on a loaded 2-core host.
 constexpr auto kStartTimeout = 90s;
 constexpr auto kPhaseTimeout = 60s;
-
-const char* env(const char* name) {
-  const char* value = std::getenv(name);  // NOLINT(concurrency-mt-unsafe): read before any thread starts
-  return value != nullptr && *value != '\0' ? value : nullptr;
-}
-
-bool wait_until(const std::function<bool()>& done, std::chrono::milliseconds timeout,
-                std::chrono::milliseconds interval = 100ms) {
-  const auto deadline = Clock::now() + timeout;
-  for (;;) {
-    if (done()) return true;
-    if (Clock::now() >= deadline) return false;
-    std::this_thread::sleep_for(interval);
-  }
-}
-
-double seconds_since(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-// ---------------------------------------------------------------- markerd
-
-// markerd as a child process, its standard output and error in a file.
-class MarkerdProcess {
- public:
-  MarkerdProcess(const fs::path& config, const fs::path& output) {
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&actions, 1, output.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_adddup2(&actions, 1, 2);
-    std::string program = MARKERD_PATH;
-    std::string flag = "--config";
-    std::string config_path = config.string();
-    char* argv[] = {program.data(), flag.data(), config_path.data(), nullptr};
-    // This process has threads (the feeder): posix_spawn, not fork.
-    const int error = ::posix_spawn(&pid_, program.c_str(), &actions, nullptr, argv, environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (error != 0) throw std::runtime_error("posix_spawn " + program + ": " + std::strerror(error));
-  }
-  ~MarkerdProcess() {
-    if (!exit_status_) {
-      ::kill(pid_, SIGKILL);
-      int status = 0;
-      ::waitpid(pid_, &status, 0);
-    }
-  }
-  MarkerdProcess(const MarkerdProcess&) = delete;
-  MarkerdProcess& operator=(const MarkerdProcess&) = delete;
-
-  [[nodiscard]] bool running() {
-    if (exit_status_) return false;
-    int status = 0;
-    if (::waitpid(pid_, &status, WNOHANG) == pid_) exit_status_ = status;
-    return !exit_status_;
-  }
-  // The wait status once it has exited.
-  [[nodiscard]] std::optional<int> exit_status() const { return exit_status_; }
-
-  // SIGTERM, then its wait status; nothing when it has not exited in time.
-  std::optional<int> terminate(std::chrono::milliseconds timeout) {
-    if (running()) ::kill(pid_, SIGTERM);
-    wait_until([this] { return !running(); }, timeout, 20ms);
-    return exit_status_;
-  }
-
- private:
-  pid_t pid_ = -1;
-  std::optional<int> exit_status_;
-};
-
-std::string describe_wait_status(int status) {
-  if (WIFEXITED(status)) return "exit status " + std::to_string(WEXITSTATUS(status));
-  if (WIFSIGNALED(status)) return std::string("killed by ") + strsignal(WTERMSIG(status));
-  return "wait status " + std::to_string(status);
-}
-
-// ---------------------------------------------------------------- the log
-
-struct LogFile {
-  std::vector<json> lines;  // the complete lines, parsed
-  std::size_t unparsable = 0;
-  bool ends_whole = true;  // the last byte is the last line's '\n'
-};
-
-// The run's detection log, as a reader following it takes it: complete
-// lines only (a line being written has no '\n' yet).
-LogFile read_log(const fs::path& directory) {
-  std::vector<fs::path> files;
-  for (const auto& entry : fs::directory_iterator(directory)) {
-    if (entry.path().extension() == ".jsonl") files.push_back(entry.path());
-  }
-  std::sort(files.begin(), files.end());
-  LogFile log;
-  for (const auto& file : files) {
-    const std::string text = read_file(file);
-    std::size_t start = 0;
-    for (std::size_t end = text.find('\n'); end != std::string::npos; end = text.find('\n', start)) {
-      json line = json::parse(text.begin() + static_cast<std::ptrdiff_t>(start),
-                              text.begin() + static_cast<std::ptrdiff_t>(end), nullptr, false);
-      if (line.is_discarded()) {
-        ++log.unparsable;
-      } else {
-        log.lines.push_back(std::move(line));
-      }
-      start = end + 1;
-    }
-    if (start != text.size()) log.ends_whole = false;
-  }
-  return log;
-}
-
-Clock::time_point capture_time(const json& line) {
-  return Clock::time_point(std::chrono::nanoseconds(line.at("frame").at("capture_monotonic_ns").get<std::int64_t>()));
-}
-
-// ---------------------------------------------------------------- truth
-
-Eigen::Vector3d vector3(const json& a) { return {a.at(0).get<double>(), a.at(1).get<double>(), a.at(2).get<double>()}; }
-
-Eigen::Matrix3d rotation_of(const Eigen::Vector3d& rvec) {
-  const double angle = rvec.norm();
-  if (angle < 1e-12) return Eigen::Matrix3d::Identity();
-  return Eigen::AngleAxisd(angle, rvec / angle).toRotationMatrix();
-}
-
-double rotation_between_deg(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
-  const Eigen::AngleAxisd difference(a.transpose() * b);
-  return std::abs(difference.angle()) * 180.0 / M_PI;
-}
 
 // What one phase of the log (the frames between two times) showed.
 struct PhaseCheck {
@@ -426,7 +292,7 @@ TEST_F(MarkerdVivid, LogsTheMarkersShownSurvivesAnUnplugAndStopsCleanly) {
   const auto test_start = Clock::now();
   write_config();
   plug_in(nodes_);
-  MarkerdProcess markerd(config_, markerd_output_);
+  MarkerdProcess markerd(MARKERD_PATH, config_, markerd_output_);
 
   // ---- streaming: the right ids and poses in the log
   ASSERT_TRUE(wait_until([&] { return fs::exists(socket_) || !markerd.running(); }, kStartTimeout))
