@@ -303,6 +303,15 @@ hil_kernel_sources() {
   local f
   for f in "$@"; do [[ -e $HIL_KDIR/src/$f ]] || missing+=("linux-source-$HIL_KSERIES/$f"); done
   [[ ${#missing[@]} -gt 0 ]] || return 0
+  # While the package is here, every recipe's files are taken, so that the
+  # first build of another recipe does not fetch it again.
+  local -A wanted=()
+  for f in "${missing[@]}"; do wanted[$f]=1; done
+  while read -r f; do
+    [[ -e $HIL_KDIR/src/$f || -n ${wanted[linux-source-$HIL_KSERIES/$f]:-} ]] && continue
+    wanted[linux-source-$HIL_KSERIES/$f]=1
+    missing+=("linux-source-$HIL_KSERIES/$f")
+  done < <(cat "$HIL_TOOLS"/modules/*/sources | sed 's/#.*//; /^[[:space:]]*$/d')
   rm -rf "$HIL_KDIR"/.src.*  # an interrupted download's 140 MB
   local tmp
   tmp=$(mktemp -d "$HIL_KDIR/.src.XXXXXX")
