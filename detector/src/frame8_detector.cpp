@@ -175,6 +175,17 @@ struct Line {
   double nx = 0, ny = 0, c = 0;  // nx*x + ny*y = c, |n| = 1
 };
 
+// Twice the signed area of a polygon (the shoelace sum): positive when its
+// vertices run clockwise on screen (y down).
+inline double twice_signed_area(const Point2* v, std::size_t n) {
+  double sum = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Point2 a = v[i], b = v[(i + 1) % n];
+    sum += a.x * b.y - b.x * a.y;
+  }
+  return sum;
+}
+
 inline bool intersect(const Line& l1, const Line& l2, Point2& p) {
   const double det = l1.nx * l2.ny - l1.ny * l2.nx;
   if (std::abs(det) < 1e-9) return false;
@@ -648,17 +659,8 @@ class Frame8Detector final : public MarkerDetector {
     if (!max_area_quad(quad)) return;
 
     // The hull must be a quad, and the component must fill most of it.
-    double hull_area = 0;
-    for (std::size_t i = 0; i < hull_.size(); ++i) {
-      const Point2 a = hull_[i], b = hull_[(i + 1) % hull_.size()];
-      hull_area += a.x * b.y - b.x * a.y;
-    }
-    hull_area = std::abs(hull_area) / 2;
-    double quad_area = 0;
-    for (int i = 0; i < 4; ++i) {
-      const Point2 a = quad[static_cast<std::size_t>(i)], b = quad[static_cast<std::size_t>((i + 1) % 4)];
-      quad_area += a.x * b.y - b.x * a.y;
-    }
+    const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
+    double quad_area = twice_signed_area(quad.data(), quad.size());
     if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
     quad_area = std::abs(quad_area) / 2;
     F8_TRACE("  quad area %.1f hull %.1f\n", quad_area, hull_area);
@@ -1040,12 +1042,7 @@ class Frame8Detector final : public MarkerDetector {
     // is wide, by up to a half at 80 degrees.
     std::array<double, 4> side_len{};
     for (int i = 0; i < 4; ++i) side_len[static_cast<std::size_t>(i)] = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
-    double area = 0;
-    for (int i = 0; i < 4; ++i) {
-      const Point2 a = inner[static_cast<std::size_t>(i)], b = inner[static_cast<std::size_t>((i + 1) % 4)];
-      area += a.x * b.y - b.x * a.y;
-    }
-    area = std::abs(area) / 2;
+    const double area = std::abs(twice_signed_area(inner.data(), inner.size())) / 2;
     const double across = 2 * area / std::max(side_len[0] + side_len[2], side_len[1] + side_len[3]);
     const CellSize cell_size{across / kInnerSide, cell_px};
     Homography H;
