@@ -1513,6 +1513,207 @@ class Frame8Detector final : public MarkerDetector {
     }
   }
 
+  // The two short edges of a marker turned far hold all four corners, as
+  // cells of about a pixel along the edge, with the background beyond them:
+  // a corner's centre sample is a mix no fixed share can undo. Along the
+  // edge, though, the profile of the ten cells is known once the code is:
+  // fitted to it with the corners coloured each way, the right colouring
+  // leaves the least residual. Per colouring of the edge's first and last
+  // cell (0: both black, 1: the first white, 2: the last white): the
+  // residual sum of squares, and what a corner's colour is worth in it (the
+  // residual that taking a right-coloured corner for the wrong colour adds,
+  // per unit of contrast squared).
+  struct ShortEdgeFit {
+    std::array<double, 3> residual{};
+    std::array<double, 2> corner_worth{};
+    double spread = 0;  // the profile's sum of squares about its mean
+  };
+
+  bool fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const {
+    constexpr int kPerCell = 4;
+    constexpr int kSamples = (frame8::grid + 2) * kPerCell + 1;  // from a cell outside to a cell beyond
+    static constexpr std::array<double, 3> kAcross{0.3, 0.5, 0.7};
+    std::array<double, kSamples> level{}, inv_sigma{};
+    for (int i = 0; i < kSamples; ++i) {
+      const double t = -1.0 + static_cast<double>(i) / kPerCell;
+      float sum = 0;
+      for (const double in : kAcross) {
+        const Point2 p = grid_point(H, side_point(side, t, in));
+        float v = 0;
+        if (!sample(full_, p.x, p.y, v)) return false;
+        sum += v;
+      }
+      level[static_cast<std::size_t>(i)] = sum / static_cast<double>(kAcross.size());
+      const double px = distance(grid_point(H, side_point(side, t - 0.5, 0.5)), grid_point(H, side_point(side, t + 0.5, 0.5)));
+      inv_sigma[static_cast<std::size_t>(i)] = px / profile_sigma_;
+    }
+    // The background beyond each end, measured a little further out, where
+    // the corner's blur has faded: the corner and a free outside level would
+    // otherwise trade their shares of the end samples.
+    std::array<double, 2> outside{};
+    for (int end = 0; end < 2; ++end) {
+      const Point2 p = grid_point(H, side_point(side, end ? frame8::grid + kOutsideGap : -kOutsideGap, 0.5));
+      float v = 0;
+      if (!sample(full_, p.x, p.y, v)) return false;
+      outside[static_cast<std::size_t>(end)] = v;
+    }
+    double mean = 0, yy = 0;
+    for (const double y : level) {
+      mean += y;
+      yy += y * y;
+    }
+    mean /= kSamples;
+    fit.spread = yy - kSamples * mean * mean;
+
+    // Each sample is a blend of six parts: the black data cells, the white
+    // ones, the first corner, the last corner, the outside before and the
+    // outside after. For cell boundaries placed by a stretch and a shift
+    // about the edge's middle (the quad's short sides are measured to a
+    // fraction of a cell only), the parts' moments over the profile; any
+    // model that colours the parts is a linear map of them.
+    using Vector6 = Eigen::Matrix<double, 6, 1>;
+    struct Moments {
+      Eigen::Matrix<double, 6, 6> gram;
+      Vector6 cross;
+    };
+    const detail::NormalTable& table = detail::normal_table();
+    auto moments = [&](double stretch, double shift, Moments& m) {
+      m.gram.setZero();
+      m.cross.setZero();
+      for (int i = 0; i < kSamples; ++i) {
+        const double t = -1.0 + static_cast<double>(i) / kPerCell;
+        const double is = inv_sigma[static_cast<std::size_t>(i)];
+        Vector6 part = Vector6::Zero();
+        double below = 0, unused = 0;
+        table.at((5 + shift - 5 * stretch - t) * is, below, unused);
+        part(4) = below;
+        for (int c = 0; c < frame8::grid; ++c) {
+          double upto = 0;
+          table.at((5 + shift + stretch * (c - 4) - t) * is, upto, unused);
+          const int to = c == 0 ? 2 : c == frame8::grid - 1 ? 3 : ((id >> (8 - c)) & 1);
+          part(to) += upto - below;
+          below = upto;
+        }
+        part(5) = 1 - below;
+        m.gram.selfadjointView<Eigen::Lower>().rankUpdate(part);
+        m.cross += part * level[static_cast<std::size_t>(i)];
+      }
+      m.gram = m.gram.selfadjointView<Eigen::Lower>();
+    };
+    // Black, white and the outside levels are held near the ring's levels
+    // and the measured background by as much as a few samples would: no
+    // colouring fits by turning the contrast down or over, or by trading
+    // the corner for the background.
+    const Eigen::Vector4d prior(black, white, outside[0], outside[1]);
+    auto residual = [&](const Moments& m, const Eigen::Matrix<double, 6, 4>& model) {
+      Eigen::Matrix4d normal = model.transpose() * m.gram * model;
+      normal.diagonal().array() += kLevelPrior + kProfileRidge;
+      const Eigen::Vector4d rhs = model.transpose() * m.cross + kLevelPrior * prior;
+      const Eigen::Vector4d x = normal.ldlt().solve(rhs);
+      return std::max(yy + kLevelPrior * prior.squaredNorm() - x.dot(rhs), 0.0);
+    };
+    // The model of a colouring: 0 both corners black, 1 the first white, 2 the last white.
+    auto coloured = [](int colouring) {
+      Eigen::Matrix<double, 6, 4> model = Eigen::Matrix<double, 6, 4>::Zero();
+      model(0, 0) = model(1, 1) = model(4, 2) = model(5, 3) = 1;
+      model(2, colouring == 1 ? 1 : 0) = 1;
+      model(3, colouring == 2 ? 1 : 0) = 1;
+      return model;
+    };
+    // First the alignment, with the corners free: the eight data cells,
+    // known, place the boundaries without favouring any colouring.
+    auto free_corners = [&](const Moments& m) {
+      Eigen::Matrix<double, 6, 6> normal = m.gram;
+      normal.diagonal().array() += kProfileRidge;
+      Vector6 rhs = m.cross;
+      static constexpr std::array<int, 4> kHeld{0, 1, 4, 5};  // the parts the prior holds, in its order
+      for (int k = 0; k < 4; ++k) {
+        const int part = kHeld[static_cast<std::size_t>(k)];
+        normal(part, part) += kLevelPrior;
+        rhs(part) += kLevelPrior * prior(k);
+      }
+      const Vector6 x = normal.ldlt().solve(rhs);
+      return yy + kLevelPrior * prior.squaredNorm() - x.dot(rhs);
+    };
+    Moments m;
+    double best_stretch = 1, best_shift = 0, best = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < kStretchSteps; ++i) {
+      const double stretch = kMinStretch + i * kStretchStep;
+      for (int j = -kShiftSteps; j <= kShiftSteps; ++j) {
+        const double shift = j * kShiftStep;
+        moments(stretch, shift, m);
+        if (const double r = free_corners(m); r < best) {
+          best = r;
+          best_stretch = stretch;
+          best_shift = shift;
+        }
+      }
+    }
+    // Then each colouring at its best, near there.
+    fit.residual.fill(std::numeric_limits<double>::infinity());
+    for (int i = -1; i <= 1; ++i) {
+      for (int j = -1; j <= 1; ++j) {
+        moments(best_stretch + 0.5 * i * kStretchStep, best_shift + 0.5 * j * kShiftStep, m);
+        for (int colouring = 0; colouring < 3; ++colouring) {
+          const double r = residual(m, coloured(colouring));
+          if (r < fit.residual[static_cast<std::size_t>(colouring)]) {
+            fit.residual[static_cast<std::size_t>(colouring)] = r;
+            if (colouring > 0) fit.corner_worth[static_cast<std::size_t>(colouring - 1)] = m.gram(colouring + 1, colouring + 1);
+          }
+        }
+      }
+    }
+    F8_TRACE("   side %d: stretch %.2f shift %.2f residual %.0f %.0f %.0f\n", side, best_stretch, best_shift, fit.residual[0], fit.residual[1], fit.residual[2]);
+    return true;
+  }
+
+  // The white corner of a marker whose short edges are `side` and side + 2,
+  // from their profiles (fit_short_edge), with `clarity` the margin to the
+  // next best colouring in units of what a corner's colour is worth; -1
+  // when the code leaves either profile unexplained. With only the two long
+  // edges voting, the code has no redundancy left: the short edges are its
+  // check.
+  int white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white, double& clarity) const {
+    std::array<ShortEdgeFit, 2> fit{};
+    if (!fit_short_edge(H, side, id, black, white, fit[0]) || !fit_short_edge(H, side + 2, id, black, white, fit[1])) return -1;
+    const double contrast = white - black;
+    // Residual and worth when corner k is the white one (k = 4: none is).
+    auto colouring = [&](int edge, int k) {
+      const int first = side + 2 * edge, last = (first + 1) % 4;
+      return k == first ? 1 : k == last ? 2 : 0;
+    };
+    std::array<double, 5> residual{}, worth{};
+    for (int k = 0; k < 5; ++k) {
+      for (int edge = 0; edge < 2; ++edge) {
+        const auto& f = fit[static_cast<std::size_t>(edge)];
+        const int c = colouring(edge, k);
+        residual[static_cast<std::size_t>(k)] += f.residual[static_cast<std::size_t>(c)];
+        if (c != 0) worth[static_cast<std::size_t>(k)] = f.corner_worth[static_cast<std::size_t>(c - 1)];
+      }
+    }
+    int best = 0;
+    for (int k = 1; k < 4; ++k) {
+      if (residual[static_cast<std::size_t>(k)] < residual[static_cast<std::size_t>(best)]) best = k;
+    }
+    clarity = std::numeric_limits<double>::infinity();
+    for (int k = 0; k < 5; ++k) {
+      if (k == best) continue;
+      const double expected = contrast * contrast * (worth[static_cast<std::size_t>(best)] + worth[static_cast<std::size_t>(k)]);
+      clarity = std::min(clarity, (residual[static_cast<std::size_t>(k)] - residual[static_cast<std::size_t>(best)]) / expected);
+    }
+    // Each edge's profile is the code's, to what the model misses of the
+    // optics: clutter's profiles fit the code no better than any other.
+    double unexplained = 0;
+    for (int edge = 0; edge < 2; ++edge) {
+      const auto& f = fit[static_cast<std::size_t>(edge)];
+      unexplained = std::max(unexplained, f.residual[static_cast<std::size_t>(colouring(edge, best))] / f.spread);
+    }
+    F8_TRACE("  short edges %d,%d: residual %.0f %.0f %.0f %.0f none %.0f, corner %d clarity %.2f unexplained %.3f\n", side, side + 2,
+             residual[0], residual[1], residual[2], residual[3], residual[4], best, clarity, unexplained);
+    if (!(unexplained < kMaxUnexplained)) return -1;
+    return best;
+  }
+
   // How well an edge's cells are resolved along the edge, 0..1: a cell under
   // a pixel wide is blurred into its neighbours.
   static double edge_weight(const Homography& H, int edge) {
@@ -1649,25 +1850,40 @@ class Frame8Detector final : public MarkerDetector {
     int white_corners = 0;
     for (const auto& c : corner) white_corners += soft(c.mean) > 0;
     F8_TRACE("  corners soft %.2f %.2f %.2f %.2f cell %.2f px\n", soft(corner[0].mean), soft(corner[1].mean), soft(corner[2].mean), soft(corner[3].mean), cell_size.narrow);
-    if (white_corners == 0 || white_corners > 2) return reject(5);
-    if (!clear(corner[static_cast<std::size_t>(white_corner)])) return reject(6);
-    rotation = (white_corner + 3) % 4;
-
     // The bits: soft votes of the four edges, weighted by resolution.
     constexpr double kClearCode = 0.35;
     std::array<double, 4> weight{};
     for (int e = 0; e < 4; ++e) weight[static_cast<std::size_t>(e)] = edge_weight(H, e);
     // The two short edges of a marker turned far have cells of about a
     // pixel along them, blurred into each other, while its two long edges
-    // read cleanly: then the short ones have no vote. Only for that shape: a
-    // lone short edge is no turned marker, and must keep its say.
+    // read cleanly: then the short ones have no vote, and their corners are
+    // read from their profiles once the code is known. Only for that shape:
+    // a lone short edge is no turned marker, and must keep its say.
+    int short_side = -1;
     for (int e = 0; e < 2; ++e) {
       const auto s0 = static_cast<std::size_t>(e), s1 = static_cast<std::size_t>(e + 2);
       const auto l0 = static_cast<std::size_t>(e + 1), l1 = static_cast<std::size_t>((e + 3) % 4);
       if (weight[s0] < kVotingEdge && weight[s1] < kVotingEdge && weight[l0] >= 1.0 && weight[l1] >= 1.0) {
         weight[s0] = weight[s1] = 0.0;
+        short_side = e;
       }
     }
+    F8_TRACE("  weights %.2f %.2f %.2f %.2f\n", weight[0], weight[1], weight[2], weight[3]);
+    // Corners decide orientation. Without a clean 3:1 split (an edge covered
+    // with its corners) the whitest corner still decides, as the contract
+    // says, but only a clearly read code may rely on that.
+    std::array<float, 4> sorted{};
+    for (int k = 0; k < 4; ++k) sorted[static_cast<std::size_t>(k)] = corner[static_cast<std::size_t>(k)].mean;
+    std::sort(sorted.begin(), sorted.end());
+    double orientation_clarity = 0.5 * (soft(sorted[3]) - soft(sorted[2]));
+    const bool corners_read = white_corners >= 1 && white_corners <= 2 && clear(corner[static_cast<std::size_t>(white_corner)]);
+    if (short_side < 0) {
+      if (white_corners == 0 || white_corners > 2) return reject(5);
+      if (!corners_read) return reject(6);
+    }
+    // A marker turned far whose corners do not read clearly: its short
+    // edges' profiles decide, once the code is known.
+    bool by_short_edges = short_side >= 0 && (!corners_read || orientation_clarity < config_.frame8.min_margin);
     int id = 0, corrected = 0, erased = 0;
     std::array<int, 4> outvoted{};  // per edge: its cells the other edges overruled
     double margin = 1.0;
@@ -1709,7 +1925,7 @@ class Frame8Detector final : public MarkerDetector {
     // (the diagonal neighbour of a light square in a checkered pattern)
     // spills into both. A neighbour that was itself outvoted, on an edge one
     // colour from end to end, lies under the cover of that whole edge and
-    // says nothing.
+    // says nothing; nor does a short edge whose profile placed the corners.
     constexpr double kContradiction = 0.3;
     auto covered = [&](int edge) {
       if (outvoted[static_cast<std::size_t>(edge)] == 0) return false;
@@ -1717,15 +1933,25 @@ class Frame8Detector final : public MarkerDetector {
       const bool light = soft(cells[0].mean) > 0;
       return std::all_of(cells.begin(), cells.end(), [&](const CellSample& c) { return clear(c) && (soft(c.mean) > 0) == light; });
     };
-    auto contradicts = [&](int edge, const CellSample& c, bool bit) {
-      if (covered(edge)) return false;
+    auto contradicts = [&](int edge, bool first_cell) {
+      if (covered(edge) || (by_short_edges && weight[static_cast<std::size_t>(edge)] == 0.0)) return false;
+      const CellSample& c = cell[static_cast<std::size_t>(edge)][first_cell ? 7U : 0U];
+      const bool bit = ((id >> (first_cell ? 7 : 0)) & 1) != 0;
       return c.valid && (bit ? soft(c.mean) < -kContradiction : soft(c.mean) > kContradiction);
     };
-    F8_TRACE("  C1 neighbours %.2f (bit0 %d) %.2f (bit7 %d)\n", soft(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0].mean), id & 1, soft(cell[static_cast<std::size_t>(white_corner)][7].mean), (id >> 7) & 1);
-    if (contradicts((white_corner + 3) % 4, cell[static_cast<std::size_t>((white_corner + 3) % 4)][0], id & 1) ||
-        contradicts(white_corner, cell[static_cast<std::size_t>(white_corner)][7], (id >> 7) & 1)) {
-      return reject(kC1Contradicted);
+    auto c1_contradicted = [&] {
+      F8_TRACE("  C1 %d neighbours %.2f (bit0 %d) %.2f (bit7 %d)\n", white_corner, soft(cell[static_cast<std::size_t>((white_corner + 3) % 4)][0].mean), id & 1, soft(cell[static_cast<std::size_t>(white_corner)][7].mean), (id >> 7) & 1);
+      return contradicts((white_corner + 3) % 4, false) || contradicts(white_corner, true);
+    };
+    // Clearly read corners of a marker turned far may still be wrong: the
+    // blur mixes each with the background. Its neighbours tell.
+    if (short_side >= 0 && !by_short_edges && c1_contradicted()) by_short_edges = true;
+    if (by_short_edges) {
+      white_corner = white_corner_by_short_edges(H, short_side, id, black, white, orientation_clarity);
+      if (white_corner < 0) return reject(25);
     }
+    if (c1_contradicted()) return reject(kC1Contradicted);
+    rotation = (white_corner + 3) % 4;
     // Where cells are resolved, more erasures than one edge's worth is not
     // a marker with an edge covered but something else.
     if (cell_size.mean >= kResolvedCells && erased > 8) return reject(10);
@@ -1746,13 +1972,6 @@ class Frame8Detector final : public MarkerDetector {
     if (id == 0 || id == 255) {
       if (!config_.frame8.uniform_ids || cell_size.narrow < kResolvedCells) return reject(13);
     }
-    // Corners decide orientation. Without a clean 3:1 split (an edge covered
-    // with its corners) the whitest corner still decides, as the contract
-    // says, but only a clearly read code may rely on that.
-    std::array<float, 4> sorted{};
-    for (int k = 0; k < 4; ++k) sorted[static_cast<std::size_t>(k)] = corner[static_cast<std::size_t>(k)].mean;
-    std::sort(sorted.begin(), sorted.end());
-    const double orientation_clarity = 0.5 * (soft(sorted[3]) - soft(sorted[2]));
     // A covered edge is one leniency already: it does not get a second.
     if (orientation_clarity < config_.frame8.min_margin && (margin < kClearCode || corrected >= 4)) return reject(14);
     // Nor below about three pixels a cell, where a covered strip cannot be
@@ -1906,7 +2125,7 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr double kCheckedLineCells = 2.0;
   // Perspective shortens one end of a far-turned marker below the cosine of
   // its turn: 0.12 at 80 degrees, seen from 0.5 m.
-  static constexpr double kMinSideRatio = 0.1;
+  static constexpr double kMinSideRatio = 0.08;
   // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
   static constexpr double kVotingEdge = 0.38;
   // A side shorter than this fraction of its neighbours is a sliver's end.
@@ -1922,6 +2141,23 @@ class Frame8Detector final : public MarkerDetector {
   // this ratio (1.06 for 30 px seen at a focal length of 500 px).
   static constexpr double kMaxSmallSideRatio = 1.3;
   static constexpr double kMaxNeighbourShare = 0.7;
+  // How many profile samples' worth the ring's grey levels weigh in a short
+  // edge's fit (fit_short_edge).
+  static constexpr double kLevelPrior = 4.0;
+  // How far beyond a short edge's end (in cells) its background is measured.
+  static constexpr double kOutsideGap = 1.75;
+  // The search for a short edge's cell boundaries: stretches from
+  // kMinStretch in kStretchSteps, shifts (cells) within kShiftSteps steps
+  // either way; the hole's short side, of a few pixels, is often measured
+  // a pixel short.
+  static constexpr double kMinStretch = 0.86;
+  static constexpr double kStretchStep = 0.06;
+  static constexpr int kStretchSteps = 10;
+  static constexpr double kShiftStep = 0.15;
+  static constexpr int kShiftSteps = 4;
+  // The most of a short edge's profile (its sum of squares about its mean)
+  // that the code's fit may leave unexplained.
+  static constexpr double kMaxUnexplained = 0.1;
   // How dark (soft level, -1 = black) the ring model must find the line.
   static constexpr double kClearLine = 0.5;
 
