@@ -1023,8 +1023,9 @@ class Frame8Detector final : public MarkerDetector {
         have_fallback = true;
       }
     }
-    // A square seen at up to about 82 degrees keeps its short sides at least
-    // an eighth of its long ones; slivers beyond that are not worth a read.
+    // A square seen at up to about 82 degrees keeps its short sides above a
+    // tenth of its long ones (kMinSideRatio); slivers beyond that are not
+    // worth a read.
     double shortest = std::numeric_limits<double>::infinity(), longest = 0;
     for (int i = 0; i < 4; ++i) {
       const double len = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
@@ -2124,7 +2125,8 @@ class Frame8Detector final : public MarkerDetector {
   // From this many pixels per cell across, the line's darkness is checked.
   static constexpr double kCheckedLineCells = 2.0;
   // Perspective shortens one end of a far-turned marker below the cosine of
-  // its turn: 0.12 at 80 degrees, seen from 0.5 m.
+  // its turn: 0.12 at 80 degrees, seen from 0.5 m; and a hole's short side
+  // of a few pixels is measured up to a pixel short.
   static constexpr double kMinSideRatio = 0.08;
   // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
   static constexpr double kVotingEdge = 0.38;
