@@ -27,6 +27,9 @@ packages=(
   # v4l2-ctl, the reference reader bench/bench_v4l2_capture.cpp measures
   # markerd's V4L2 capture path against inside the guest
   v4l-utils
+  # systemd-udevd, run inside the guest: libcamera learns of cameras plugged
+  # in and pulled out only from udev's events
+  udev
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd

@@ -1,15 +1,19 @@
 #pragma once
 // markerd as a child process of a HIL test, and its detection log read back:
-// what tests/hil/test_markerd_vivid.cpp and test_markerd_uvc.cpp share.
+// what tests/hil/test_markerd_vivid.cpp and test_markerd_uvc.cpp share; and
+// a command's output (markerctl's, in test_v4l2_hil.cpp too).
 
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
+#include <stdio.h>  // popen
 #include <sys/wait.h>
 #include <unistd.h>  // environ (g++ defines _GNU_SOURCE)
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -17,6 +21,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <functional>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -109,6 +114,22 @@ class MarkerdProcess {
   pid_t pid_ = -1;
   std::optional<int> exit_status_;
 };
+
+// A shell command's standard output and error, its wait status in `status`;
+// prints how long it took (markerctl loads OpenCV's libraries: seconds under TCG).
+inline std::string run_command(const std::string& command, int& status) {
+  const auto start = Clock::now();
+  std::string out;
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) throw std::runtime_error(std::string("popen: ") + std::strerror(errno));
+  std::array<char, 4096> chunk{};
+  std::size_t n = 0;
+  while ((n = std::fread(chunk.data(), 1, chunk.size(), pipe)) > 0) out.append(chunk.data(), n);
+  status = ::pclose(pipe);
+  std::cout << command << ": "
+            << std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start).count() << " ms\n";
+  return out;
+}
 
 inline std::string describe_wait_status(int status) {
   if (WIFEXITED(status)) return "exit status " + std::to_string(WEXITSTATUS(status));

@@ -209,7 +209,7 @@ class MarkerdUvc : public testing::Test {
     ASSERT_EQ(s["camera"]["state"], "streaming") << s.dump();
     EXPECT_EQ(s["camera"]["source"].get<std::string>().rfind(backend + " ", 0), 0U) << s.dump();
     const double streaming_after = seconds_since(test_start);
-    check_cameras(daemon::ControlClient(socket_).call({{"cmd", "cameras"}}, 60s));
+    check_cameras(daemon::ControlClient(socket_).call({{"cmd", "cameras"}}, 60s), backend == "v4l2");
     ASSERT_TRUE(wait_until([&] { return follower.lines() >= kLines || !markerd.running(); }, kPhaseTimeout))
         << "only " << follower.lines() << " lines logged within " << kPhaseTimeout.count() << " s";
     // The drop counts of the status cover at least the lines logged before it.
@@ -230,8 +230,9 @@ class MarkerdUvc : public testing::Test {
   }
 
   // markerd's `cameras` lists the webcam through both backends while it
-  // streams from it: libcamera lists without acquiring the camera.
-  void check_cameras(const json& cameras) const {
+  // streams from it: libcamera lists without acquiring the camera. So does
+  // markerctl's, once (it loads OpenCV's libraries: 20 s and more under TCG).
+  void check_cameras(const json& cameras, bool with_markerctl) const {
     const json& v4l2 = cameras.at("v4l2");
     const auto node =
         std::find_if(v4l2.begin(), v4l2.end(), [&](const json& d) { return d.at("path") == capture_node_; });
@@ -250,6 +251,20 @@ class MarkerdUvc : public testing::Test {
     const std::string libcamera_text = camera.dump();
     for (const char* expected : {"\"YUYV\"", "\"Brightness\"", "\"AeEnable\"", "\"width\":640"}) {
       EXPECT_NE(libcamera_text.find(expected), std::string::npos) << expected << " in " << libcamera_text;
+    }
+
+    if (!with_markerctl) return;
+    // And markerctl's table, from another process, through both backends.
+    int exit_status = 0;
+    const std::string table = run_command(std::string(MARKERCTL_PATH) + " cameras", exit_status);
+    ASSERT_EQ(exit_status, 0) << table;
+    const std::string libcamera_id = camera.at("id").get<std::string>();
+    for (const std::string& expected :
+         {capture_node_ + "  markerd HIL webcam: UVC Camera (driver uvcvideo, ", std::string("    YUYV    "),
+          std::string("640x480  30, 15 fps"), std::string("    brightness "), std::string("libcamera ") + libcamera_id,
+          std::string("  model     markerd HIL webcam: UVC Camera"), std::string("    YUYV    640x480"),
+          std::string("    Brightness ")}) {
+      EXPECT_NE(table.find(expected), std::string::npos) << "'" << expected << "' in:\n" << table;
     }
   }
 

@@ -481,5 +481,74 @@ TEST_F(UvcHil, V4l2SourceReportsTheUnplugAndStreamsAfterTheReplug) {
             << " s\n";
 }
 
+// After the V4L2 source's unplug: the same through libcamera, which learns
+// of it from udev's events (the udevd setup step) and reports the camera
+// removed; after the replug its camera manager lists the camera again, under
+// the same id (the same port).
+TEST_F(UvcHil, LibcameraSourceReportsTheUnplugAndStreamsAfterTheReplug) {
+  ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);  // NOLINT(concurrency-mt-unsafe): before libcamera starts
+  ASSERT_NE(env("HIL_UVC_GADGET"), nullptr);
+  ASSERT_NE(env("HIL_UVC_UDC"), nullptr);
+  const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
+  const auto cameras = daemon::list_libcamera_cameras();
+  ASSERT_EQ(cameras.size(), 1U);
+  daemon::LibcameraSettings settings;
+  settings.camera = cameras.front().id;
+  settings.format = daemon::LibcameraPixelFormat::yuyv;
+  settings.width = kWidth;
+  settings.height = kHeight;
+  settings.buffers = kBuffers;
+  auto source = daemon::make_libcamera_source(settings);
+  source->open();
+  const auto before = capture(*source, 15);
+  ASSERT_EQ(before.size(), 15U);
+  const auto last_before = read_stamp(before.back().image);
+  ASSERT_TRUE(last_before.has_value());
+
+  write_attribute(udc, "\n");
+  const auto unplugged = Clock::now();
+  std::optional<daemon::CaptureError> error;
+  try {
+    FramePool pool({.slots = 2, .pixel_bytes = source->geometry().slot_pixel_bytes});
+    while (Clock::now() - unplugged < 10s) {
+      if (!source->wait_frame(1000ms)) continue;
+      Frame* frame = pool.try_acquire();
+      ASSERT_NE(frame, nullptr);
+      source->fill(*frame);  // frames already on their way
+      pool.release(*frame);
+    }
+  } catch (const daemon::CaptureError& e) {
+    error = e;
+  }
+  const double loss_s = std::chrono::duration<double>(Clock::now() - unplugged).count();
+  ASSERT_TRUE(error.has_value()) << "the source did not notice the unplug within 10 s";
+  EXPECT_EQ(error->kind(), daemon::CaptureError::Kind::vanished) << error->what();
+  EXPECT_NE(std::string(error->what()).find(settings.camera), std::string::npos) << error->what();
+  source->close();
+  EXPECT_TRUE(daemon::list_libcamera_cameras().empty()) << "libcamera still lists the camera after the unplug";
+
+  write_attribute(udc, env("HIL_UVC_UDC"));
+  const auto replugged = Clock::now();
+  std::vector<daemon::LibcameraCameraInfo> listed;
+  while ((listed = daemon::list_libcamera_cameras()).empty() && Clock::now() - replugged < 60s) {
+    std::this_thread::sleep_for(200ms);
+  }
+  ASSERT_EQ(listed.size(), 1U) << "libcamera did not list the camera within 60 s of the replug";
+  EXPECT_EQ(listed.front().id, settings.camera) << "the same port, the same id";
+  const double listed_s = std::chrono::duration<double>(Clock::now() - replugged).count();
+  source = daemon::make_libcamera_source(settings);
+  source->open();
+  const auto after = capture(*source, 45);
+  const double first_frame_s = std::chrono::duration<double>(after.front().filled - replugged).count();
+  source->close();
+  ASSERT_EQ(after.size(), 45U);
+  check_frames("libcamera after the replug", after);
+  const auto first_after = read_stamp(after.front().image);
+  ASSERT_TRUE(first_after.has_value());
+  EXPECT_GT(*first_after, *last_before) << "the server numbers on across the replug";
+  std::cout << "unplug: the libcamera source reported it after " << loss_s << " s (" << error->what()
+            << "); replug: listed after " << listed_s << " s, the first frame after " << first_frame_s << " s\n";
+}
+
 }  // namespace
 }  // namespace markerd::hil

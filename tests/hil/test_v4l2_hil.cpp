@@ -50,6 +50,7 @@
 
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
+#include "markerd_child.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -424,27 +425,14 @@ TEST_F(V4l2Hil, ListsVividsFormatsSizesAndControls) {
 }
 
 #ifdef MARKERCTL_PATH
-std::string run_command(const std::string& command, int& status) {
-  const auto start = std::chrono::steady_clock::now();
-  std::string out;
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) throw std::runtime_error(errno_text("popen"));
-  std::array<char, 4096> chunk{};
-  std::size_t n = 0;
-  while ((n = std::fread(chunk.data(), 1, chunk.size(), pipe)) > 0) out.append(chunk.data(), n);
-  status = ::pclose(pipe);
-  std::cout << command << ": "
-            << std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - start).count()
-            << " ms\n";
-  return out;
-}
+using hil::run_command;
 
 // One run only: markerctl links OpenCV, whose hundreds of libraries take
 // seconds to load under TCG. The JSON is to_json's, tested above; the
 // refusal of a node that captures nothing is tested on the host.
 TEST_F(V4l2Hil, MarkerctlCamerasPrintsTheListing) {
   int status = 0;
-  const std::string table = run_command(std::string(MARKERCTL_PATH) + " cameras", status);
+  const std::string table = run_command(std::string(MARKERCTL_PATH) + " cameras --backend v4l2", status);
   ASSERT_EQ(status, 0) << table;
   EXPECT_NE(table.find(vivid_.capture + "  vivid"), std::string::npos) << table;
   EXPECT_EQ(table.find(vivid_.output), std::string::npos) << "lists capture nodes only: " << table;

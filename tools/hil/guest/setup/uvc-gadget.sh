@@ -17,9 +17,8 @@
 # and usb_f_uvc's default controls (the camera terminal's auto-exposure mode,
 # the processing unit's brightness).
 #
-# There is no udevd in the guest and libcamera only sees devices that udev
-# has initialised: an empty /run/udev/data/c<major>:<minor> (in the
-# command's /run) for the camera's media and video nodes is what it checks.
+# libcamera sees only devices that udev has initialised, and learns of an
+# unplug and a replug from udev's events: give --setup udevd first.
 #
 # Exports:
 #   HIL_UVC_CAPTURE        the camera's capture node on the host side, e.g. /dev/video1
@@ -41,6 +40,7 @@ fi
 server=$1
 shift
 [ -x "$HIL_HOST$server" ] || { echo "uvc-gadget: no server $server in the host's tree" >&2; exit 1; }
+[ -S "$HIL_HOST/run/udev/control" ] || { echo "uvc-gadget: no udevd running (give --setup udevd first)" >&2; exit 1; }
 
 udc=dummy_udc.0
 [ -e "/sys/class/udc/$udc" ] || { echo "uvc-gadget: no $udc (load the dummy_hcd module)" >&2; exit 1; }
@@ -136,10 +136,8 @@ for node in "$interface"/media*; do
 done
 [ -n "$media" ] || { echo "uvc-gadget: no media node under $interface" >&2; exit 1; }
 
-mkdir -p "$HIL_HOST/run/udev/data"
-for node in "$interface"/media* "$interface"/video4linux/video*; do
-  [ -e "$node/dev" ] && : >"$HIL_HOST/run/udev/data/c$(cat "$node/dev")"
-done
+# libcamera lists the camera once udev has initialised its nodes.
+chroot "$HIL_HOST" udevadm settle --timeout=120 || { echo "uvc-gadget: udev did not settle in 120 s" >&2; exit 1; }
 
 {
   echo "export HIL_UVC_CAPTURE=$capture"
