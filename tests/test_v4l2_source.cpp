@@ -421,10 +421,19 @@ TEST(MarkerctlCameras, NamesWhatItCannotList) {
 TEST(MarkerctlCameras, SaysSoWhenThereIsNoCamera) {
   if (this_machine_has_video_nodes()) GTEST_SKIP() << "this machine has /dev/video* nodes";
   int status = 0;
-  EXPECT_EQ(markerctl("cameras", status), "no V4L2 capture devices (no /dev/video* node that captures video)\n");
+  EXPECT_EQ(markerctl("cameras", status),
+            "no V4L2 capture devices (no /dev/video* node that captures video)\nno libcamera cameras\n");
+  EXPECT_EQ(status, 0);
+  EXPECT_EQ(markerctl("cameras --backend v4l2", status),
+            "no V4L2 capture devices (no /dev/video* node that captures video)\n");
+  EXPECT_EQ(status, 0);
+  EXPECT_EQ(markerctl("cameras --backend libcamera", status), "no libcamera cameras\n");
   EXPECT_EQ(status, 0);
   EXPECT_EQ(markerctl("cameras --json", status), "");
   EXPECT_EQ(status, 0);
+  EXPECT_EQ(markerctl("cameras --backend libcamera 'usb-1d6b:0104'", status),
+            "markerctl: cameras: libcamera has no camera 'usb-1d6b:0104' (it has: none)\n");
+  EXPECT_EQ(status, 1);
 }
 #endif
 

@@ -1,25 +1,33 @@
-// markerctl cameras: the V4L2 capture devices of this machine with what the
-// [camera.v4l2] table of markerd's config can name: their stable names,
+// markerctl cameras: the cameras of this machine with what markerd's config
+// can name. Through V4L2 ([camera.v4l2]): the capture devices' stable names,
 // inputs, formats, frame sizes and rates, and controls with their ranges,
-// menus and current values. Reads the devices directly (no daemon needed) and
-// changes nothing on them.
+// menus and current values. Through libcamera ([camera.libcamera]): the
+// cameras' ids, properties, stream formats and sizes, and controls. Reads
+// the devices directly (no daemon needed) and changes nothing on them.
 
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
+#include <cstdlib>
 #include <filesystem>
+#include <algorithm>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <type_traits>
+#include <variant>
 #include <vector>
 
 #include "common.hpp"
+#include "markerd/daemon/capture/libcamera_source.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 
 namespace markerctl {
 namespace {
 
+using markerd::daemon::LibcameraCameraInfo;
+using markerd::daemon::LibcameraValue;
 using markerd::daemon::V4l2ControlInfo;
 using markerd::daemon::V4l2DeviceInfo;
 using markerd::daemon::V4l2Fraction;
@@ -27,6 +35,7 @@ using markerd::daemon::V4l2Intervals;
 
 struct CamerasOptions {
   std::vector<std::string> devices;
+  std::string backend = "all";
   bool json = false;
 };
 
@@ -122,7 +131,60 @@ void print_device(const V4l2DeviceInfo& d) {
   std::cout << '\n';
 }
 
-int run_cameras(const CamerasOptions& o) {
+std::string value_text(const LibcameraValue& value) {
+  return std::visit(
+      [](const auto& v) -> std::string {
+        using T = std::decay_t<decltype(v)>;
+        if constexpr (std::is_same_v<T, std::monostate>) {
+          return "";
+        } else if constexpr (std::is_same_v<T, bool>) {
+          return v ? "true" : "false";
+        } else if constexpr (std::is_same_v<T, double>) {
+          return fmt::format("{:.4g}", v);
+        } else {
+          return fmt::format("{}", v);
+        }
+      },
+      value);
+}
+
+void print_camera(const LibcameraCameraInfo& c) {
+  std::cout << "libcamera " << c.id << '\n';
+  if (c.model) std::cout << "  model     " << *c.model << '\n';
+  if (c.location) std::cout << "  location  " << *c.location << '\n';
+  if (c.rotation) std::cout << "  rotation  " << *c.rotation << " deg\n";
+  if (!c.error.empty()) {
+    std::cout << "  error     " << c.error << "\n\n";
+    return;
+  }
+  std::cout << "  formats\n";
+  for (const auto& f : c.formats) {
+    std::string sizes;
+    for (const auto& size : f.sizes) sizes += fmt::format("{}{}x{}", sizes.empty() ? "" : ", ", size.width, size.height);
+    if (sizes.empty()) {
+      sizes = fmt::format("{}x{} to {}x{}", f.min_size.width, f.min_size.height, f.max_size.width, f.max_size.height);
+    }
+    std::cout << fmt::format("    {:<8}{}\n", f.pixel_format, sizes);
+  }
+  if (!c.controls.empty()) std::cout << "  controls\n";
+  for (const auto& control : c.controls) {
+    std::string text;
+    const std::string min = value_text(control.min), max = value_text(control.max);
+    if (!min.empty() || !max.empty()) text = fmt::format("{} to {}", min, max);
+    if (const std::string d = value_text(control.default_value); !d.empty()) {
+      text += fmt::format("{}default {}", text.empty() ? "" : ", ", d);
+    }
+    if (!control.values.empty()) {
+      std::string values;
+      for (const auto& v : control.values) values += (values.empty() ? "" : ", ") + value_text(v);
+      text += fmt::format("{}values {}", text.empty() ? "" : "; ", values);
+    }
+    std::cout << fmt::format("    {:<34} {:<8} {}\n", control.name, control.type, text);
+  }
+  std::cout << '\n';
+}
+
+std::vector<V4l2DeviceInfo> v4l2_devices(const CamerasOptions& o) {
   std::vector<V4l2DeviceInfo> devices;
   if (o.devices.empty()) {
     devices = markerd::daemon::list_v4l2_devices();
@@ -140,15 +202,47 @@ int run_cameras(const CamerasOptions& o) {
       devices.push_back(std::move(info));
     }
   }
+  return devices;
+}
+
+std::vector<LibcameraCameraInfo> libcamera_cameras(const CamerasOptions& o) {
+  // libcamera logs every pipeline handler it tries at INFO: not a listing's business.
+  ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);  // NOLINT(concurrency-mt-unsafe): before libcamera starts
+  std::vector<LibcameraCameraInfo> cameras;
+  try {
+    cameras = markerd::daemon::list_libcamera_cameras();
+  } catch (const markerd::daemon::CaptureError& e) {
+    throw runtime_error("cameras", fmt::format("libcamera: {}", e.what()));
+  }
+  if (o.devices.empty()) return cameras;
+  std::vector<LibcameraCameraInfo> named;
+  for (const auto& id : o.devices) {
+    const auto it = std::find_if(cameras.begin(), cameras.end(), [&](const auto& c) { return c.id == id; });
+    if (it == cameras.end()) {
+      std::string known;
+      for (const auto& c : cameras) known += (known.empty() ? "" : ", ") + c.id;
+      throw runtime_error("cameras", fmt::format("libcamera has no camera '{}' (it has: {})", id,
+                                                 known.empty() ? "none" : known));
+    }
+    named.push_back(*it);
+  }
+  return named;
+}
+
+int run_cameras(const CamerasOptions& o) {
+  const bool v4l2 = o.backend != "libcamera", libcamera = o.backend != "v4l2";
+  const auto devices = v4l2 ? v4l2_devices(o) : std::vector<V4l2DeviceInfo>{};
+  // DEVICEs name V4L2 devices unless the listing is libcamera's alone.
+  const auto cameras = libcamera && (o.devices.empty() || !v4l2) ? libcamera_cameras(o) : std::vector<LibcameraCameraInfo>{};
   if (o.json) {
     for (const auto& d : devices) std::cout << json_line(markerd::daemon::to_json(d)) << '\n';
+    for (const auto& c : cameras) std::cout << json_line(markerd::daemon::to_json(c)) << '\n';
     return 0;
   }
-  if (devices.empty()) {
-    std::cout << "no V4L2 capture devices (no /dev/video* node that captures video)\n";
-    return 0;
-  }
+  if (v4l2 && devices.empty()) std::cout << "no V4L2 capture devices (no /dev/video* node that captures video)\n";
   for (const auto& d : devices) print_device(d);
+  if (libcamera && cameras.empty() && (o.devices.empty() || !v4l2)) std::cout << "no libcamera cameras\n";
+  for (const auto& c : cameras) print_camera(c);
   return 0;
 }
 
@@ -156,16 +250,25 @@ int run_cameras(const CamerasOptions& o) {
 
 void add_cameras_command(CLI::App& parent, Commands& commands) {
   auto o = std::make_shared<CamerasOptions>();
-  CLI::App* app = parent.add_subcommand("cameras", "List the V4L2 cameras: formats, sizes, frame rates, controls");
+  CLI::App* app = parent.add_subcommand(
+      "cameras", "List the cameras, through V4L2 and libcamera: formats, sizes, frame rates, controls");
   app->footer(
-      "Lists every V4L2 video capture node (/dev/video*), or the DEVICEs given, with its stable names\n"
+      "Through V4L2: every video capture node (/dev/video*), or the DEVICEs given, with its stable names\n"
       "(/dev/v4l/by-id and by-path links, which survive replugging), inputs, current format, formats with\n"
       "their frame sizes and rates, and controls with type, range, default, current value and menu items.\n"
       "Control names are as markerd's [camera.v4l2.controls] takes them (and as v4l2-ctl prints them).\n"
-      "A DEVICE is a path, a by-id or by-path link, or such a link's bare name. --json prints one JSON\n"
-      "object per device, a line each. Needs read access to the devices (the group 'video'); changes\n"
-      "nothing on them.");
-  app->add_option("device", o->devices, "Only these devices (default: all capture nodes)")->type_name("DEVICE");
+      "A DEVICE is a path, a by-id or by-path link, or such a link's bare name.\n"
+      "Through libcamera: every camera libcamera finds (or, with --backend libcamera, the camera ids\n"
+      "given), with the id [camera.libcamera] names it by, its model and location, the stream formats\n"
+      "and sizes a video configuration offers, and its controls (frame rates: FrameDurationLimits) as\n"
+      "[camera.libcamera.controls] takes them. Given DEVICEs, the listing is V4L2's only.\n"
+      "--json prints one JSON object per device or camera, a line each, its \"backend\" saying which.\n"
+      "Needs read access to the devices (the group 'video'); changes nothing on them.");
+  app->add_option("device", o->devices, "Only these devices, or camera ids with --backend libcamera")
+      ->type_name("DEVICE");
+  app->add_option("--backend", o->backend, "v4l2, libcamera or all")
+      ->check(CLI::IsMember({"v4l2", "libcamera", "all"}))
+      ->capture_default_str();
   app->add_flag("--json", o->json, "One JSON object per device, a line each");
   commands.push_back({app, [o] { return run_cameras(*o); }});
 }
