@@ -49,6 +49,8 @@ constexpr std::uint32_t kFramesPerScene = 30;
 // About 3 s of frames at 30 per second with markerd's drops under TCG:
 // both scenes, changes. (Not run in sanitizer builds: tests/hil/CMakeLists.txt.)
 constexpr std::size_t kLines = 90;
+// Lines logged after the replug, checked for their markers.
+constexpr std::size_t kLinesAfterReplug = 10;
 // As test_markerd_vivid: the pose from the corners against the rendered one.
 constexpr double kMaxTranslationError = 0.03;  // of the distance
 constexpr double kMaxRotationErrorDeg = 3.0;
@@ -214,7 +216,49 @@ class MarkerdUvc : public testing::Test {
         << "only " << follower.lines() << " lines logged within " << kPhaseTimeout.count() << " s";
     // The drop counts of the status cover at least the lines logged before it.
     const std::size_t counted_lines = follower.lines();
-    s = status();
+    const json counted_status = status();
+
+    // ---- unplugged while streaming (the gadget unbound from its
+    // controller): markerd reports the loss and keeps running.
+    const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
+    write_udc(udc, "");
+    const auto unplugged = Clock::now();
+    s = wait_for_status([](const json& j) { return j.value("camera", json::object()).value("state", "") != "streaming"; },
+                        20s, markerd);
+    ASSERT_TRUE(markerd.running()) << "markerd exited on the unplug: " << describe_wait_status(*markerd.exit_status());
+    const double noticed_s = seconds_since(unplugged);
+    ASSERT_NE(s.value("camera", json::object()).value("state", ""), "streaming") << "unplug not noticed: " << s.dump();
+    // What the source said when the camera went: V4L2's ENODEV, libcamera's camera removed.
+    const std::string why = backend == "v4l2" ? "No such device" : "(disconnected)";
+    ASSERT_TRUE(wait_until([&] { return read_file(markerd_output_).find(": lost: ") != std::string::npos; }, 10s));
+    const std::string output = read_file(markerd_output_);
+    const std::string lost = output.substr(output.find(": lost: "));
+    EXPECT_NE(lost.substr(0, lost.find('\n')).find(why), std::string::npos) << "says why: " << lost;
+    s = wait_for_status([](const json& j) { return j.value("camera", json::object()).value("failures", 0) >= 2; }, 20s,
+                        markerd);
+    EXPECT_EQ(s.value("responsive", false), true) << "a lost camera is no hung daemon: " << s.dump();
+
+    // ---- plugged in again: markerd streams by itself.
+    write_udc(udc, env("HIL_UVC_UDC"));
+    const auto replugged = Clock::now();
+    s = wait_for_status(
+        [](const json& j) {
+          const json state = j.value("camera", json::object());
+          return state.value("state", "") == "streaming" && state.value("reopens", 0) >= 1;
+        },
+        kPhaseTimeout, markerd);
+    ASSERT_EQ(s.value("camera", json::object()).value("state", ""), "streaming") << s.dump();
+    // Frames read after the replug (not the broken ones the loss left).
+    const auto read_after = [&] {
+      const auto lines = read_log(dir_ / "log").lines;
+      return std::count_if(lines.begin(), lines.end(), [&](const json& line) {
+        return line.at("status") == "ok" && capture_time(line) >= replugged;
+      });
+    };
+    ASSERT_TRUE(wait_until(
+        [&] { return static_cast<std::size_t>(read_after()) >= kLinesAfterReplug || !markerd.running(); },
+        kPhaseTimeout, 200ms))
+        << "only " << read_after() << " frames logged within " << kPhaseTimeout.count() << " s of the replug";
     const auto exit_status = markerd.terminate(20s);
     ASSERT_TRUE(exit_status.has_value()) << "markerd did not exit within 20 s of SIGTERM";
     EXPECT_TRUE(WIFEXITED(*exit_status) && WEXITSTATUS(*exit_status) == 0) << describe_wait_status(*exit_status);
@@ -223,10 +267,72 @@ class MarkerdUvc : public testing::Test {
     const LogFile log = read_log(dir_ / "log");
     EXPECT_TRUE(log.ends_whole);
     EXPECT_EQ(log.unparsable, 0U);
-    ASSERT_GE(log.lines.size(), kLines);
-    check_log(backend, log.lines, arrivals, s, counted_lines);
-    std::cout << backend << ": streaming " << streaming_after << " s after markerd started; the run took "
-              << seconds_since(test_start) << " s\n";
+    ASSERT_GE(log.lines.size(), kLines + kLinesAfterReplug);
+    // Frames the unplug broke are logged as such (corrupt_frame, with the
+    // driver's or libcamera's word for it); the frames read are checked
+    // before the unplug frame by frame against what the server sent, after
+    // the replug for their markers; none was captured while unplugged.
+    const std::set<int> ids = [] {
+      std::set<int> all;
+      for (const auto& scene : feeder_scenes()) all.insert(scene.id);
+      return all;
+    }();
+    std::vector<json> before;
+    std::vector<Clock::time_point> before_arrivals;
+    std::size_t before_counted = 0, after = 0, broken = 0;
+    std::optional<double> first_logged_s;  // from the replug to the first frame's line in the log
+    for (std::size_t i = 0; i < log.lines.size(); ++i) {
+      const json& line = log.lines[i];
+      if (line.at("status") != "ok") {
+        EXPECT_EQ(line.at("status"), "corrupt_frame") << line.dump();
+        EXPECT_TRUE(line.at("cause").is_string()) << line.dump();
+        ++broken;
+        continue;
+      }
+      if (capture_time(line) < unplugged) {
+        before.push_back(line);
+        if (i < arrivals.size()) before_arrivals.push_back(arrivals[i]);
+        before_counted += i < counted_lines;
+        continue;
+      }
+      EXPECT_GE(capture_time(line), replugged) << backend << ": a frame captured while unplugged: " << line.dump();
+      if (!first_logged_s && i < arrivals.size()) {
+        first_logged_s = std::chrono::duration<double>(arrivals[i] - replugged).count();
+      }
+      ASSERT_EQ(line.at("detections").size(), 1U) << line.dump();
+      EXPECT_EQ(ids.count(line.at("detections").front().at("id").get<int>()), 1U) << line.dump();
+      ++after;
+    }
+    check_log(backend, before, before_arrivals, counted_status, before_counted);
+    EXPECT_GE(after, kLinesAfterReplug);
+    std::cout << backend << ": streaming " << streaming_after << " s after markerd started; unplugged: noticed after "
+              << noticed_s << " s (" << lost.substr(0, lost.find('\n')) << "); " << broken
+              << " frames logged as broken; replugged: the first frame logged " << first_logged_s.value_or(-1)
+              << " s after it; the run took " << seconds_since(test_start) << " s\n";
+  }
+
+  static void write_udc(const fs::path& udc, const std::string& value) {
+    std::ofstream out(udc);
+    out << value << '\n' << std::flush;
+    ASSERT_TRUE(out) << "cannot write '" << value << "' to " << udc;
+  }
+
+  // The status once `done` says so (or markerd exits, or `timeout` passes).
+  json wait_for_status(const std::function<bool(const json&)>& done, std::chrono::seconds timeout,
+                       MarkerdProcess& markerd) const {
+    json s;
+    wait_until(
+        [&] {
+          if (!markerd.running()) return true;
+          try {
+            s = status();
+          } catch (const std::exception&) {
+            return false;
+          }
+          return done(s);
+        },
+        timeout, 100ms);
+    return s;
   }
 
   // markerd's `cameras` lists the webcam through both backends while it
@@ -384,9 +490,10 @@ TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
   run_markerd("v4l2", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
                           "\"\nformat = \"YUYV\"\nwidth = 640\nheight = 480\nfps = 30\n"
                           "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority Mode\"\n");
-  // The config's controls, as the gadget received them.
-  EXPECT_EQ(values_set("brightness", start), std::vector<std::int64_t>{-20});
-  EXPECT_EQ(values_set("ae_mode", start), std::vector<std::int64_t>{8});
+  // The config's controls, as the gadget received them: at the start and
+  // again on the replugged camera.
+  EXPECT_EQ(values_set("brightness", start), (std::vector<std::int64_t>{-20, -20}));
+  EXPECT_EQ(values_set("ae_mode", start), (std::vector<std::int64_t>{8, 8}));
 }
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheLibcameraSource) {
@@ -394,9 +501,10 @@ TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheLibcameraSource) {
   run_markerd("libcamera", "source = \"libcamera\"\n[camera.libcamera]\npixel_format = \"YUYV\"\nwidth = 640\n"
                            "height = 480\n[camera.libcamera.controls]\nBrightness = 0.5\nAeEnable = false\n");
   // libcamera scales Brightness from [-1, 1] about the default: 0.5 is 32 of
-  // the gadget's 64; AeEnable false is manual exposure, mode 1.
-  EXPECT_EQ(values_set("brightness", start), std::vector<std::int64_t>{32});
-  EXPECT_EQ(values_set("ae_mode", start), std::vector<std::int64_t>{1});
+  // the gadget's 64; AeEnable false is manual exposure, mode 1. Set at the
+  // start and again on the replugged camera.
+  EXPECT_EQ(values_set("brightness", start), (std::vector<std::int64_t>{32, 32}));
+  EXPECT_EQ(values_set("ae_mode", start), (std::vector<std::int64_t>{1, 1}));
 }
 
 }  // namespace
