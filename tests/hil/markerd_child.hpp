@@ -131,6 +131,27 @@ inline std::string run_command(const std::string& command, int& status) {
   return out;
 }
 
+// Polls markerd's status (through `status`) until `done` holds for it, or
+// markerd exits, or `timeout` passes; the last status either way (a client
+// error as {"client_error": ...}).
+inline json wait_for_status(const std::function<json()>& status, const std::function<bool(const json&)>& done,
+                            std::chrono::milliseconds timeout, MarkerdProcess& markerd) {
+  json last;
+  wait_until(
+      [&] {
+        if (!markerd.running()) return true;
+        try {
+          last = status();
+        } catch (const std::exception& e) {
+          last = {{"client_error", e.what()}};
+          return false;
+        }
+        return done(last);
+      },
+      timeout, std::chrono::milliseconds(50));
+  return last;
+}
+
 inline std::string describe_wait_status(int status) {
   if (WIFEXITED(status)) return "exit status " + std::to_string(WEXITSTATUS(status));
   if (WIFSIGNALED(status)) return std::string("killed by ") + strsignal(WTERMSIG(status));

@@ -195,18 +195,9 @@ class MarkerdUvc : public testing::Test {
     ASSERT_TRUE(wait_until([&] { return fs::exists(socket_) || !markerd.running(); }, kStartTimeout))
         << "no control socket " << socket_ << " after " << kStartTimeout.count() << " s";
     ASSERT_TRUE(markerd.running()) << "markerd exited: " << describe_wait_status(*markerd.exit_status());
-    json s;
-    wait_until(
-        [&] {
-          if (!markerd.running()) return true;
-          try {
-            s = status();
-          } catch (const std::exception&) {
-            return false;
-          }
-          return s.value("camera", json::object()).value("state", "") == "streaming";
-        },
-        kStartTimeout, 50ms);
+    json s = wait_for_status(
+        [](const json& j) { return j.value("camera", json::object()).value("state", "") == "streaming"; },
+        kStartTimeout, markerd);
     ASSERT_TRUE(markerd.running()) << "markerd exited: " << describe_wait_status(*markerd.exit_status());
     ASSERT_EQ(s["camera"]["state"], "streaming") << s.dump();
     EXPECT_EQ(s["camera"]["source"].get<std::string>().rfind(backend + " ", 0), 0U) << s.dump();
@@ -321,21 +312,9 @@ class MarkerdUvc : public testing::Test {
   }
 
   // The status once `done` says so (or markerd exits, or `timeout` passes).
-  json wait_for_status(const std::function<bool(const json&)>& done, std::chrono::seconds timeout,
+  json wait_for_status(const std::function<bool(const json&)>& done, std::chrono::milliseconds timeout,
                        MarkerdProcess& markerd) const {
-    json s;
-    wait_until(
-        [&] {
-          if (!markerd.running()) return true;
-          try {
-            s = status();
-          } catch (const std::exception&) {
-            return false;
-          }
-          return done(s);
-        },
-        timeout, 100ms);
-    return s;
+    return hil::wait_for_status([this] { return status(); }, done, timeout, markerd);
   }
 
   // markerd's `cameras` lists the webcam through both backends while it

@@ -244,20 +244,7 @@ class MarkerdVivid : public testing::Test {
   // Polls the status until `done` holds for it; the last status either way.
   json wait_for_status(const std::function<bool(const json&)>& done, std::chrono::milliseconds timeout,
                        MarkerdProcess& markerd) const {
-    json last;
-    wait_until(
-        [&] {
-          if (!markerd.running()) return true;
-          try {
-            last = status();
-          } catch (const std::exception& e) {
-            last = {{"client_error", e.what()}};
-            return false;
-          }
-          return done(last);
-        },
-        timeout, 50ms);
-    return last;
+    return hil::wait_for_status([this] { return status(); }, done, timeout, markerd);
   }
 
   // Waits until the log holds frames captured after `from` of every scene.

@@ -157,6 +157,29 @@ void write_attribute(const fs::path& path, const std::string& text) {
   if (!out) throw std::runtime_error("cannot write '" + text + "' to " + path.string());
 }
 
+// Pulls the cable from under a streaming source (writes an empty line to
+// the gadget's UDC) and reads on until the source reports it, for at most
+// 10 s: the error it threw, and in `loss_s` how long that took.
+std::optional<daemon::CaptureError> unplug_under(CaptureSource& source, const fs::path& udc, double& loss_s) {
+  write_attribute(udc, "\n");
+  const auto unplugged = Clock::now();
+  std::optional<daemon::CaptureError> error;
+  try {
+    FramePool pool({.slots = 2, .pixel_bytes = source.geometry().slot_pixel_bytes});
+    while (Clock::now() - unplugged < 10s) {
+      if (!source.wait_frame(1000ms)) continue;
+      Frame* frame = pool.try_acquire();
+      if (frame == nullptr) throw std::runtime_error("the test's frame pool is empty");
+      source.fill(*frame);  // frames already on their way
+      pool.release(*frame);
+    }
+  } catch (const daemon::CaptureError& e) {
+    error = e;
+  }
+  loss_s = std::chrono::duration<double>(Clock::now() - unplugged).count();
+  return error;
+}
+
 class UvcHil : public testing::Test {
  protected:
   void SetUp() override {
@@ -434,22 +457,8 @@ TEST_F(UvcHil, V4l2SourceReportsTheUnplugAndStreamsAfterTheReplug) {
 
   // Unbinding the gadget from its controller is the cable pulled: the
   // device goes from the bus, uvcvideo's nodes go with it.
-  write_attribute(udc, "\n");
-  const auto unplugged = Clock::now();
-  std::optional<daemon::CaptureError> error;
-  try {
-    FramePool pool({.slots = 2, .pixel_bytes = source->geometry().slot_pixel_bytes});
-    while (Clock::now() - unplugged < 10s) {
-      if (!source->wait_frame(1000ms)) continue;
-      Frame* frame = pool.try_acquire();
-      ASSERT_NE(frame, nullptr);
-      source->fill(*frame);  // frames already on their way
-      pool.release(*frame);
-    }
-  } catch (const daemon::CaptureError& e) {
-    error = e;
-  }
-  const double loss_s = std::chrono::duration<double>(Clock::now() - unplugged).count();
+  double loss_s = 0;
+  const std::optional<daemon::CaptureError> error = unplug_under(*source, udc, loss_s);
   ASSERT_TRUE(error.has_value()) << "the source did not notice the unplug within 10 s";
   EXPECT_EQ(error->kind(), daemon::CaptureError::Kind::vanished) << error->what();
   EXPECT_NE(std::string(error->what()).find(capture_node_), std::string::npos) << error->what();
@@ -505,22 +514,8 @@ TEST_F(UvcHil, LibcameraSourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const auto last_before = read_stamp(before.back().image);
   ASSERT_TRUE(last_before.has_value());
 
-  write_attribute(udc, "\n");
-  const auto unplugged = Clock::now();
-  std::optional<daemon::CaptureError> error;
-  try {
-    FramePool pool({.slots = 2, .pixel_bytes = source->geometry().slot_pixel_bytes});
-    while (Clock::now() - unplugged < 10s) {
-      if (!source->wait_frame(1000ms)) continue;
-      Frame* frame = pool.try_acquire();
-      ASSERT_NE(frame, nullptr);
-      source->fill(*frame);  // frames already on their way
-      pool.release(*frame);
-    }
-  } catch (const daemon::CaptureError& e) {
-    error = e;
-  }
-  const double loss_s = std::chrono::duration<double>(Clock::now() - unplugged).count();
+  double loss_s = 0;
+  const std::optional<daemon::CaptureError> error = unplug_under(*source, udc, loss_s);
   ASSERT_TRUE(error.has_value()) << "the source did not notice the unplug within 10 s";
   EXPECT_EQ(error->kind(), daemon::CaptureError::Kind::vanished) << error->what();
   EXPECT_NE(std::string(error->what()).find(settings.camera), std::string::npos) << error->what();
