@@ -230,10 +230,11 @@ std::vector<LibcameraCameraInfo> libcamera_cameras(const CamerasOptions& o) {
 }
 
 int run_cameras(const CamerasOptions& o) {
-  const bool v4l2 = o.backend != "libcamera", libcamera = o.backend != "v4l2";
-  const auto devices = v4l2 ? v4l2_devices(o) : std::vector<V4l2DeviceInfo>{};
+  const bool v4l2 = o.backend != "libcamera";
   // DEVICEs name V4L2 devices unless the listing is libcamera's alone.
-  const auto cameras = libcamera && (o.devices.empty() || !v4l2) ? libcamera_cameras(o) : std::vector<LibcameraCameraInfo>{};
+  const bool libcamera = o.backend != "v4l2" && (o.devices.empty() || !v4l2);
+  const auto devices = v4l2 ? v4l2_devices(o) : std::vector<V4l2DeviceInfo>{};
+  const auto cameras = libcamera ? libcamera_cameras(o) : std::vector<LibcameraCameraInfo>{};
   if (o.json) {
     for (const auto& d : devices) std::cout << json_line(markerd::daemon::to_json(d)) << '\n';
     for (const auto& c : cameras) std::cout << json_line(markerd::daemon::to_json(c)) << '\n';
@@ -241,7 +242,7 @@ int run_cameras(const CamerasOptions& o) {
   }
   if (v4l2 && devices.empty()) std::cout << "no V4L2 capture devices (no /dev/video* node that captures video)\n";
   for (const auto& d : devices) print_device(d);
-  if (libcamera && cameras.empty() && (o.devices.empty() || !v4l2)) std::cout << "no libcamera cameras\n";
+  if (libcamera && cameras.empty()) std::cout << "no libcamera cameras\n";
   for (const auto& c : cameras) print_camera(c);
   return 0;
 }
