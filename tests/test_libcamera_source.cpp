@@ -99,11 +99,14 @@ TEST(LibcameraSettingsTest, Defaults) {
   EXPECT_TRUE(settings.controls.empty());
   EXPECT_EQ(parse("width = 640\nheight = 480\npixel_format = \"GREY\"\n").format, LibcameraPixelFormat::r8);
   EXPECT_EQ(parse("width = 640\nheight = 480\npixel_format = \"R8\"\n").format, LibcameraPixelFormat::r8);
+  EXPECT_EQ(parse("width = 640\nheight = 480\npixel_format = \"MJPEG\"\n").format, LibcameraPixelFormat::mjpeg);
+  EXPECT_EQ(parse("width = 640\nheight = 480\npixel_format = \"MJPG\"\n").format, LibcameraPixelFormat::mjpeg);
 }
 
 TEST(LibcameraSettingsTest, ErrorsNameTheFileLineAndKey) {
-  EXPECT_EQ(parse_error("width = 640\nheight = 480\npixel_format = \"MJPG\"\n"),
-            "markerd.toml:4: camera.libcamera.pixel_format: unknown pixel format 'MJPG' (known: YUYV, NV12, R8, GREY)");
+  EXPECT_EQ(parse_error("width = 640\nheight = 480\npixel_format = \"H264\"\n"),
+            "markerd.toml:4: camera.libcamera.pixel_format: unknown pixel format 'H264' (known: YUYV, NV12, R8, GREY, "
+            "MJPEG, MJPG)");
   EXPECT_NE(parse_error("height = 480\n").find("camera.libcamera.width"), std::string::npos);
   EXPECT_EQ(parse_error("width = 641\nheight = 480\n"),
             "markerd.toml:2: camera.libcamera.width: must be even for YUYV (two pixels share their colour), got 641");

@@ -91,6 +91,7 @@ libcamera::PixelFormat pixel_format_of(LibcameraPixelFormat format) {
     case LibcameraPixelFormat::yuyv: return libcamera::formats::YUYV;
     case LibcameraPixelFormat::nv12: return libcamera::formats::NV12;
     case LibcameraPixelFormat::r8: return libcamera::formats::R8;
+    case LibcameraPixelFormat::mjpeg: return libcamera::formats::MJPEG;
   }
   return {};
 }
@@ -225,7 +226,8 @@ class Session : public std::enable_shared_from_this<Session> {
   struct Slot {
     std::unique_ptr<libcamera::Request> request;
     const libcamera::FrameBuffer* buffer = nullptr;
-    const std::uint8_t* pixels = nullptr;  // the first plane: Y of NV12, the whole image of R8 and YUYV
+    const std::uint8_t* pixels = nullptr;  // the first plane: Y of NV12, the whole image of R8, YUYV and MJPEG
+    std::size_t length = 0;                // the first plane's bytes
     std::shared_ptr<Session> lent_to;     // set while a frame borrows the slot's pixels
   };
 
@@ -260,7 +262,8 @@ class Session : public std::enable_shared_from_this<Session> {
   int width_ = 0;
   int height_ = 0;
   std::size_t stride_ = 0;
-  std::size_t first_plane_bytes_ = 0;  // what a frame's first plane must hold
+  std::size_t first_plane_bytes_ = 0;  // what a frame's first plane must hold (MJPEG: any length)
+  std::unique_ptr<MjpegDecoder> decoder_;  // MJPEG only
   std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
   std::vector<Mapping> mappings_;
   std::vector<Slot> slots_;
@@ -364,6 +367,13 @@ void Session::configure(const LibcameraSettings& settings) {
   format_ = settings.format;
   width_ = settings.width;
   height_ = settings.height;
+  if (format_ == LibcameraPixelFormat::mjpeg) {
+    // No rows to check: each frame is as long as its JPEG, and the decoder
+    // says what is wrong with one too short.
+    decoder_ = std::make_unique<MjpegDecoder>();
+    first_plane_bytes_ = 0;
+    return;
+  }
   const std::size_t row_bytes = static_cast<std::size_t>(width_) * (format_ == LibcameraPixelFormat::yuyv ? 2 : 1);
   stride_ = stream_config.stride != 0 ? stream_config.stride : row_bytes;
   if (stride_ < row_bytes) {
@@ -407,6 +417,7 @@ void Session::allocate_and_map() {
     Slot& slot = slots_[i];
     slot.buffer = &buffer;
     slot.pixels = static_cast<const std::uint8_t*>(address) + first.offset;
+    slot.length = first.length;
     slot.request = camera_->createRequest(i);
     if (!slot.request) fail(CaptureError::Kind::io, "cannot create a request");
     if (const int ret = slot.request->addBuffer(stream_, buffers[i].get()); ret < 0) {
@@ -563,7 +574,7 @@ void Session::fill(std::uint32_t index, Frame& frame) {
   } else if (bytes_used < first_plane_bytes_) {
     mark_corrupt(frame, "libcamera camera '{}': frame {} holds {} bytes, a {}x{} {} frame needs {}", camera_id_,
                  metadata.sequence, bytes_used, width_, height_, to_string(format_), first_plane_bytes_);
-  } else if (format_ == LibcameraPixelFormat::yuyv) {
+  } else if (format_ == LibcameraPixelFormat::yuyv || format_ == LibcameraPixelFormat::mjpeg) {
     GreyView grey;
     try {
       grey = frame.use_pixel_buffer(width_, height_);
@@ -571,8 +582,14 @@ void Session::fill(std::uint32_t index, Frame& frame) {
       requeue(index);
       fail(CaptureError::Kind::config, e.what());
     }
-    yuyv_to_grey(slot.pixels, static_cast<std::ptrdiff_t>(stride_), width_, height_, frame.pixel_buffer().data(),
-                 grey.stride);
+    std::uint8_t* pixels = frame.pixel_buffer().data();
+    if (format_ == LibcameraPixelFormat::yuyv) {
+      yuyv_to_grey(slot.pixels, static_cast<std::ptrdiff_t>(stride_), width_, height_, pixels, grey.stride);
+    } else if (const char* why = decoder_->decode({slot.pixels, std::min(bytes_used, slot.length)}, width_, height_,
+                                                  pixels, grey.stride);
+               why != nullptr) {
+      mark_corrupt(frame, "libcamera camera '{}': frame {}: {}", camera_id_, metadata.sequence, why);
+    }
   } else {
     // The Y plane (NV12) or the whole image (R8), lent: the request goes
     // back when the pipeline is done with the frame.
@@ -638,7 +655,8 @@ class LibcameraSource final : public CaptureSource {
 
   [[nodiscard]] const std::string& name() const override { return name_; }
   [[nodiscard]] CaptureGeometry geometry() const override {
-    const bool converted = settings_.format == LibcameraPixelFormat::yuyv;
+    const bool converted =
+        settings_.format == LibcameraPixelFormat::yuyv || settings_.format == LibcameraPixelFormat::mjpeg;
     return CaptureGeometry{
         settings_.width, settings_.height,
         converted ? static_cast<std::size_t>(settings_.width) * static_cast<std::size_t>(settings_.height) : 0,
@@ -757,6 +775,7 @@ std::string_view to_string(LibcameraPixelFormat format) {
     case LibcameraPixelFormat::yuyv: return "YUYV";
     case LibcameraPixelFormat::nv12: return "NV12";
     case LibcameraPixelFormat::r8: return "R8";
+    case LibcameraPixelFormat::mjpeg: return "MJPEG";
   }
   return "unknown";
 }
@@ -773,8 +792,11 @@ LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
     settings.format = LibcameraPixelFormat::nv12;
   } else if (format == "R8" || format == "GREY") {
     settings.format = LibcameraPixelFormat::r8;
+  } else if (format == "MJPEG" || format == "MJPG") {
+    settings.format = LibcameraPixelFormat::mjpeg;
   } else {
-    table.fail("pixel_format", fmt::format("unknown pixel format '{}' (known: YUYV, NV12, R8, GREY)", format));
+    table.fail("pixel_format",
+               fmt::format("unknown pixel format '{}' (known: YUYV, NV12, R8, GREY, MJPEG, MJPG)", format));
   }
 
   settings.width = table.required<int>("width");

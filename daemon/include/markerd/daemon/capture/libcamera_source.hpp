@@ -6,7 +6,8 @@
 // NV12 and R8 frames lend their Y plane to the pipeline without a copy: the
 // frame points into the mapped buffer and its release hook queues the
 // request again. YUYV frames are converted into the frame slot's own pixels
-// in one pass and the request goes back at once.
+// in one pass, MJPEG frames decoded there (TurboJPEG, the Y component only),
+// and the request goes back at once.
 //
 // libcamera allows one CameraManager per process: the source and the listing
 // share one, started when the first of them needs it and stopped when the
@@ -29,8 +30,8 @@ class ConfigTable;
 
 namespace markerd::daemon {
 
-enum class LibcameraPixelFormat : std::uint8_t { yuyv, nv12, r8 };
-[[nodiscard]] std::string_view to_string(LibcameraPixelFormat format);  // "YUYV", "NV12", "R8"
+enum class LibcameraPixelFormat : std::uint8_t { yuyv, nv12, r8, mjpeg };
+[[nodiscard]] std::string_view to_string(LibcameraPixelFormat format);  // "YUYV", "NV12", "R8", "MJPEG"
 
 // One entry of [camera.libcamera.controls].
 struct LibcameraControlSetting {
@@ -49,7 +50,7 @@ struct LibcameraSettings {
   std::vector<LibcameraControlSetting> controls;
 };
 
-// [camera.libcamera]: camera, pixel_format (YUYV, NV12, R8 or GREY), width,
+// [camera.libcamera]: camera, pixel_format (YUYV, NV12, R8 or GREY, MJPEG or MJPG), width,
 // height, fps, buffers, and a [camera.libcamera.controls] table by libcamera
 // control name. A name libcamera does not know, or a value of the wrong type,
 // is a ConfigError here (file, line, key); whether the camera has the control
