@@ -24,6 +24,9 @@ packages=(
   python3-serial python3-serial-asyncio
   # hardware-in-the-loop tests: Debian's kernel under qemu, a busybox initramfs
   qemu-system-x86 busybox-static cpio
+  # libjpeg's own API, for the emulated webcam's MJPEG (restart markers,
+  # which TurboJPEG 2.1 cannot write: tests/hil/stamped_jpeg.hpp)
+  libjpeg-dev
   # v4l2-ctl, the reference reader bench/bench_v4l2_capture.cpp measures
   # markerd's V4L2 capture path against inside the guest
   v4l-utils

@@ -184,9 +184,10 @@ class MarkerdUvc : public testing::Test {
     return values;
   }
 
-  // Runs markerd with `camera` (its source's config) until it has logged
-  // kLines frames, stops it, and checks the log against what was sent.
-  void run_markerd(const std::string& backend, const std::string& camera) {
+  // Runs markerd with `camera` (its source's config, asking for `format`)
+  // until it has logged kLines frames, stops it, and checks the log against
+  // what was sent.
+  void run_markerd(const std::string& backend, const std::string& format, const std::string& camera) {
     const auto test_start = Clock::now();
     write_config(camera);
     MarkerdProcess markerd(MARKERD_PATH, config_, markerd_output_);
@@ -297,7 +298,7 @@ class MarkerdUvc : public testing::Test {
       EXPECT_EQ(ids.count(line.at("detections").front().at("id").get<int>()), 1U) << line.dump();
       ++after;
     }
-    check_log(backend, before, before_arrivals, counted_status, before_counted);
+    check_log(backend, format, before, before_arrivals, counted_status, before_counted);
     EXPECT_GE(after, kLinesAfterReplug);
     std::cout << backend << ": streaming " << streaming_after << " s after markerd started; unplugged: noticed after "
               << noticed_s << " s (" << lost.substr(0, lost.find('\n')) << "); " << broken
@@ -328,7 +329,8 @@ class MarkerdUvc : public testing::Test {
     EXPECT_EQ(node->at("driver"), "uvcvideo");
     EXPECT_EQ(node->at("card"), "markerd HIL webcam: UVC Camera");
     const std::string v4l2_text = node->dump();
-    for (const char* expected : {"\"YUYV\"", "\"brightness\"", "\"auto_exposure\"", "Aperture Priority Mode"}) {
+    for (const char* expected :
+         {"\"YUYV\"", "\"MJPG\"", "\"brightness\"", "\"auto_exposure\"", "Aperture Priority Mode"}) {
       EXPECT_NE(v4l2_text.find(expected), std::string::npos) << expected << " in " << v4l2_text;
     }
     const json& libcamera = cameras.at("libcamera");
@@ -337,7 +339,7 @@ class MarkerdUvc : public testing::Test {
     EXPECT_EQ(camera.at("id").get<std::string>().rfind("\\_SB_.PCI0-", 0), 0U) << camera.dump();
     EXPECT_EQ(camera.at("model"), "markerd HIL webcam: UVC Camera");
     const std::string libcamera_text = camera.dump();
-    for (const char* expected : {"\"YUYV\"", "\"Brightness\"", "\"AeEnable\"", "\"width\":640"}) {
+    for (const char* expected : {"\"YUYV\"", "\"MJPEG\"", "\"Brightness\"", "\"AeEnable\"", "\"width\":640"}) {
       EXPECT_NE(libcamera_text.find(expected), std::string::npos) << expected << " in " << libcamera_text;
     }
 
@@ -349,6 +351,7 @@ class MarkerdUvc : public testing::Test {
     const std::string libcamera_id = camera.at("id").get<std::string>();
     for (const std::string& expected :
          {capture_node_ + "  markerd HIL webcam: UVC Camera (driver uvcvideo, ", std::string("    YUYV    "),
+          std::string("    MJPG    "), std::string("    MJPEG   640x480"),
           std::string("640x480  30, 15 fps"), std::string("    brightness "), std::string("libcamera ") + libcamera_id,
           std::string("  model     markerd HIL webcam: UVC Camera"), std::string("    YUYV    640x480"),
           std::string("    Brightness ")}) {
@@ -376,7 +379,7 @@ class MarkerdUvc : public testing::Test {
     return std::max_element(votes.begin(), votes.end(), most)->first;
   }
 
-  void check_log(const std::string& backend, const std::vector<json>& lines,
+  void check_log(const std::string& backend, const std::string& format, const std::vector<json>& lines,
                  const std::vector<Clock::time_point>& arrivals, const json& status,
                  std::size_t counted_lines) const {
     const auto sent = sent_frames(server_dir_);
@@ -402,6 +405,7 @@ class MarkerdUvc : public testing::Test {
       }
       numbers.push_back(number);
       const SentFrame& frame = it->second;
+      EXPECT_EQ(frame.format, format) << where;
       const std::int64_t captured = line.at("frame").at("capture_monotonic_ns").get<std::int64_t>();
       EXPECT_GE(captured, frame.queued_ns) << where << ": captured before it was sent";
       EXPECT_LE(captured - frame.queued_ns, std::chrono::nanoseconds(kMaxQueueToCapture).count()) << where;
@@ -469,8 +473,8 @@ class MarkerdUvc : public testing::Test {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
   const std::int64_t start = ns(Clock::now());
-  run_markerd("v4l2", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
-                          "\"\nformat = \"YUYV\"\nwidth = 640\nheight = 480\nfps = 30\n"
+  run_markerd("v4l2", "YUYV", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
+                                  "\"\nformat = \"YUYV\"\nwidth = 640\nheight = 480\nfps = 30\n"
                           "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority Mode\"\n");
   // The config's controls, as the gadget received them: at the start and
   // again on the replugged camera.
@@ -480,7 +484,7 @@ TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheLibcameraSource) {
   const std::int64_t start = ns(Clock::now());
-  run_markerd("libcamera", "source = \"libcamera\"\n[camera.libcamera]\npixel_format = \"YUYV\"\nwidth = 640\n"
+  run_markerd("libcamera", "YUYV", "source = \"libcamera\"\n[camera.libcamera]\npixel_format = \"YUYV\"\nwidth = 640\n"
                            "height = 480\n[camera.libcamera.controls]\nBrightness = 0.5\nAeEnable = false\n");
   // libcamera scales Brightness from [-1, 1] about the default: 0.5 is 32 of
   // the gadget's 64; AeEnable false is manual exposure, mode 1. Set at the

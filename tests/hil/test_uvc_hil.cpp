@@ -211,8 +211,9 @@ class UvcHil : public testing::Test {
   }
 
   // Checks the captured frames against what the server sent, frame by
-  // frame, and prints what was sent, captured and lost, and the latency.
-  void check_frames(const std::string& backend, const std::vector<Captured>& frames) const {
+  // frame (in `format`: "YUYV" or "MJPEG"), and prints what was sent,
+  // captured and lost, and the latency.
+  void check_frames(const std::string& backend, const std::string& format, const std::vector<Captured>& frames) const {
     const auto sent = sent_frames(server_dir_);
     const auto scenes = feeder_scenes();
     const CameraModel camera = feeder_camera();
@@ -227,6 +228,7 @@ class UvcHil : public testing::Test {
     std::vector<std::uint64_t> sequences;
     std::set<int> ids;
     std::vector<double> capture_latency_ms, delivery_latency_ms;
+    std::size_t bytes = 0;
     for (std::size_t i = 0; i < frames.size(); ++i) {
       const Captured& c = frames[i];
       if (c.image.empty()) continue;
@@ -248,6 +250,8 @@ class UvcHil : public testing::Test {
       sequences.push_back(c.sequence);
       const SentFrame& s = it->second;
       EXPECT_EQ(s.scene, scene_of(*number, kFramesPerScene, scenes.size()));
+      EXPECT_EQ(s.format, format) << backend << " frame " << *number;
+      bytes += s.bytes;
       // Both clocks are CLOCK_MONOTONIC: uvcvideo stamps a frame when its
       // first packet arrives, after the server queued it.
       EXPECT_GE(ns(c.capture_time), s.queued_ns) << backend << " frame " << *number;
@@ -294,7 +298,8 @@ class UvcHil : public testing::Test {
     }
     const double seconds =
         std::chrono::duration<double>(frames.back().capture_time - frames.front().capture_time).count();
-    std::cout << backend << ": captured " << numbers.size() << " frames, numbers " << numbers.front() << " to "
+    std::cout << backend << " " << format << ": captured " << numbers.size() << " frames of "
+              << bytes / numbers.size() << " bytes on average, numbers " << numbers.front() << " to "
               << numbers.back() << " (" << (numbers.back() - numbers.front() + 1) << " sent, " << dropped
               << " dropped by the host, " << never_arrived << " never arrived, " << failed
               << " given back with an error by the gadget), " << static_cast<double>(numbers.size() - 1) / seconds
@@ -328,15 +333,18 @@ TEST_F(UvcHil, UvcvideoEnumeratesTheGadgetAsAWebcam) {
   EXPECT_EQ(device.card, "markerd HIL webcam: UVC Camera");
   EXPECT_EQ(device.bus_info.rfind("usb-dummy_hcd.0-", 0), 0U) << device.bus_info;
 
-  ASSERT_EQ(device.formats.size(), 1U);
-  const auto& format = device.formats.front();
-  EXPECT_EQ(format.fourcc_text, "YUYV");
-  ASSERT_EQ(format.sizes.size(), 1U);
-  EXPECT_EQ(format.sizes[0].width, 640U);
-  EXPECT_EQ(format.sizes[0].height, 480U);
-  std::set<std::pair<std::uint32_t, std::uint32_t>> intervals;
-  for (const auto& i : format.sizes[0].intervals.discrete) intervals.insert({i.numerator, i.denominator});
-  EXPECT_EQ(intervals, (std::set<std::pair<std::uint32_t, std::uint32_t>>{{1, 30}, {1, 15}}));
+  // The gadget's two formats in its order, each one size at two intervals.
+  ASSERT_EQ(device.formats.size(), 2U);
+  EXPECT_EQ(device.formats[0].fourcc_text, "YUYV");
+  EXPECT_EQ(device.formats[1].fourcc_text, "MJPG");
+  for (const auto& format : device.formats) {
+    ASSERT_EQ(format.sizes.size(), 1U) << format.fourcc_text;
+    EXPECT_EQ(format.sizes[0].width, 640U);
+    EXPECT_EQ(format.sizes[0].height, 480U);
+    std::set<std::pair<std::uint32_t, std::uint32_t>> intervals;
+    for (const auto& i : format.sizes[0].intervals.discrete) intervals.insert({i.numerator, i.denominator});
+    EXPECT_EQ(intervals, (std::set<std::pair<std::uint32_t, std::uint32_t>>{{1, 30}, {1, 15}})) << format.fourcc_text;
+  }
 
   const auto control = [&](const std::string& name) -> const daemon::V4l2ControlInfo* {
     for (const auto& c : device.controls) {
@@ -381,7 +389,7 @@ TEST_F(UvcHil, V4l2SourceCapturesTheRenderedFramesInOrder) {
   const auto frames = capture(*source, kFrames);
   source->close();
   ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
-  check_frames("v4l2", frames);
+  check_frames("v4l2", "YUYV", frames);
 
   // The controls went to the camera as UVC requests: brightness as its
   // signed 16-bit value, the exposure menu's "Manual Mode" as mode bit 1.
@@ -403,12 +411,14 @@ TEST_F(UvcHil, LibcameraListsAndCapturesTheWebcam) {
   EXPECT_NE(camera.id.find("1d6b:0104"), std::string::npos) << camera.id;
   EXPECT_EQ(camera.model, std::optional<std::string>("markerd HIL webcam: UVC Camera")) << "uvcvideo's name";
   EXPECT_EQ(camera.location, std::optional<std::string>("external"));
-  const auto yuyv = std::find_if(camera.formats.begin(), camera.formats.end(),
-                                 [](const auto& f) { return f.pixel_format == "YUYV"; });
-  ASSERT_NE(yuyv, camera.formats.end());
-  ASSERT_EQ(yuyv->sizes.size(), 1U);
-  EXPECT_EQ(yuyv->sizes[0].width, 640U);
-  EXPECT_EQ(yuyv->sizes[0].height, 480U);
+  for (const char* name : {"YUYV", "MJPEG"}) {
+    const auto format = std::find_if(camera.formats.begin(), camera.formats.end(),
+                                     [&](const auto& f) { return f.pixel_format == name; });
+    ASSERT_NE(format, camera.formats.end()) << name;
+    ASSERT_EQ(format->sizes.size(), 1U) << name;
+    EXPECT_EQ(format->sizes[0].width, 640U);
+    EXPECT_EQ(format->sizes[0].height, 480U);
+  }
   std::set<std::string> controls;
   for (const auto& c : camera.controls) controls.insert(c.name);
   EXPECT_TRUE(controls.count("Brightness") == 1 && controls.count("AeEnable") == 1)
@@ -428,10 +438,62 @@ TEST_F(UvcHil, LibcameraListsAndCapturesTheWebcam) {
   const auto frames = capture(*source, kFrames);
   source->close();
   ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
-  check_frames("libcamera", frames);
+  check_frames("libcamera", "YUYV", frames);
 
   EXPECT_EQ(values_set("brightness"), std::vector<std::int64_t>{-16});
   EXPECT_EQ(values_set("ae_mode"), std::vector<std::int64_t>{8});
+}
+
+// ---------------------------------------------------------------- MJPEG
+
+// The format each commit asked for (bFormatIndex) and the one the server
+// chose, since the test started.
+std::vector<std::string> formats_committed(const fs::path& server_dir, std::int64_t since_ns) {
+  std::vector<std::string> formats;
+  for (const json& line : read_records(server_dir / kControlsRecord)) {
+    if (line.at("t_ns").get<std::int64_t>() >= since_ns && line.at("request") == "SET_CUR" &&
+        line.at("name") == "commit" && line.contains("format")) {
+      formats.push_back(line.at("format").get<std::string>() + " (index " +
+                        std::to_string(line.at("requested_format_index").get<int>()) + ")");
+    }
+  }
+  return formats;
+}
+
+// The gadget's second format: each frame a JPEG that the server spliced
+// (stamped_jpeg.hpp), decoded by the source (TurboJPEG) into the frame's
+// own pixels, with the marker and the number read back from them.
+TEST_F(UvcHil, V4l2SourceDecodesTheWebcamsMjpeg) {
+  daemon::V4l2Settings settings;
+  settings.device = capture_node_;
+  settings.format = daemon::V4l2PixelFormat::mjpg;
+  settings.width = kWidth;
+  settings.height = kHeight;
+  settings.buffers = kBuffers;
+  settings.fps = 30;
+  const auto source = daemon::make_v4l2_source(settings);
+  source->open();
+  const auto frames = capture(*source, kFrames);
+  source->close();
+  ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
+  check_frames("v4l2", "MJPEG", frames);
+  EXPECT_EQ(formats_committed(server_dir_, started_ns_), std::vector<std::string>{"MJPEG (index 2)"});
+}
+
+TEST_F(UvcHil, LibcameraSourceDecodesTheWebcamsMjpeg) {
+  ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);  // NOLINT(concurrency-mt-unsafe): before libcamera starts
+  daemon::LibcameraSettings settings;
+  settings.format = daemon::LibcameraPixelFormat::mjpeg;
+  settings.width = kWidth;
+  settings.height = kHeight;
+  settings.buffers = kBuffers;
+  const auto source = daemon::make_libcamera_source(settings);
+  source->open();
+  const auto frames = capture(*source, kFrames);
+  source->close();
+  ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
+  check_frames("libcamera", "MJPEG", frames);
+  EXPECT_EQ(formats_committed(server_dir_, started_ns_), std::vector<std::string>{"MJPEG (index 2)"});
 }
 
 
@@ -481,7 +543,7 @@ TEST_F(UvcHil, V4l2SourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const double first_frame_s = std::chrono::duration<double>(after.front().filled - replugged).count();
   source->close();
   ASSERT_EQ(after.size(), 45U);
-  check_frames("v4l2 after the replug", after);
+  check_frames("v4l2 after the replug", "YUYV", after);
   const auto first_after = read_stamp(after.front().image);
   ASSERT_TRUE(first_after.has_value());
   EXPECT_GT(*first_after, *last_before) << "the server numbers on across the replug";
@@ -537,7 +599,7 @@ TEST_F(UvcHil, LibcameraSourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const double first_frame_s = std::chrono::duration<double>(after.front().filled - replugged).count();
   source->close();
   ASSERT_EQ(after.size(), 45U);
-  check_frames("libcamera after the replug", after);
+  check_frames("libcamera after the replug", "YUYV", after);
   const auto first_after = read_stamp(after.front().image);
   ASSERT_TRUE(first_after.has_value());
   EXPECT_GT(*first_after, *last_before) << "the server numbers on across the replug";

@@ -73,8 +73,9 @@ inline std::size_t scene_of(std::uint32_t number, std::uint32_t frames_per_scene
 
 // The server's records, in its --out-dir, one JSON object a line, each line
 // written whole:
-//   frames.jsonl    {"frame": n, "scene": s, "id": id, "queued_ns": t} when frame n
-//                   went to the gadget (VIDIOC_QBUF), and {"frame": n, "done_ns": t,
+//   frames.jsonl    {"frame": n, "scene": s, "id": id, "format": "YUYV" or "MJPEG",
+//                   "bytes": b, "queued_ns": t} when frame n went to the gadget
+//                   (VIDIOC_QBUF), and {"frame": n, "done_ns": t,
 //                   "error": false} when the gadget gave its buffer back, the
 //                   frame encoded into USB requests (or failed: the host stopped)
 //   controls.jsonl  every class request of the host as it came: {"t_ns", "request"
@@ -84,8 +85,9 @@ inline std::size_t scene_of(std::uint32_t number, std::uint32_t frames_per_scene
 //                   "unknown"), "length", "stalled"}; and after a SET_CUR, its data
 //                   stage: {"t_ns", "request": "SET_CUR", "name", "length",
 //                   "stalled": false} with "value" (an integer) for brightness and
-//                   ae_mode, "requested_interval" and "frame_interval" (the one
-//                   chosen) for a probe or commit
+//                   ae_mode; "requested_interval", "frame_interval" (the one
+//                   chosen), "requested_format_index" and "format" (the one
+//                   chosen, "YUYV" or "MJPEG") for a probe or commit
 // Times are CLOCK_MONOTONIC in nanoseconds, the clock of V4L2's and
 // libcamera's frame timestamps and of steady_clock.
 constexpr const char* kFramesRecord = "frames.jsonl";
@@ -111,6 +113,8 @@ inline std::vector<nlohmann::json> read_records(const std::filesystem::path& pat
 struct SentFrame {
   int id = -1;  // -1: only its "done" line was read
   std::size_t scene = 0;
+  std::string format;  // "YUYV" or "MJPEG"
+  std::size_t bytes = 0;
   std::int64_t queued_ns = 0;
   std::optional<std::int64_t> done_ns;
   bool error = false;
@@ -123,6 +127,8 @@ inline std::map<std::uint32_t, SentFrame> sent_frames(const std::filesystem::pat
     if (line.contains("queued_ns")) {
       f.id = line.at("id").get<int>();
       f.scene = line.at("scene").get<std::size_t>();
+      f.format = line.at("format").get<std::string>();
+      f.bytes = line.at("bytes").get<std::size_t>();
       f.queued_ns = line.at("queued_ns").get<std::int64_t>();
     } else {
       f.done_ns = line.at("done_ns").get<std::int64_t>();

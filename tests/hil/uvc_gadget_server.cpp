@@ -11,15 +11,16 @@
 // frames queued on the output node; everything a camera's firmware would
 // answer is answered here:
 // - the streaming interface's probe and commit (the format, frame and frame
-//   interval the host asks for, clamped to the one YUYV 640x480 format and
-//   its two intervals);
+//   interval the host asks for, clamped to the gadget's two formats, YUYV
+//   and MJPEG, each with one frame size, 640x480, and two intervals);
 // - the control interface's two controls that usb_f_uvc advertises by
 //   default, the camera terminal's auto-exposure mode and the processing
 //   unit's brightness, and the request error code; everything else stalls,
 //   as a camera without that control would;
 // - on STREAMON, frames at the committed interval: feeder_scenes() rendered
 //   through the thesis camera (the scenes of the vivid tests), each stamped
-//   with its number (uvc_frames.hpp), changing scene every N frames.
+//   with its number (uvc_frames.hpp), changing scene every N frames; as
+//   YUYV, or as JPEG (stamped_jpeg.hpp) when the host committed MJPEG.
 //
 // It records every frame it queued and every control request it received
 // (uvc_frames.hpp says the format), so that a test can check what arrived
@@ -56,6 +57,7 @@
 #include <thread>
 #include <vector>
 
+#include "stamped_jpeg.hpp"
 #include "uvc_frames.hpp"
 #include "vivid_scene_feeder.hpp"
 
@@ -65,8 +67,13 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-// The gadget as uvc-gadget.sh makes it.
+// The gadget as uvc-gadget.sh makes it: its formats in the order they are
+// linked into the streaming header, which numbers them (bFormatIndex).
+enum class Format : std::uint8_t { yuyv = 1, mjpeg = 2 };
+// A YUYV frame's bytes, and the most an MJPEG frame may take (its
+// dwMaxVideoFrameBufferSize).
 constexpr std::uint32_t kFrameBytes = static_cast<std::uint32_t>(kWidth) * kHeight * 2;
+constexpr int kJpegQuality = 90;
 constexpr std::uint32_t kIntervalFast = 333333;  // 100 ns units: 30 frames per second
 constexpr std::uint32_t kIntervalSlow = 666666;  // 15
 constexpr std::uint32_t kMaxPayload = 3072;      // streaming_maxpacket
@@ -79,6 +86,8 @@ constexpr std::uint8_t kProcessingUnit = 2;
 constexpr std::uint8_t kAeModes = 0x09;
 constexpr std::uint8_t kAeModeDefault = 0x08;
 constexpr std::int16_t kBrightnessMin = -64, kBrightnessMax = 64, kBrightnessDefault = 0;
+const char* format_name(Format format) { return format == Format::mjpeg ? "MJPEG" : "YUYV"; }
+
 // UVC 1.1's request error codes (4.2.1.2).
 constexpr std::uint8_t kErrorNone = 0x00, kErrorOutOfRange = 0x04, kErrorInvalidControl = 0x06,
                        kErrorInvalidRequest = 0x07;
@@ -175,15 +184,21 @@ class DeviceGone : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A scene as the gadget sends it, in either format.
+struct SceneFrames {
+  int id = -1;
+  std::vector<std::uint8_t> yuyv;
+  StampedJpeg jpeg;
+};
+
 class Server {
  public:
-  Server(Options options, std::vector<std::vector<std::uint8_t>> frames, std::vector<int> ids)
+  Server(Options options, std::vector<SceneFrames> scenes)
       : options_(std::move(options)),
-        frames_(std::move(frames)),
-        ids_(std::move(ids)),
+        scenes_(std::move(scenes)),
         frames_record_(options_.out_dir / kFramesRecord),
         controls_record_(options_.out_dir / kControlsRecord) {
-    probe_ = streaming_control(kIntervalFast);
+    probe_ = streaming_control(Format::yuyv, kIntervalFast);
     commit_ = probe_;
   }
 
@@ -234,20 +249,6 @@ class Server {
       if (errno == ENODEV || errno == ENOENT) throw DeviceGone(errno_text("open " + node));
       throw std::runtime_error(errno_text("open " + node));
     }
-    // usb_f_uvc 6.1 computes bytesperline from the width it had before this
-    // call: the second call is the one that is right.
-    for (int i = 0; i < 2; ++i) {
-      v4l2_format f{};
-      f.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-      f.fmt.pix.width = kWidth;
-      f.fmt.pix.height = kHeight;
-      f.fmt.pix.pixelformat = V4L2_PIX_FMT_YUYV;
-      f.fmt.pix.field = V4L2_FIELD_NONE;
-      f.fmt.pix.sizeimage = kFrameBytes;
-      check(xioctl(fd_, VIDIOC_S_FMT, &f), "VIDIOC_S_FMT");
-      stride_ = f.fmt.pix.bytesperline;
-    }
-    if (stride_ != kWidth * 2) throw std::runtime_error(node + ": bytesperline " + std::to_string(stride_));
     // SETUP last: subscribing to it is what makes usb_f_uvc connect the
     // gadget to the bus, and the host's first requests follow at once.
     for (std::uint32_t type : {UVC_EVENT_CONNECT, UVC_EVENT_DISCONNECT, UVC_EVENT_STREAMON, UVC_EVENT_STREAMOFF,
@@ -375,8 +376,8 @@ class Server {
       case UVC_SET_CUR: return expect_data(probe ? "probe" : "commit", length);
       case UVC_GET_CUR: return answer(probe ? probe_ : commit_, length);
       case UVC_GET_MIN:
-      case UVC_GET_DEF: return answer(streaming_control(kIntervalFast), length);
-      case UVC_GET_MAX: return answer(streaming_control(kIntervalSlow), length);
+      case UVC_GET_DEF: return answer(streaming_control(format_of(probe_), kIntervalFast), length);
+      case UVC_GET_MAX: return answer(streaming_control(format_of(probe_), kIntervalSlow), length);
       case UVC_GET_RES: return answer(uvc_streaming_control{}, length);
       case UVC_GET_LEN: return answer(static_cast<std::uint16_t>(sizeof(uvc_streaming_control)), length);
       case UVC_GET_INFO: return answer(std::uint8_t{0x03}, length);  // GET and SET supported
@@ -442,9 +443,12 @@ class Server {
       std::memcpy(&control, data.data, std::min(bytes, sizeof control));
       const std::uint32_t requested = control.dwFrameInterval;
       const std::uint32_t interval = requested >= (kIntervalFast + kIntervalSlow) / 2 ? kIntervalSlow : kIntervalFast;
-      (name == "probe" ? probe_ : commit_) = streaming_control(interval);
+      const Format format = format_of(control);
+      (name == "probe" ? probe_ : commit_) = streaming_control(format, interval);
       line["frame_interval"] = interval;
       line["requested_interval"] = requested;
+      line["format"] = format_name(format);
+      line["requested_format_index"] = control.bFormatIndex;
     } else if (name == "brightness" && bytes >= 2) {
       std::int16_t v = 0;
       std::memcpy(&v, data.data, sizeof v);
@@ -469,10 +473,16 @@ class Server {
     controls_record_.write(line);
   }
 
-  static uvc_streaming_control streaming_control(std::uint32_t interval) {
+  // A format index the gadget does not have is clamped to the first, as
+  // a camera answers a probe with the nearest it can do.
+  static Format format_of(const uvc_streaming_control& control) {
+    return control.bFormatIndex == static_cast<std::uint8_t>(Format::mjpeg) ? Format::mjpeg : Format::yuyv;
+  }
+
+  static uvc_streaming_control streaming_control(Format format, std::uint32_t interval) {
     uvc_streaming_control c{};
     c.bmHint = 1;  // the frame interval is what the host asked to keep
-    c.bFormatIndex = 1;
+    c.bFormatIndex = static_cast<std::uint8_t>(format);
     c.bFrameIndex = 1;
     c.dwFrameInterval = interval;
     c.dwMaxVideoFrameSize = kFrameBytes;
@@ -486,8 +496,31 @@ class Server {
 
   // ---------------------------------------------------------------- streaming
 
+  // The output node's format sizes its buffers (usb_f_uvc takes MJPEG's
+  // sizeimage as given) and says how the gadget sends them.
+  void set_format(Format format) {
+    // usb_f_uvc 6.1 computes bytesperline from the width it had before this
+    // call: the second call is the one that is right.
+    for (int i = 0; i < 2; ++i) {
+      v4l2_format f{};
+      f.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
+      f.fmt.pix.width = kWidth;
+      f.fmt.pix.height = kHeight;
+      f.fmt.pix.pixelformat = format == Format::mjpeg ? V4L2_PIX_FMT_MJPEG : V4L2_PIX_FMT_YUYV;
+      f.fmt.pix.field = V4L2_FIELD_NONE;
+      f.fmt.pix.sizeimage = kFrameBytes;
+      check(xioctl(fd_, VIDIOC_S_FMT, &f), "VIDIOC_S_FMT");
+      stride_ = f.fmt.pix.bytesperline;
+    }
+    if (format == Format::yuyv && stride_ != kWidth * 2) {
+      throw std::runtime_error(node_ + ": bytesperline " + std::to_string(stride_));
+    }
+    format_ = format;
+  }
+
   void start_streaming() {
     stop_streaming();
+    set_format(format_of(commit_));
     v4l2_requestbuffers request{};
     request.count = kBuffers;
     request.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
@@ -509,7 +542,8 @@ class Server {
     send_due();  // a buffer is queued before STREAMON
     int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
     check(xioctl(fd_, VIDIOC_STREAMON, &type), "VIDIOC_STREAMON");
-    std::cerr << "uvc_gadget_server: streaming at " << commit_.dwFrameInterval << " x 100 ns per frame" << std::endl;
+    std::cerr << "uvc_gadget_server: streaming " << format_name(format_) << " at " << commit_.dwFrameInterval
+              << " x 100 ns per frame" << std::endl;
   }
 
   void stop_streaming() {
@@ -565,14 +599,19 @@ class Server {
     Buffer* buffer = free_buffer();
     if (buffer == nullptr) return;
     const std::uint32_t number = next_frame_;
-    const std::size_t scene = scene_of(number, options_.frames_per_scene, frames_.size());
-    std::memcpy(buffer->data, frames_[scene].data(), kFrameBytes);
-    stamp_yuyv(buffer->data, stride_, number);
+    const std::size_t scene = scene_of(number, options_.frames_per_scene, scenes_.size());
+    std::size_t bytes = kFrameBytes;
+    if (format_ == Format::mjpeg) {
+      bytes = scenes_[scene].jpeg.write(number, {buffer->data, buffer->length});
+    } else {
+      std::memcpy(buffer->data, scenes_[scene].yuyv.data(), kFrameBytes);
+      stamp_yuyv(buffer->data, stride_, number);
+    }
     v4l2_buffer b{};
     b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
     b.memory = V4L2_MEMORY_MMAP;
     b.index = static_cast<std::uint32_t>(buffer - buffers_.data());
-    b.bytesused = kFrameBytes;
+    b.bytesused = static_cast<std::uint32_t>(bytes);
     b.field = V4L2_FIELD_NONE;
     if (xioctl(fd_, VIDIOC_QBUF, &b) != 0) {
       // The host stopped streaming: usb_f_uvc refuses buffers until the
@@ -582,13 +621,17 @@ class Server {
     }
     buffer->frame = number;
     ++next_frame_;
-    frames_record_.write({{"frame", number}, {"scene", scene}, {"id", ids_[scene]}, {"queued_ns", now}});
+    frames_record_.write({{"frame", number},
+                          {"scene", scene},
+                          {"id", scenes_[scene].id},
+                          {"format", format_name(format_)},
+                          {"bytes", bytes},
+                          {"queued_ns", now}});
     next_due_ns_ = now - next_due_ns_ > interval_ns_ ? now + interval_ns_ : next_due_ns_ + interval_ns_;
   }
 
   Options options_;
-  std::vector<std::vector<std::uint8_t>> frames_;  // one YUYV frame per scene
-  std::vector<int> ids_;                           // the marker id of each scene
+  std::vector<SceneFrames> scenes_;
   Record frames_record_;
   Record controls_record_;
   std::string node_;
@@ -602,6 +645,7 @@ class Server {
   std::uint8_t ae_mode_ = kAeModeDefault;
 
   bool streaming_ = false;
+  Format format_ = Format::yuyv;
   std::vector<Buffer> buffers_;
   std::int64_t interval_ns_ = 0;
   std::int64_t next_due_ns_ = 0;
@@ -617,13 +661,13 @@ int main(int argc, char** argv) {
   try {
     const Options options = parse(argc, argv);
     fs::create_directories(options.out_dir);
-    std::vector<std::vector<std::uint8_t>> frames;
-    std::vector<int> ids;
+    std::vector<SceneFrames> scenes;
     for (const Scene& scene : feeder_scenes()) {
-      frames.push_back(to_yuyv(render_scene(feeder_camera(), scene)));
-      ids.push_back(scene.id);
+      std::vector<std::uint8_t> yuyv = to_yuyv(render_scene(feeder_camera(), scene));
+      StampedJpeg jpeg(yuyv, kWidth, kHeight, kJpegQuality);
+      scenes.push_back({scene.id, std::move(yuyv), std::move(jpeg)});
     }
-    Server server(options, std::move(frames), std::move(ids));
+    Server server(options, std::move(scenes));
     server.run();
   } catch (const std::exception& e) {
     std::cerr << "uvc_gadget_server: " << e.what() << std::endl;

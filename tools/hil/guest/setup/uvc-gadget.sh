@@ -12,8 +12,9 @@
 # connects the gadget to the bus (tests/hil/uvc_gadget_server.cpp). It keeps
 # running while the command does.
 #
-# The gadget: YUYV 640x480 at 30 and 15 frames per second (intervals 333333
-# and 666666 in 100 ns units), isochronous packets of up to 3 x 1024 bytes,
+# The gadget: YUYV and MJPEG, each 640x480 at 30 and 15 frames per second
+# (intervals 333333 and 666666 in 100 ns units), isochronous packets of up to
+# 3 x 1024 bytes,
 # and usb_f_uvc's default controls (the camera terminal's auto-exposure mode,
 # the processing unit's brightness).
 #
@@ -63,20 +64,26 @@ f=$g/functions/uvc.0
 mkdir "$f"
 echo 3072 >"$f/streaming_maxpacket"
 mkdir "$f/control/header/h"
-mkdir -p "$f/streaming/uncompressed/u/480p"
-frame=$f/streaming/uncompressed/u/480p
-echo 640 >"$frame/wWidth"
-echo 480 >"$frame/wHeight"
-echo 614400 >"$frame/dwMaxVideoFrameBufferSize"
-echo 333333 >"$frame/dwDefaultFrameInterval"
-printf '333333\n666666\n' >"$frame/dwFrameInterval"
-echo $((640 * 480 * 16 * 15)) >"$frame/dwMinBitRate"
-echo $((640 * 480 * 16 * 30)) >"$frame/dwMaxBitRate"
+# The same frame size and intervals in both formats; an MJPEG frame's
+# buffer is the size of a YUYV one.
+for frame in "$f/streaming/uncompressed/u/480p" "$f/streaming/mjpeg/m/480p"; do
+  mkdir -p "$frame"
+  echo 640 >"$frame/wWidth"
+  echo 480 >"$frame/wHeight"
+  echo 614400 >"$frame/dwMaxVideoFrameBufferSize"
+  echo 333333 >"$frame/dwDefaultFrameInterval"
+  printf '333333\n666666\n' >"$frame/dwFrameInterval"
+  echo $((640 * 480 * 16 * 15)) >"$frame/dwMinBitRate"
+  echo $((640 * 480 * 16 * 30)) >"$frame/dwMaxBitRate"
+done
 mkdir "$f/streaming/header/h"
 
 ln -s "$f/control/header/h" "$f/control/class/fs/h"
 ln -s "$f/control/header/h" "$f/control/class/ss/h"
+# The order of these links numbers the formats: YUYV 1, MJPEG 2 (the
+# server's bFormatIndex).
 ln -s "$f/streaming/uncompressed/u" "$f/streaming/header/h/u"
+ln -s "$f/streaming/mjpeg/m" "$f/streaming/header/h/m"
 for speed in fs hs ss; do ln -s "$f/streaming/header/h" "$f/streaming/class/$speed/h"; done
 
 mkdir -p "$g/configs/c.1/strings/0x409"
