@@ -17,6 +17,7 @@
 #include <mutex>
 #include <optional>
 #include <semaphore>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -534,6 +535,107 @@ TEST(Pipeline, DetectorErrorsAndCorruptFramesReachTheLogWithTheirCause) {
   EXPECT_EQ(s.detect.failed, 2U);
   EXPECT_EQ(s.detect_duration.count, 1U) << "the detector ran on the first frame only";
   expect_balanced(s);
+}
+
+// ---- encoded frames ----
+
+// A test codec: a frame's two encoded bytes are its number; anything else
+// is broken. Counts its calls.
+std::atomic<int> decodes{0};
+void decode_number(Frame& frame) noexcept {
+  decodes.fetch_add(1);
+  const auto data = frame.encoded();
+  if (data.size() != 2) {
+    frame.image = {};
+    frame.status = FrameStatus::corrupt_frame;
+    frame.set_cause("test codec: not two bytes");
+    return;
+  }
+  std::span<std::uint8_t> pixels = frame.pixel_buffer();
+  std::fill(pixels.begin(), pixels.end(), std::uint8_t{0});
+  pixels[0] = data[0];
+  pixels[1] = data[1];
+}
+
+// Plays a source that lends its frames encoded (as MJPEG is).
+bool offer_encoded(Pipeline& pipeline, const std::vector<std::vector<std::uint8_t>>& payloads, Releases& releases,
+                   std::uint64_t sequence) {
+  Frame* frame = pipeline.acquire();
+  if (frame == nullptr) return false;
+  frame->sequence = sequence;
+  frame->use_pixel_buffer(4, 4);
+  frame->set_encoded(payloads.at(sequence), &decode_number);
+  frame->set_release({&Releases::on_release, &releases, sequence});
+  pipeline.publish(*frame);
+  return true;
+}
+
+std::vector<std::vector<std::uint8_t>> numbered_payloads(int count) {
+  std::vector<std::vector<std::uint8_t>> payloads;
+  for (int k = 0; k < count; ++k) {
+    payloads.push_back({static_cast<std::uint8_t>(k % 256), static_cast<std::uint8_t>(k / 256)});
+  }
+  return payloads;
+}
+
+TEST(Pipeline, EncodedFramesAreDecodedOnlyWhenDetectedAndGoBackOnceDecoded) {
+  decodes = 0;
+  const auto payloads = numbered_payloads(6);
+  Releases releases(6);
+  RecordingSink sink;
+  Gate gate;
+  std::counting_semaphore<1000> entered(0);
+  auto* detector = new NumberDetector;
+  detector->gate = &gate;
+  detector->entered = &entered;
+  PipelineConfig c = config(DropPolicy::live, 4);
+  c.pool.pixel_bytes = 16;
+  Pipeline pipeline(c, detectors({detector}), sink);
+  ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, 0));
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));
+  EXPECT_EQ(decodes.load(), 1);
+  EXPECT_EQ(releases.counts[0].load(), 1) << "decoded: the source's buffer goes back before detection ends";
+  for (int k = 1; k <= 5; ++k) ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, k));
+  EXPECT_EQ(releases.counts[1].load(), 1) << "dropped while it waited";
+  EXPECT_EQ(releases.counts[2].load(), 1);
+  EXPECT_EQ(decodes.load(), 1) << "the frames dropped while they waited were never decoded";
+  gate.open();
+  const auto written = sink.wait_for(4);
+  pipeline.stop();
+  ASSERT_EQ(written.size(), 4U);
+  for (const Written& w : written) {
+    EXPECT_EQ(w.status, FrameStatus::ok) << w.cause;
+    EXPECT_EQ(w.ids, std::vector<int>{static_cast<int>(w.sequence)}) << "the detector read the decoded pixels";
+  }
+  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 3, 4, 5}));
+  EXPECT_EQ(decodes.load(), 4);
+  expect_balanced(pipeline.stats());
+  expect_each_released_once(releases, 6);
+}
+
+TEST(Pipeline, AnEncodedFrameThatDoesNotDecodeIsLoggedCorrupt) {
+  decodes = 0;
+  std::vector<std::vector<std::uint8_t>> payloads = numbered_payloads(2);
+  payloads[1] = {1, 2, 3};
+  Releases releases(2);
+  RecordingSink sink;
+  PipelineConfig c = config(DropPolicy::lossless, 2);
+  c.pool.pixel_bytes = 16;
+  Pipeline pipeline(c, detectors({new NumberDetector}), sink);
+  ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, 0));
+  ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, 1));
+  const auto written = sink.wait_for(2);
+  pipeline.stop();
+  ASSERT_EQ(written.size(), 2U);
+  EXPECT_EQ(written[0].status, FrameStatus::ok);
+  EXPECT_EQ(written[1].status, FrameStatus::corrupt_frame);
+  EXPECT_EQ(written[1].cause, "test codec: not two bytes");
+  EXPECT_TRUE(written[1].ids.empty()) << "a frame that does not decode is not detected";
+  const PipelineStats s = pipeline.stats();
+  EXPECT_EQ(s.detect.failed, 1U);
+  EXPECT_EQ(s.detect_duration.count, 1U);
+  expect_balanced(s);
+  expect_each_released_once(releases, 2);
 }
 
 TEST(Pipeline, ASinkThatThrowsIsCountedAndTheSlotStillReturns) {

@@ -25,6 +25,7 @@
 #include <unistd.h>
 
 #include "markerd/daemon/capture/pixel_convert.hpp"
+#include "markerd/daemon/frame_pool.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/rig/config_table.hpp"
 
@@ -145,6 +146,55 @@ TEST(MjpegDecoder, BrokenFramesSayWhy) {
 
   // Still decodes a good frame after the broken ones.
   EXPECT_EQ(decoder.decode(jpeg, width, height, grey.data(), width), nullptr);
+}
+
+// What the sources lend a pipeline worker: the frame is decoded into its
+// slot's pixels, the source's buffer given back once, by decode() and never
+// again; a broken one is marked corrupt with the decoder's words.
+TEST(MjpegFrame, DecodesIntoTheSlotAndGivesTheBufferBackOnce) {
+  const int width = 160;
+  const int height = 120;
+  const auto jpeg = encode_jpeg(width, height, smooth);
+  const std::vector<std::uint8_t> truncated(jpeg.begin(), jpeg.begin() + static_cast<std::ptrdiff_t>(jpeg.size() / 2));
+  FramePool pool({.slots = 1, .pixel_bytes = static_cast<std::size_t>(width * height)});
+  int released = 0;
+  const ReleaseHook count_release{[](void* context, std::uint64_t) noexcept { ++*static_cast<int*>(context); },
+                                  &released, 0};
+
+  Frame* frame = pool.try_acquire();
+  ASSERT_NE(frame, nullptr);
+  frame->use_pixel_buffer(width, height);
+  frame->set_encoded(jpeg, &decode_mjpeg_frame);
+  frame->set_release(count_release);
+  ASSERT_TRUE(frame->is_encoded());
+  frame->decode();
+  EXPECT_EQ(released, 1) << "the encoded buffer goes back once decoded";
+  EXPECT_FALSE(frame->is_encoded());
+  EXPECT_TRUE(frame->encoded().empty());
+  ASSERT_EQ(frame->status, FrameStatus::ok) << frame->cause();
+  ASSERT_EQ(frame->image.width, width);
+  EXPECT_EQ(frame->image.data, frame->pixel_buffer().data());
+  int worst = 0;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) worst = std::max(worst, std::abs(frame->image.at(x, y) - smooth(x, y)));
+  }
+  EXPECT_LE(worst, 3);
+  frame->decode();
+  pool.release(*frame);
+  EXPECT_EQ(released, 1) << "decoded once, released once";
+
+  frame = pool.try_acquire();
+  ASSERT_NE(frame, nullptr);
+  frame->use_pixel_buffer(width, height);
+  frame->set_encoded(truncated, &decode_mjpeg_frame);
+  frame->set_release(count_release);
+  frame->decode();
+  EXPECT_EQ(released, 2);
+  EXPECT_EQ(frame->status, FrameStatus::corrupt_frame);
+  EXPECT_TRUE(contains(std::string(frame->cause()), "MJPEG: ")) << frame->cause();
+  EXPECT_TRUE(frame->image.empty());
+  pool.release(*frame);
+  EXPECT_EQ(released, 2);
 }
 
 // ---------------------------------------------------------------- settings

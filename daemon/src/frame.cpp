@@ -4,6 +4,7 @@
 #include <cassert>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace markerd::daemon {
 
@@ -30,6 +31,19 @@ void Frame::set_release(ReleaseHook hook) noexcept {
   release_ = hook;
 }
 
+void Frame::set_encoded(std::span<const std::uint8_t> data, DecodeFunction decoder) noexcept {
+  encoded_ = data;
+  decode_ = decoder;
+}
+
+void Frame::decode() noexcept {
+  const DecodeFunction decoder = std::exchange(decode_, nullptr);
+  if (decoder == nullptr) return;
+  decoder(*this);
+  encoded_ = {};
+  release_source();
+}
+
 void Frame::release_source() noexcept {
   const ReleaseHook hook = release_;
   release_ = {};
@@ -43,6 +57,8 @@ void Frame::reset() noexcept {
   source_id = 0;
   rig.reset();
   image = {};
+  encoded_ = {};
+  decode_ = nullptr;
   status = FrameStatus::ok;
   detections.clear();
   times = {};

@@ -163,6 +163,9 @@ void Pipeline::detect(Worker& worker, Frame& frame) noexcept {
   detect_counts_.add_in();
   frame.times.detect_start = Clock::now();
   capture_to_detect_.record(frame.times.detect_start - frame.capture_time);
+  // Only now, for a frame that is detected: see Frame::set_encoded. Its
+  // time counts as detection's.
+  frame.decode();
   if (frame.status == FrameStatus::ok) {
     try {
       worker.detector->detect(frame.image, frame.detections);

@@ -5,9 +5,10 @@
 // sources alone on it). Runs inside Debian's kernel under qemu (ctest's
 // hil_markerd_uvc), as root; outside such a guest it skips.
 //
-// markerd runs twice, once through its V4L2 source on uvcvideo's node and
-// once through its libcamera source, each time with camera controls in its
-// config. Each run checks, from markerd's detection log and the server's
+// markerd runs twice, once through its V4L2 source on uvcvideo's node, in
+// MJPEG (decoded by the pipeline's worker; YUYV through this source meets
+// vivid in test_markerd_vivid.cpp), and once through its libcamera source,
+// in YUYV, each time with camera controls in its config. Each run checks, from markerd's detection log and the server's
 // records: every logged frame is a frame the server sent, in order, showing
 // the marker the server rendered into it, with its pose; how many frames
 // were sent, logged and dropped, and the latency from the server's send to
@@ -473,8 +474,11 @@ class MarkerdUvc : public testing::Test {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
   const std::int64_t start = ns(Clock::now());
-  run_markerd("v4l2", "YUYV", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
-                                  "\"\nformat = \"YUYV\"\nwidth = 640\nheight = 480\nfps = 30\n"
+  // MJPEG frames are lent to the pipeline until a worker decodes them: more
+  // buffers than the pipeline's 8 slots leave the driver some while the
+  // slots are full.
+  run_markerd("v4l2", "MJPEG", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
+                                   "\"\nformat = \"MJPG\"\nwidth = 640\nheight = 480\nfps = 30\nbuffers = 10\n"
                           "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority Mode\"\n");
   // The config's controls, as the gadget received them: at the start and
   // again on the replugged camera.

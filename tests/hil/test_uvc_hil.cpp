@@ -114,6 +114,7 @@ std::vector<Captured> capture(CaptureSource& source, int count) {
     Frame* frame = pool.try_acquire();
     if (frame == nullptr) throw std::runtime_error("the test's frame pool is empty");
     source.fill(*frame);
+    frame->decode();  // an MJPEG frame, as a pipeline worker would
     Captured c;
     c.filled = Clock::now();
     c.sequence = frame->sequence;

@@ -231,6 +231,8 @@ class Session : public std::enable_shared_from_this<Session> {
     std::shared_ptr<Session> lent_to;     // set while a frame borrows the slot's pixels
   };
 
+  // The frame borrows the slot's buffer until the pipeline is done with it.
+  void lend(std::uint32_t index, Frame& frame);
   static void release_lent(void* context, std::uint64_t token) noexcept;
 
   void find_camera(const LibcameraSettings& settings);
@@ -263,7 +265,6 @@ class Session : public std::enable_shared_from_this<Session> {
   int height_ = 0;
   std::size_t stride_ = 0;
   std::size_t first_plane_bytes_ = 0;  // what a frame's first plane must hold (MJPEG: any length)
-  std::unique_ptr<MjpegDecoder> decoder_;  // MJPEG only
   std::unique_ptr<libcamera::FrameBufferAllocator> allocator_;
   std::vector<Mapping> mappings_;
   std::vector<Slot> slots_;
@@ -370,7 +371,6 @@ void Session::configure(const LibcameraSettings& settings) {
   if (format_ == LibcameraPixelFormat::mjpeg) {
     // No rows to check: each frame is as long as its JPEG, and the decoder
     // says what is wrong with one too short.
-    decoder_ = std::make_unique<MjpegDecoder>();
     first_plane_bytes_ = 0;
     return;
   }
@@ -582,23 +582,29 @@ void Session::fill(std::uint32_t index, Frame& frame) {
       requeue(index);
       fail(CaptureError::Kind::config, e.what());
     }
-    std::uint8_t* pixels = frame.pixel_buffer().data();
-    if (format_ == LibcameraPixelFormat::yuyv) {
-      yuyv_to_grey(slot.pixels, static_cast<std::ptrdiff_t>(stride_), width_, height_, pixels, grey.stride);
-    } else if (const char* why = decoder_->decode({slot.pixels, std::min(bytes_used, slot.length)}, width_, height_,
-                                                  pixels, grey.stride);
-               why != nullptr) {
-      mark_corrupt(frame, "libcamera camera '{}': frame {}: {}", camera_id_, metadata.sequence, why);
+    if (format_ == LibcameraPixelFormat::mjpeg) {
+      // Lent still encoded: the worker that detects the frame decodes it
+      // into the slot's pixels and the request goes back then
+      // (Frame::set_encoded).
+      frame.set_encoded({slot.pixels, std::min(bytes_used, slot.length)}, &decode_mjpeg_frame);
+      lend(index, frame);
+      return;
     }
+    yuyv_to_grey(slot.pixels, static_cast<std::ptrdiff_t>(stride_), width_, height_, frame.pixel_buffer().data(),
+                 grey.stride);
   } else {
     // The Y plane (NV12) or the whole image (R8), lent: the request goes
     // back when the pipeline is done with the frame.
     frame.image = GreyView{slot.pixels, width_, height_, static_cast<std::ptrdiff_t>(stride_)};
-    slot.lent_to = shared_from_this();
-    frame.set_release(ReleaseHook{&Session::release_lent, this, index});
+    lend(index, frame);
     return;
   }
   requeue(index);
+}
+
+void Session::lend(std::uint32_t index, Frame& frame) {
+  slots_[index].lent_to = shared_from_this();
+  frame.set_release(ReleaseHook{&Session::release_lent, this, index});
 }
 
 void Session::release_lent(void* context, std::uint64_t token) noexcept {

@@ -428,7 +428,6 @@ class V4l2Source final : public CaptureSource {
  public:
   explicit V4l2Source(V4l2Settings settings)
       : settings_(std::move(settings)), name_("v4l2 " + settings_.device), label_(name_) {
-    if (settings_.format == V4l2PixelFormat::mjpg) decoder_ = std::make_unique<MjpegDecoder>();
     geometry_ = configured_geometry();
   }
   ~V4l2Source() override { V4l2Source::close(); }
@@ -475,7 +474,6 @@ class V4l2Source final : public CaptureSource {
   V4l2Settings settings_;
   std::string name_;
   std::string label_;  // the name, and the node it resolved to when that differs
-  std::unique_ptr<MjpegDecoder> decoder_;
   CaptureGeometry geometry_;
   std::ptrdiff_t stride_ = 0;  // bytes per row of the mmap buffers
   std::size_t min_bytes_ = 0;  // what a buffer must hold for fill() to read the frame
@@ -870,16 +868,12 @@ void V4l2Source::fill(Frame& frame) {
   }
   const int w = settings_.width;
   const int h = settings_.height;
-  switch (settings_.format) {
-    case V4l2PixelFormat::grey:
-    case V4l2PixelFormat::nv12:
-      // The grey image is the buffer itself (NV12's Y plane comes first).
-      frame.image = GreyView{buffer.data, w, h, stride_};
-      stream_->retain();
-      frame.set_release({&requeue_lent, stream_, b.index});
-      return;
-    case V4l2PixelFormat::yuyv:
-    case V4l2PixelFormat::mjpg: break;
+  if (settings_.format == V4l2PixelFormat::grey || settings_.format == V4l2PixelFormat::nv12) {
+    // The grey image is the buffer itself (NV12's Y plane comes first).
+    frame.image = GreyView{buffer.data, w, h, stride_};
+    stream_->retain();
+    frame.set_release({&requeue_lent, stream_, b.index});
+    return;
   }
   try {
     frame.use_pixel_buffer(w, h);
@@ -888,13 +882,15 @@ void V4l2Source::fill(Frame& frame) {
     stream_->queue(b.index);
     throw error(Kind::config, e.what());
   }
-  std::uint8_t* grey = frame.pixel_buffer().data();
-  if (settings_.format == V4l2PixelFormat::yuyv) {
-    yuyv_to_grey(buffer.data, stride_, w, h, grey, w);
-  } else if (const char* why = decoder_->decode({buffer.data, bytes}, w, h, grey, w); why != nullptr) {
-    publish_corrupt(frame, why, b.index);
+  if (settings_.format == V4l2PixelFormat::mjpg) {
+    // Lent still encoded: the worker that detects the frame decodes it into
+    // the slot's pixels and gives the buffer back (Frame::set_encoded).
+    frame.set_encoded({buffer.data, bytes}, &decode_mjpeg_frame);
+    stream_->retain();
+    frame.set_release({&requeue_lent, stream_, b.index});
     return;
   }
+  yuyv_to_grey(buffer.data, stride_, w, h, frame.pixel_buffer().data(), w);
   requeue(b.index);
 }
 

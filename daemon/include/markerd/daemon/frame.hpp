@@ -38,6 +38,16 @@ struct ReleaseHook {
   explicit operator bool() const noexcept { return release != nullptr; }
 };
 
+class Frame;
+
+// Turns an encoded frame (MJPEG) into its grey image: writes the image where
+// the frame's `image` points (its pixel_buffer(), which the source set up)
+// from Frame::encoded(), or marks the frame corrupt_frame with a cause and
+// an empty image. Runs on the pipeline worker that takes the frame, so it
+// must be safe to run on several threads at once, and it must not throw: a
+// failure is the frame's, not the pipeline's.
+using DecodeFunction = void (*)(Frame& frame) noexcept;
+
 // When the frame passed each stage boundary, on Clock.
 struct StageTimes {
   Clock::time_point published{};     // handed to detection
@@ -83,6 +93,19 @@ class Frame {
   // Lends the frame the source's pixels: `hook` runs once when the pipeline
   // is done with the frame (written, dropped or discarded).
   void set_release(ReleaseHook hook) noexcept;
+
+  // Lends the frame an encoded image (a source's MJPEG buffer, given back by
+  // the release hook) that decode() turns into `image` with `decoder`. The
+  // pipeline decodes only the frames it detects, on the worker that detects
+  // them: a frame dropped while it waits costs no decoding, and the capture
+  // thread never waits for a decoder.
+  void set_encoded(std::span<const std::uint8_t> data, DecodeFunction decoder) noexcept;
+  [[nodiscard]] std::span<const std::uint8_t> encoded() const noexcept { return encoded_; }
+  [[nodiscard]] bool is_encoded() const noexcept { return decode_ != nullptr; }
+  // Decodes an encoded frame into `image` (or marks it corrupt_frame) and
+  // gives the encoded buffer back to its source at once (release_source()).
+  // Does nothing for a frame that is not encoded, or already decoded.
+  void decode() noexcept;
   [[nodiscard]] bool has_release() const noexcept { return static_cast<bool>(release_); }
 
   // Runs the release hook, if any, and forgets it: a second call does nothing.
@@ -101,6 +124,8 @@ class Frame {
 
   std::span<std::uint8_t> pixel_buffer_;
   ReleaseHook release_;
+  std::span<const std::uint8_t> encoded_;
+  DecodeFunction decode_ = nullptr;
   std::array<char, kCauseCapacity> cause_{};
   std::size_t cause_length_ = 0;
   // The pipeline's own: the frame's place in publication order, and whether

@@ -10,15 +10,19 @@
 //     Frame* slot = pipeline.acquire(stop);
 //     if (!slot) { source.skip(); continue; }        // live pipeline: dropped
 //     source.fill(*slot);                            // lends or writes the pixels
-//     pipeline.publish(*slot);
+//     pipeline.publish(*slot);                       // a worker decodes an encoded frame
 //   }
 //   source.close();
+//
+// Whoever takes frames from fill() without a pipeline calls Frame::decode()
+// first: an MJPEG frame comes out of fill() still encoded.
 //
 // A failure of the device (it vanished, a read failed) is thrown as a
 // CaptureError naming the device and the cause; the loop closes the source
 // and opens it again with backoff. A frame that cannot be read (a broken
-// MJPEG, a short buffer) is not a failure of the device: fill() publishes it
-// with status corrupt_frame and the cause, so the log records it.
+// MJPEG, a short buffer) is not a failure of the device: fill() (or, for an
+// MJPEG frame, decode()) marks it corrupt_frame with the cause, so the log
+// records it.
 
 #include <chrono>
 #include <cstddef>

@@ -6,8 +6,9 @@
 // NV12 and R8 frames lend their Y plane to the pipeline without a copy: the
 // frame points into the mapped buffer and its release hook queues the
 // request again. YUYV frames are converted into the frame slot's own pixels
-// in one pass, MJPEG frames decoded there (TurboJPEG, the Y component only),
-// and the request goes back at once.
+// in one pass and the request goes back at once. MJPEG frames are lent
+// encoded and decoded into the slot's pixels by the pipeline worker that
+// detects them (Frame::set_encoded; TurboJPEG, the Y component only).
 //
 // libcamera allows one CameraManager per process: the source and the listing
 // share one, started when the first of them needs it and stopped when the

@@ -11,6 +11,8 @@
 
 namespace markerd::daemon {
 
+class Frame;
+
 // Copies the Y of every YUYV pixel (Y0 U Y1 V, two pixels in four bytes)
 // into `grey`. `yuyv_stride` and `grey_stride` are bytes from one row to the
 // next; `width` is in pixels and even.
@@ -39,5 +41,12 @@ class MjpegDecoder {
   void* handle_ = nullptr;  // tjhandle
   char message_[160] = {};
 };
+
+// The DecodeFunction (frame.hpp) of the sources' MJPEG frames: decodes
+// Frame::encoded() into the frame's image, which the source pointed at the
+// slot's pixels (use_pixel_buffer()), or marks the frame corrupt_frame with
+// the decoder's words. Each thread that decodes (each pipeline worker) has a
+// decompressor of its own, made on its first frame.
+void decode_mjpeg_frame(Frame& frame) noexcept;
 
 }  // namespace markerd::daemon

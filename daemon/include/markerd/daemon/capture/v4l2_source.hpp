@@ -5,9 +5,11 @@
 //
 // The source streams through mmap buffers. GREY frames, and the Y plane of
 // NV12 frames, are lent to the pipeline without a copy: the frame points into
-// the mmap buffer and its release hook queues the buffer again. YUYV and
-// MJPEG frames are converted into the frame slot's own pixels and the buffer
-// goes back at once.
+// the mmap buffer and its release hook queues the buffer again. YUYV frames
+// are converted into the frame slot's own pixels and the buffer goes back at
+// once. MJPEG frames are lent encoded: the pipeline worker that detects one
+// decodes it into the slot's pixels and the buffer goes back then
+// (Frame::set_encoded), so frames dropped while they wait are never decoded.
 
 #include <chrono>
 #include <cstdint>
