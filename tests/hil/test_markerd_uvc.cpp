@@ -449,6 +449,13 @@ class MarkerdUvc : public testing::Test {
               << " id changes; from the server's send to the driver's timestamp p50 " << percentile(to_capture_ms, 0.5)
               << " ms, p99 " << percentile(to_capture_ms, 0.99) << " ms; to the log line p50 "
               << percentile(to_log_ms, 0.5) << " ms, p99 " << percentile(to_log_ms, 0.99) << " ms\n";
+    // Where that time goes, by markerd's own histograms: under TCG the
+    // detector takes tens of milliseconds a frame, and a detected frame has
+    // waited behind the others in the live pipeline's slots.
+    const json& latency = pipeline.at("latency");
+    std::cout << backend << ": markerd's latency p50: capture to detection "
+              << latency.at("capture_to_detect").at("p50_ms") << " ms, detection " << latency.at("detect").at("p50_ms") << " ms, capture to log "
+              << latency.at("capture_to_log").at("p50_ms") << " ms\n";
     // A frame sent and not logged is either one markerd counted as dropped
     // (its live pipeline keeps the newest frame while the detector is busy:
     // under TCG it logs one frame in three to five, as busy as the host is)
