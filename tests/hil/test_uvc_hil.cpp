@@ -63,8 +63,14 @@ constexpr int kFrames = 75;
 // Built with the sanitizers at -O0, the detector takes about half a second a
 // frame under TCG: every frame's number is checked, every 8th frame's marker.
 constexpr std::size_t kDetectEvery = 8;
+// Nor does the guest keep up with 30 MJPEG frames a second there (measured
+// 12.7: the server's and the reader's instrumented code and ASan's
+// interceptors under libjpeg's per-block calls): what comes is checked, not
+// how much of what was sent came.
+constexpr bool kCheckRate = false;
 #else
 constexpr std::size_t kDetectEvery = 1;
+constexpr bool kCheckRate = true;
 #endif
 // The sources' buffers (requests, for libcamera): a third of a second at
 // 30 frames per second, against the guest's hiccups under TCG.
@@ -315,7 +321,9 @@ class UvcHil : public testing::Test {
     // both host cores busy (with four buffers).
     EXPECT_EQ(never_arrived, 0U) << backend;
     EXPECT_EQ(failed, 0U) << backend;
-    EXPECT_LE(dropped, numbers.size() / 5) << backend;
+    if (kCheckRate) {
+      EXPECT_LE(dropped, numbers.size() / 5) << backend;
+    }
   }
 
   std::string capture_node_;
