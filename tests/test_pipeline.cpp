@@ -357,7 +357,9 @@ TEST(Pipeline, LosslessAcquireGivesUpWhenItsCaptureIsStopped) {
 
 // ---- live ----
 
-TEST(Pipeline, LiveDropsTheOldestWaitingFrameAndCountsIt) {
+// A camera faster than detection: the frame waiting for the worker is
+// replaced by each newer one, so the worker's next frame is the newest.
+TEST(Pipeline, LiveKeepsOnlyTheNewestFrameWaitingAndCountsTheDrops) {
   const auto images = numbered_images(6);
   Releases releases(6);
   RecordingSink sink;
@@ -369,28 +371,30 @@ TEST(Pipeline, LiveDropsTheOldestWaitingFrameAndCountsIt) {
   Pipeline pipeline(config(DropPolicy::live, 4), detectors({detector}), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));  // frame 0 is in the detector, which is stuck
-  for (int k = 1; k <= 3; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));  // they wait; the pool is empty
-  ASSERT_TRUE(offer(pipeline, images, releases, 4)) << "live capture never waits";
-  EXPECT_EQ(releases.counts[1].load(), 1) << "frame 1 was the oldest waiting: dropped and its buffer given back";
-  ASSERT_TRUE(offer(pipeline, images, releases, 5));
-  EXPECT_EQ(releases.counts[2].load(), 1);
-  for (int k : {0, 3, 4, 5}) EXPECT_EQ(releases.counts[k].load(), 0) << "frame " << k;
+  ASSERT_TRUE(offer(pipeline, images, releases, 1));  // waits, with slots to spare
+  for (int k = 2; k <= 5; ++k) {
+    ASSERT_TRUE(offer(pipeline, images, releases, k)) << "live capture never waits";
+    EXPECT_EQ(releases.counts[k - 1].load(), 1) << "frame " << k - 1 << " was waiting: dropped, its buffer given back";
+    EXPECT_EQ(releases.counts[k].load(), 0) << "frame " << k;
+  }
+  EXPECT_EQ(releases.counts[0].load(), 0);
   PipelineStats s = pipeline.stats();
-  EXPECT_EQ(s.detect.dropped, 2U);
+  EXPECT_EQ(s.detect.dropped, 4U);
   EXPECT_EQ(s.capture.dropped, 0U);
+  EXPECT_EQ(s.pool_free, 2U) << "one frame detecting, one waiting: the rest of the pool is never needed";
   gate.open();
-  sink.wait_for(4);
+  sink.wait_for(2);
   pipeline.stop();
-  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 3, 4, 5}));
+  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 5}));
   s = pipeline.stats();
-  EXPECT_EQ(s.dropped(), 2U);
+  EXPECT_EQ(s.dropped(), 4U);
   expect_balanced(s);
   expect_each_released_once(releases, 6);
 }
 
-// With two workers the oldest waiting frame may sit in either one's queue;
-// the dropped frames' places keep the log's order right.
-TEST(Pipeline, LiveDropsTheOldestAcrossWorkersAndKeepsTheOrder) {
+// With two workers each keeps its own newest waiting frame; the dropped
+// frames' places keep the log's order right.
+TEST(Pipeline, LiveKeepsEachWorkersNewestFrameAndTheOrder) {
   const auto images = numbered_images(8);
   Releases releases(8);
   RecordingSink sink;
@@ -405,19 +409,51 @@ TEST(Pipeline, LiveDropsTheOldestAcrossWorkersAndKeepsTheOrder) {
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));  // both workers are stuck
-  for (int k = 2; k <= 5; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));
-  ASSERT_TRUE(offer(pipeline, images, releases, 6));  // drops 2, waiting for worker 0
-  ASSERT_TRUE(offer(pipeline, images, releases, 7));  // drops 3, waiting for worker 1
-  EXPECT_EQ(releases.counts[2].load(), 1);
-  EXPECT_EQ(releases.counts[3].load(), 1);
+  for (int k = 2; k <= 3; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));  // one waiting for each
+  for (int k = 4; k <= 7; ++k) {
+    ASSERT_TRUE(offer(pipeline, images, releases, k));
+    EXPECT_EQ(releases.counts[k - 2].load(), 1) << "frame " << k - 2 << " waited for the same worker: dropped";
+  }
   gate.open();
-  sink.wait_for(6);
+  sink.wait_for(4);
   pipeline.stop();
-  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 1, 4, 5, 6, 7}));
-  for (const auto& w : sink.wait_for(6)) EXPECT_EQ(w.ids, std::vector<int>{static_cast<int>(w.sequence)});
-  EXPECT_EQ(pipeline.stats().detect.dropped, 2U);
+  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 1, 6, 7}));
+  for (const auto& w : sink.wait_for(4)) EXPECT_EQ(w.ids, std::vector<int>{static_cast<int>(w.sequence)});
+  EXPECT_EQ(pipeline.stats().detect.dropped, 4U);
   expect_balanced(pipeline.stats());
   expect_each_released_once(releases, 8);
+}
+
+// No slot free and nothing waiting for the worker the new frame goes to:
+// the oldest frame waiting for another worker gives its slot.
+TEST(Pipeline, LiveTakesTheOldestWaitingSlotWhenThePoolIsEmpty) {
+  const auto images = numbered_images(5);
+  Releases releases(5);
+  RecordingSink sink;
+  Gate gate;
+  std::counting_semaphore<1000> entered(0);
+  auto* d0 = new NumberDetector;
+  auto* d1 = new NumberDetector;
+  d0->gate = d1->gate = &gate;
+  d0->entered = d1->entered = &entered;
+  Pipeline pipeline(config(DropPolicy::live, 3), detectors({d0, d1}), sink);
+  ASSERT_TRUE(offer(pipeline, images, releases, 0));
+  ASSERT_TRUE(offer(pipeline, images, releases, 1));
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));  // both workers are stuck
+  ASSERT_TRUE(offer(pipeline, images, releases, 2));  // the last slot, waiting for worker 0
+  ASSERT_TRUE(offer(pipeline, images, releases, 3));  // for worker 1: takes frame 2's slot
+  EXPECT_EQ(releases.counts[2].load(), 1);
+  ASSERT_TRUE(offer(pipeline, images, releases, 4));  // for worker 0: takes frame 3's
+  EXPECT_EQ(releases.counts[3].load(), 1);
+  gate.open();
+  sink.wait_for(3);
+  pipeline.stop();
+  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 1, 4}));
+  for (const auto& w : sink.wait_for(3)) EXPECT_EQ(w.ids, std::vector<int>{static_cast<int>(w.sequence)});
+  EXPECT_EQ(pipeline.stats().detect.dropped, 2U);
+  expect_balanced(pipeline.stats());
+  expect_each_released_once(releases, 5);
 }
 
 // Every slot past detection (one in the sink, one waiting for it): nothing
@@ -447,8 +483,9 @@ TEST(Pipeline, LiveRefusesTheNewFrameWhenNoFrameWaitsForDetection) {
 
 // ---- shutdown ----
 
-// stop() while both workers are stuck and four frames wait: live discards
-// the waiting ones, lossless detects them; every slot comes back either way.
+// stop() while both workers are stuck and four frames were offered after
+// theirs: live has dropped two and discards the two waiting, lossless
+// detects all four; every slot comes back either way.
 void stop_with_frames_in_flight(DropPolicy policy, const std::vector<std::uint64_t>& expected_written) {
   const auto images = numbered_images(6);
   Releases releases(6);
@@ -460,9 +497,11 @@ void stop_with_frames_in_flight(DropPolicy policy, const std::vector<std::uint64
   d0->gate = d1->gate = &gate;
   d0->entered = d1->entered = &entered;
   Pipeline pipeline(config(policy, 6), detectors({d0, d1}), sink);
-  for (int k = 0; k < 6; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));
+  ASSERT_TRUE(offer(pipeline, images, releases, 0));
+  ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
+  for (int k = 2; k < 6; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));
   // The workers are asked to stop while their detectors are stuck; they
   // finish the frame in hand, then drain or discard the rest.
   pipeline.request_stop();
@@ -596,19 +635,18 @@ TEST(Pipeline, EncodedFramesAreDecodedOnlyWhenDetectedAndGoBackOnceDecoded) {
   EXPECT_EQ(decodes.load(), 1);
   EXPECT_EQ(releases.counts[0].load(), 1) << "decoded: the source's buffer goes back before detection ends";
   for (int k = 1; k <= 5; ++k) ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, k));
-  EXPECT_EQ(releases.counts[1].load(), 1) << "dropped while it waited";
-  EXPECT_EQ(releases.counts[2].load(), 1);
+  for (int k = 1; k <= 4; ++k) EXPECT_EQ(releases.counts[k].load(), 1) << "frame " << k << " dropped while it waited";
   EXPECT_EQ(decodes.load(), 1) << "the frames dropped while they waited were never decoded";
   gate.open();
-  const auto written = sink.wait_for(4);
+  const auto written = sink.wait_for(2);
   pipeline.stop();
-  ASSERT_EQ(written.size(), 4U);
+  ASSERT_EQ(written.size(), 2U);
   for (const Written& w : written) {
     EXPECT_EQ(w.status, FrameStatus::ok) << w.cause;
     EXPECT_EQ(w.ids, std::vector<int>{static_cast<int>(w.sequence)}) << "the detector read the decoded pixels";
   }
-  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 3, 4, 5}));
-  EXPECT_EQ(decodes.load(), 4);
+  EXPECT_EQ(sink.sequences(), (std::vector<std::uint64_t>{0, 5}));
+  EXPECT_EQ(decodes.load(), 2);
   expect_balanced(pipeline.stats());
   expect_each_released_once(releases, 6);
 }

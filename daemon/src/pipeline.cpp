@@ -67,10 +67,26 @@ Frame* Pipeline::acquire(const std::stop_token& stop) {
 Frame* Pipeline::take_slot_live() {
   // The frame will go to this worker; a worker stuck for so long that its
   // ring is all vacancies cannot take it, whatever slot it would be in.
-  if (workers_[next_ticket_ % workers_.size()]->input.full()) return nullptr;
+  Worker& target = *workers_[next_ticket_ % workers_.size()];
+  if (target.input.full()) return nullptr;
+  // A frame still waiting for this worker is older than the one coming:
+  // live detection takes each worker's newest frame, so the older one is
+  // dropped and its slot reused. A camera faster than detection thus waits
+  // at most one frame per worker, not a pool-full.
+  while (Frame* waiting = target.input.oldest_waiting()) {
+    if (Frame* frame = take_back(target, waiting)) return frame;
+  }
   if (Frame* frame = std::exchange(spare_, nullptr)) return frame;
   if (Frame* frame = pool_.try_acquire()) return frame;
   return take_back_oldest_waiting();
+}
+
+Frame* Pipeline::take_back(Worker& holder, Frame* frame) noexcept {
+  if (!holder.input.take_back(frame)) return nullptr;  // the worker popped it in the meantime
+  detect_counts_.add_dropped();
+  frame->release_source();
+  frame->reset();
+  return frame;
 }
 
 Frame* Pipeline::take_back_oldest_waiting() noexcept {
@@ -87,12 +103,7 @@ Frame* Pipeline::take_back_oldest_waiting() noexcept {
       }
     }
     if (oldest == nullptr) return nullptr;  // every slot is being detected or logged
-    if (holder->input.take_back(oldest)) {
-      detect_counts_.add_dropped();
-      oldest->release_source();
-      oldest->reset();
-      return oldest;
-    }
+    if (Frame* frame = take_back(*holder, oldest)) return frame;
     // The worker popped it in the meantime: look again.
   }
 }

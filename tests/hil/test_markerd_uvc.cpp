@@ -450,8 +450,8 @@ class MarkerdUvc : public testing::Test {
               << " ms, p99 " << percentile(to_capture_ms, 0.99) << " ms; to the log line p50 "
               << percentile(to_log_ms, 0.5) << " ms, p99 " << percentile(to_log_ms, 0.99) << " ms\n";
     // Where that time goes, by markerd's own histograms: under TCG the
-    // detector takes tens of milliseconds a frame, and a detected frame has
-    // waited behind the others in the live pipeline's slots.
+    // detector takes tens of milliseconds a frame, slower than the camera,
+    // and the live pipeline detects the newest frame waiting.
     const json& latency = pipeline.at("latency");
     std::cout << backend << ": markerd's latency p50: capture to detection "
               << latency.at("capture_to_detect").at("p50_ms") << " ms, detection " << latency.at("detect").at("p50_ms") << " ms, capture to log "
@@ -481,12 +481,10 @@ class MarkerdUvc : public testing::Test {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
   const std::int64_t start = ns(Clock::now());
-  // MJPEG frames are lent to the pipeline until a worker decodes them: more
-  // buffers than the pipeline's 8 slots leave the driver some while the
-  // slots are full.
   run_markerd("v4l2", "MJPEG", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
-                                   "\"\nformat = \"MJPG\"\nwidth = 640\nheight = 480\nfps = 30\nbuffers = 10\n"
-                          "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority Mode\"\n");
+                                   "\"\nformat = \"MJPG\"\nwidth = 640\nheight = 480\nfps = 30\n"
+                                   "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority "
+                                   "Mode\"\n");
   // The config's controls, as the gadget received them: at the start and
   // again on the replugged camera.
   EXPECT_EQ(values_set("brightness", start), (std::vector<std::int64_t>{-20, -20}));

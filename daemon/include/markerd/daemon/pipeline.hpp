@@ -32,11 +32,12 @@
 namespace markerd::daemon {
 
 enum class DropPolicy : std::uint8_t {
-  // The capture never waits. When detection is behind and no slot is free,
-  // the oldest frame waiting for detection is dropped and its slot reused;
-  // when no frame is waiting either (every slot is being detected or
-  // logged), the new frame is refused. Stopping discards frames not yet
-  // detected.
+  // The capture never waits, and detection takes the newest frames: a frame
+  // still waiting for the worker the new frame goes to is dropped and its
+  // slot reused, so each worker has at most one frame waiting. When no slot
+  // is free, the oldest frame waiting (for any worker) is dropped; when no
+  // frame is waiting either (every slot is being detected or logged), the
+  // new frame is refused. Stopping discards frames not yet detected.
   live,
   // Every published frame is detected and logged: acquire() waits for a
   // free slot. Stopping drains every frame in flight.
@@ -104,6 +105,9 @@ class Pipeline {
   };
 
   Frame* take_slot_live();
+  // Drops `frame`, waiting in `holder`'s input, and hands back its reset
+  // slot; null when the worker popped it first.
+  Frame* take_back(Worker& holder, Frame* frame) noexcept;
   Frame* take_back_oldest_waiting() noexcept;
   void run_worker(Worker& worker, std::size_t index, const std::stop_token& stop);
   void detect(Worker& worker, Frame& frame) noexcept;
