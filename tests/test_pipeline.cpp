@@ -99,6 +99,20 @@ std::vector<std::unique_ptr<MarkerDetector>> detectors(std::vector<NumberDetecto
   return out;
 }
 
+// `count` detectors that each announce a frame at `entered`, then wait at
+// `gate`: the test holds the workers with frames in hand.
+std::vector<std::unique_ptr<MarkerDetector>> gated_detectors(std::size_t count, Gate& gate,
+                                                             std::counting_semaphore<1000>& entered) {
+  std::vector<std::unique_ptr<MarkerDetector>> out;
+  for (std::size_t i = 0; i < count; ++i) {
+    auto detector = std::make_unique<NumberDetector>();
+    detector->gate = &gate;
+    detector->entered = &entered;
+    out.push_back(std::move(detector));
+  }
+  return out;
+}
+
 struct Written {
   std::uint64_t sequence;
   FrameStatus status;
@@ -310,10 +324,7 @@ TEST(Pipeline, LosslessCaptureWaitsForAFreeSlot) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* detector = new NumberDetector;
-  detector->gate = &gate;
-  detector->entered = &entered;
-  Pipeline pipeline(config(DropPolicy::lossless, 2), detectors({detector}), sink);
+  Pipeline pipeline(config(DropPolicy::lossless, 2), gated_detectors(1, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
@@ -337,10 +348,7 @@ TEST(Pipeline, LosslessAcquireGivesUpWhenItsCaptureIsStopped) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* detector = new NumberDetector;
-  detector->gate = &gate;
-  detector->entered = &entered;
-  Pipeline pipeline(config(DropPolicy::lossless, 1), detectors({detector}), sink);
+  Pipeline pipeline(config(DropPolicy::lossless, 1), gated_detectors(1, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
   Frame not_a_slot;
@@ -365,10 +373,7 @@ TEST(Pipeline, LiveKeepsOnlyTheNewestFrameWaitingAndCountsTheDrops) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* detector = new NumberDetector;
-  detector->gate = &gate;
-  detector->entered = &entered;
-  Pipeline pipeline(config(DropPolicy::live, 4), detectors({detector}), sink);
+  Pipeline pipeline(config(DropPolicy::live, 4), gated_detectors(1, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));  // frame 0 is in the detector, which is stuck
   ASSERT_TRUE(offer(pipeline, images, releases, 1));  // waits, with slots to spare
@@ -400,11 +405,7 @@ TEST(Pipeline, LiveKeepsEachWorkersNewestFrameAndTheOrder) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* d0 = new NumberDetector;
-  auto* d1 = new NumberDetector;
-  d0->gate = d1->gate = &gate;
-  d0->entered = d1->entered = &entered;
-  Pipeline pipeline(config(DropPolicy::live, 6), detectors({d0, d1}), sink);
+  Pipeline pipeline(config(DropPolicy::live, 6), gated_detectors(2, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
@@ -432,11 +433,7 @@ TEST(Pipeline, LiveTakesTheOldestWaitingSlotWhenThePoolIsEmpty) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* d0 = new NumberDetector;
-  auto* d1 = new NumberDetector;
-  d0->gate = d1->gate = &gate;
-  d0->entered = d1->entered = &entered;
-  Pipeline pipeline(config(DropPolicy::live, 3), detectors({d0, d1}), sink);
+  Pipeline pipeline(config(DropPolicy::live, 3), gated_detectors(2, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
@@ -492,11 +489,7 @@ void stop_with_frames_in_flight(DropPolicy policy, const std::vector<std::uint64
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* d0 = new NumberDetector;
-  auto* d1 = new NumberDetector;
-  d0->gate = d1->gate = &gate;
-  d0->entered = d1->entered = &entered;
-  Pipeline pipeline(config(policy, 6), detectors({d0, d1}), sink);
+  Pipeline pipeline(config(policy, 6), gated_detectors(2, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
@@ -624,12 +617,9 @@ TEST(Pipeline, EncodedFramesAreDecodedOnlyWhenDetectedAndGoBackOnceDecoded) {
   RecordingSink sink;
   Gate gate;
   std::counting_semaphore<1000> entered(0);
-  auto* detector = new NumberDetector;
-  detector->gate = &gate;
-  detector->entered = &entered;
   PipelineConfig c = config(DropPolicy::live, 4);
   c.pool.pixel_bytes = 16;
-  Pipeline pipeline(c, detectors({detector}), sink);
+  Pipeline pipeline(c, gated_detectors(1, gate, entered), sink);
   ASSERT_TRUE(offer_encoded(pipeline, payloads, releases, 0));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
   EXPECT_EQ(decodes.load(), 1);

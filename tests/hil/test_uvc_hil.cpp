@@ -34,6 +34,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "markerd/daemon/capture/libcamera_source.hpp"
@@ -202,6 +203,36 @@ class UvcHil : public testing::Test {
     if (HasFailure() && env("HIL_UVC_SERVER_LOG") != nullptr) {
       std::cout << "---- " << env("HIL_UVC_SERVER_LOG") << "\n" << read_text(env("HIL_UVC_SERVER_LOG")) << "----\n";
     }
+  }
+
+  // What every test streams: the webcam's one size, through kBuffers buffers.
+  [[nodiscard]] daemon::V4l2Settings v4l2_settings(daemon::V4l2PixelFormat format) const {
+    daemon::V4l2Settings settings;
+    settings.device = capture_node_;
+    settings.format = format;
+    settings.width = kWidth;
+    settings.height = kHeight;
+    settings.buffers = kBuffers;
+    return settings;
+  }
+  [[nodiscard]] static daemon::LibcameraSettings libcamera_settings(daemon::LibcameraPixelFormat format,
+                                                                    std::string camera = {}) {
+    daemon::LibcameraSettings settings;
+    settings.camera = std::move(camera);
+    settings.format = format;
+    settings.width = kWidth;
+    settings.height = kHeight;
+    settings.buffers = kBuffers;
+    return settings;
+  }
+
+  // Opens `source`, captures kFrames, closes it and checks the frames.
+  void stream_and_check(CaptureSource& source, const std::string& backend, const std::string& format) const {
+    source.open();
+    const auto frames = capture(source, kFrames);
+    source.close();
+    ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
+    check_frames(backend, format, frames);
   }
 
   // The SET_CUR data of a control that reached the gadget since the test
@@ -383,12 +414,7 @@ TEST_F(UvcHil, UvcvideoEnumeratesTheGadgetAsAWebcam) {
 }
 
 TEST_F(UvcHil, V4l2SourceCapturesTheRenderedFramesInOrder) {
-  daemon::V4l2Settings settings;
-  settings.device = capture_node_;
-  settings.format = daemon::V4l2PixelFormat::yuyv;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
+  daemon::V4l2Settings settings = v4l2_settings(daemon::V4l2PixelFormat::yuyv);
   settings.fps = 30;
   settings.controls = {{"brightness", std::int64_t{32}, "test"},
                        {"auto_exposure", std::string("Manual Mode"), "test"}};
@@ -433,21 +459,11 @@ TEST_F(UvcHil, LibcameraListsAndCapturesTheWebcam) {
   EXPECT_TRUE(controls.count("Brightness") == 1 && controls.count("AeEnable") == 1)
       << "libcamera maps uvcvideo's brightness and auto_exposure";
 
-  daemon::LibcameraSettings settings;
-  settings.camera = camera.id;
-  settings.format = daemon::LibcameraPixelFormat::yuyv;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
+  daemon::LibcameraSettings settings = libcamera_settings(daemon::LibcameraPixelFormat::yuyv, camera.id);
   // libcamera scales Brightness from [-1, 1] to the control's range about
   // its default: -0.25 is -16. AeEnable true is aperture priority, mode 8.
   settings.controls = {{"Brightness", -0.25, "test"}, {"AeEnable", true, "test"}};
-  const auto source = daemon::make_libcamera_source(settings);
-  source->open();
-  const auto frames = capture(*source, kFrames);
-  source->close();
-  ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
-  check_frames("libcamera", "YUYV", frames);
+  stream_and_check(*daemon::make_libcamera_source(settings), "libcamera", "YUYV");
 
   EXPECT_EQ(values_set("brightness"), std::vector<std::int64_t>{-16});
   EXPECT_EQ(values_set("ae_mode"), std::vector<std::int64_t>{8});
@@ -473,35 +489,16 @@ std::vector<std::string> formats_committed(const fs::path& server_dir, std::int6
 // (stamped_jpeg.hpp), decoded by the source (TurboJPEG) into the frame's
 // own pixels, with the marker and the number read back from them.
 TEST_F(UvcHil, V4l2SourceDecodesTheWebcamsMjpeg) {
-  daemon::V4l2Settings settings;
-  settings.device = capture_node_;
-  settings.format = daemon::V4l2PixelFormat::mjpg;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
+  daemon::V4l2Settings settings = v4l2_settings(daemon::V4l2PixelFormat::mjpg);
   settings.fps = 30;
-  const auto source = daemon::make_v4l2_source(settings);
-  source->open();
-  const auto frames = capture(*source, kFrames);
-  source->close();
-  ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
-  check_frames("v4l2", "MJPEG", frames);
+  stream_and_check(*daemon::make_v4l2_source(settings), "v4l2", "MJPEG");
   EXPECT_EQ(formats_committed(server_dir_, started_ns_), std::vector<std::string>{"MJPEG (index 2)"});
 }
 
 TEST_F(UvcHil, LibcameraSourceDecodesTheWebcamsMjpeg) {
   ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);  // NOLINT(concurrency-mt-unsafe): before libcamera starts
-  daemon::LibcameraSettings settings;
-  settings.format = daemon::LibcameraPixelFormat::mjpeg;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
-  const auto source = daemon::make_libcamera_source(settings);
-  source->open();
-  const auto frames = capture(*source, kFrames);
-  source->close();
-  ASSERT_EQ(frames.size(), static_cast<std::size_t>(kFrames));
-  check_frames("libcamera", "MJPEG", frames);
+  stream_and_check(*daemon::make_libcamera_source(libcamera_settings(daemon::LibcameraPixelFormat::mjpeg)), "libcamera",
+                   "MJPEG");
   EXPECT_EQ(formats_committed(server_dir_, started_ns_), std::vector<std::string>{"MJPEG (index 2)"});
 }
 
@@ -513,12 +510,7 @@ TEST_F(UvcHil, V4l2SourceReportsTheUnplugAndStreamsAfterTheReplug) {
   ASSERT_NE(env("HIL_UVC_GADGET"), nullptr);
   ASSERT_NE(env("HIL_UVC_UDC"), nullptr);
   const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
-  daemon::V4l2Settings settings;
-  settings.device = capture_node_;
-  settings.format = daemon::V4l2PixelFormat::yuyv;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
+  daemon::V4l2Settings settings = v4l2_settings(daemon::V4l2PixelFormat::yuyv);
   auto source = daemon::make_v4l2_source(settings);
   source->open();
   const auto before = capture(*source, 15);
@@ -572,12 +564,8 @@ TEST_F(UvcHil, LibcameraSourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
   const auto cameras = daemon::list_libcamera_cameras();
   ASSERT_EQ(cameras.size(), 1U);
-  daemon::LibcameraSettings settings;
-  settings.camera = cameras.front().id;
-  settings.format = daemon::LibcameraPixelFormat::yuyv;
-  settings.width = kWidth;
-  settings.height = kHeight;
-  settings.buffers = kBuffers;
+  const daemon::LibcameraSettings settings =
+      libcamera_settings(daemon::LibcameraPixelFormat::yuyv, cameras.front().id);
   auto source = daemon::make_libcamera_source(settings);
   source->open();
   const auto before = capture(*source, 15);
