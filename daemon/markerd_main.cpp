@@ -33,7 +33,7 @@
 #include <string>
 
 #include "markerd/daemon/daemon.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 #ifndef MARKERD_VERSION
 #define MARKERD_VERSION "unknown"

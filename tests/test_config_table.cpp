@@ -2,7 +2,7 @@
 
 #include <fstream>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 using markerd::ConfigError;
 using markerd::ConfigTable;
@@ -66,4 +66,40 @@ TEST(ConfigTable, SyntaxErrorsAndMissingFilesAreConfigErrors) {
   const std::string path = testing::TempDir() + "/config_table.toml";
   std::ofstream(path) << kText;
   EXPECT_EQ(ConfigTable::load_file(path).table("rig").table("rail").required<std::string>("name"), "rail");
+}
+
+TEST(ConfigTable, AnythingButARegularFileIsRefusedByName) {
+  const auto dir = error_of([] { (void)ConfigTable::load_file("/tmp"); });
+  EXPECT_NE(dir.find("is a directory, not a file"), std::string::npos) << dir;
+  const auto device = error_of([] { (void)ConfigTable::load_file("/dev/zero"); });
+  EXPECT_NE(device.find("is a character device, not a file"), std::string::npos) << device;
+}
+
+TEST(ConfigTable, RangesNameTheirBoundsAndUnit) {
+  const auto root = ConfigTable::parse(R"([axis]
+settle_ms = 9223372036854775807
+time_scale = 1e308
+ratio = nan
+speed = 12.5
+count = 70000
+)",
+                                       "rig.toml");
+  const auto axis = root.table("axis");
+  EXPECT_EQ(error_of([&] { (void)axis.required<std::int64_t>("settle_ms", {0, 60000, "ms"}); }),
+            "rig.toml:2: axis.settle_ms: must be from 0 to 60000 ms, got 9223372036854775807");
+  EXPECT_EQ(error_of([&] { (void)axis.optional<double>("time_scale", 1.0, {1, 1000}); }),
+            "rig.toml:3: axis.time_scale: must be from 1 to 1000, got 1e+308");
+  EXPECT_EQ(error_of([&] { (void)axis.optional<double>("ratio", 1.0, {0, 1}); }),
+            "rig.toml:4: axis.ratio: must be a finite number, got nan");
+  EXPECT_DOUBLE_EQ(axis.required<double>("speed", {0, 100, "mm/s"}), 12.5);
+  EXPECT_DOUBLE_EQ(axis.optional<double>("absent", 7.0, {0, 100}), 7.0);
+  EXPECT_EQ(error_of([&] { (void)axis.required<double>("absent", {0, 100}); }),
+            "rig.toml:1: [axis]: missing key 'axis.absent' (a number)");
+}
+
+TEST(ConfigTable, AnIntegerTooLargeForItsSettingSaysSo) {
+  const auto root = ConfigTable::parse("[axis]\nsettle_ms = 9223372036854775807\ncount = 70000\n", "rig.toml");
+  EXPECT_EQ(error_of([&] { (void)root.table("axis").required<int>("settle_ms"); }),
+            "rig.toml:2: axis.settle_ms: must be an integer from -2147483648 to 2147483647, got 9223372036854775807");
+  EXPECT_EQ(root.table("axis").required<int>("count"), 70000);
 }

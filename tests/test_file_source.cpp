@@ -24,7 +24,7 @@
 #include "markerd/daemon/capture/file_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/render.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 namespace {

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "markerd/daemon/capture/libcamera_source.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 namespace {

@@ -8,7 +8,7 @@
 #include <fstream>
 #include <string>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/modbus_drive.hpp"
 #include "markerd/rig/register_map.hpp"

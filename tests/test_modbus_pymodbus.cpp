@@ -14,7 +14,7 @@
 #include <string>
 #include <vector>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/modbus_drive.hpp"
 #include "markerd/rig/register_map.hpp"

@@ -27,7 +27,7 @@
 #include "markerd/daemon/capture/pixel_convert.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 namespace {

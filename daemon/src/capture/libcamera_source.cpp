@@ -28,7 +28,7 @@
 #include <utility>
 
 #include "markerd/daemon/capture/pixel_convert.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 

@@ -21,7 +21,7 @@
 #include <string>
 #include <thread>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/drive.hpp"
 #include "markerd/rig/gpio_lines.hpp"
 

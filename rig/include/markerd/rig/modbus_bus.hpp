@@ -22,7 +22,7 @@
 #include <span>
 #include <string>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/drive.hpp"
 #include "markerd/rig/register_map.hpp"
 

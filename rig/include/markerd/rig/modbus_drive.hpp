@@ -21,7 +21,7 @@
 #include <string>
 #include <string_view>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/drive.hpp"
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/register_map.hpp"

@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::rig {
 

@@ -17,7 +17,7 @@
 #include <vector>
 
 #include "markerd/detector/family.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/rig_config.hpp"
 
 namespace markerd::sweep {

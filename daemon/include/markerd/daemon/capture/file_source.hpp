@@ -8,7 +8,7 @@
 #include <memory>
 
 #include "markerd/daemon/capture/capture_source.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 

@@ -25,7 +25,7 @@
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/family.hpp"
 #include "markerd/detector/image.hpp"
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/rig/geometry.hpp"
 #include "markerd/rig/rig.hpp"
 

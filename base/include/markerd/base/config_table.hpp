@@ -8,6 +8,7 @@
 #include <toml++/toml.h>
 
 #include <filesystem>
+#include <cstddef>
 #include <initializer_list>
 #include <memory>
 #include <optional>
@@ -28,8 +29,10 @@ class ConfigTable {
   // path, or "<string>").
   ConfigTable(std::shared_ptr<const toml::table> root, std::string source);
 
-  // Parses a file; a syntax error or a missing file becomes a ConfigError.
+  // Parses a file; a syntax error, a missing file, or anything but a regular
+  // file of at most kMaxFileBytes becomes a ConfigError.
   static ConfigTable load_file(const std::filesystem::path& path);
+  static constexpr std::size_t kMaxFileBytes = 1024 * 1024;
   static ConfigTable parse(std::string_view text, std::string source = "<string>");
 
   [[nodiscard]] const std::string& source() const { return source_; }
@@ -45,6 +48,22 @@ class ConfigTable {
   [[nodiscard]] T optional(std::string_view key, T fallback) const;
   template <class T>
   [[nodiscard]] std::optional<T> maybe(std::string_view key) const;
+
+  // The same with the range that the value means something in physically (a
+  // settle time, a time scale, a marker's size): a value outside it, or a
+  // number that is not finite, is an error naming the range and its unit.
+  template <class T>
+  struct Range {
+    T min;
+    T max;
+    std::string_view unit = {};
+  };
+  template <class T>
+  [[nodiscard]] T required(std::string_view key, Range<T> range) const;
+  template <class T>
+  [[nodiscard]] T optional(std::string_view key, T fallback, Range<T> range) const;
+  template <class T>
+  [[nodiscard]] std::optional<T> maybe(std::string_view key, Range<T> range) const;
 
   [[nodiscard]] ConfigTable table(std::string_view key) const;
   [[nodiscard]] std::optional<ConfigTable> maybe_table(std::string_view key) const;
@@ -67,6 +86,7 @@ class ConfigTable {
   std::string key_path_;
 };
 
-// Defined in config_table.cpp for: bool, std::int64_t, int, double, std::string.
+// Defined in config_table.cpp for: bool, std::int64_t, int, double, std::string;
+// the ranged ones for std::int64_t, int and double.
 
 }  // namespace markerd

@@ -1,7 +1,10 @@
-#include "markerd/rig/config_table.hpp"
+#include "markerd/base/config_table.hpp"
+
+#include "markerd/base/read_file.hpp"
 
 #include <fmt/format.h>
 
+#include <cmath>
 #include <cstdint>
 #include <limits>
 #include <utility>
@@ -16,13 +19,13 @@ ConfigTable::ConfigTable(std::shared_ptr<const toml::table> root, const toml::ta
     : root_(std::move(root)), table_(table), source_(std::move(source)), key_path_(std::move(key_path)) {}
 
 ConfigTable ConfigTable::load_file(const std::filesystem::path& path) {
+  std::string text;
   try {
-    return ConfigTable(std::make_shared<const toml::table>(toml::parse_file(path.string())), path.string());
-  } catch (const toml::parse_error& e) {
-    const auto& begin = e.source().begin;
-    if (begin.line == 0) throw ConfigError(fmt::format("{}: {}", path.string(), e.description()));
-    throw ConfigError(fmt::format("{}:{}:{}: {}", path.string(), begin.line, begin.column, e.description()));
+    text = read_regular_file(path, kMaxFileBytes, "the config file");
+  } catch (const FileError& e) {
+    throw ConfigError(e.what());
   }
+  return parse(text, path.string());
 }
 
 ConfigTable ConfigTable::parse(std::string_view text, std::string source) {
@@ -105,8 +108,43 @@ std::optional<T> ConfigTable::maybe(std::string_view key) const {
   const toml::node* node = table_->get(key);
   if (node == nullptr) return std::nullopt;
   auto value = convert<T>(*node);
-  if (!value) fail(key, fmt::format("must be {}", type_name<T>()));
+  if (!value) {
+    if constexpr (std::is_integral_v<T> && !std::is_same_v<T, bool>) {
+      // An integer too large for the setting deserves better than "must be an integer".
+      if (auto v = node->value_exact<std::int64_t>()) {
+        fail(key, fmt::format("must be an integer from {} to {}, got {}", std::numeric_limits<T>::min(),
+                              std::numeric_limits<T>::max(), *v));
+      }
+    }
+    fail(key, fmt::format("must be {}", type_name<T>()));
+  }
   return value;
+}
+
+template <class T>
+std::optional<T> ConfigTable::maybe(std::string_view key, Range<T> range) const {
+  auto value = maybe<T>(key);
+  if (!value) return value;
+  const std::string unit = range.unit.empty() ? std::string() : fmt::format(" {}", range.unit);
+  if constexpr (std::is_floating_point_v<T>) {
+    if (!std::isfinite(*value)) fail(key, fmt::format("must be a finite number, got {}", *value));
+  }
+  if (*value < range.min || *value > range.max) {
+    fail(key, fmt::format("must be from {} to {}{}, got {}", range.min, range.max, unit, *value));
+  }
+  return value;
+}
+
+template <class T>
+T ConfigTable::required(std::string_view key, Range<T> range) const {
+  (void)required<T>(key);
+  return *maybe<T>(key, range);
+}
+
+template <class T>
+T ConfigTable::optional(std::string_view key, T fallback, Range<T> range) const {
+  auto value = maybe<T>(key, range);
+  return value ? *value : fallback;
 }
 
 template <class T>
@@ -145,5 +183,14 @@ MARKERD_CONFIG_TYPE(std::int64_t)
 MARKERD_CONFIG_TYPE(double)
 MARKERD_CONFIG_TYPE(std::string)
 #undef MARKERD_CONFIG_TYPE
+
+#define MARKERD_CONFIG_RANGED_TYPE(T)                                                          \
+  template std::optional<T> ConfigTable::maybe<T>(std::string_view, Range<T>) const;          \
+  template T ConfigTable::required<T>(std::string_view, Range<T>) const;                      \
+  template T ConfigTable::optional<T>(std::string_view, T, Range<T>) const;
+MARKERD_CONFIG_RANGED_TYPE(int)
+MARKERD_CONFIG_RANGED_TYPE(std::int64_t)
+MARKERD_CONFIG_RANGED_TYPE(double)
+#undef MARKERD_CONFIG_RANGED_TYPE
 
 }  // namespace markerd
