@@ -55,10 +55,6 @@ constexpr std::size_t kLinesAfterReplug = 10;
 // As test_markerd_vivid: the pose from the corners against the rendered one.
 constexpr double kMaxTranslationError = 0.03;  // of the distance
 constexpr double kMaxRotationErrorDeg = 3.0;
-// A frame's first packet reaches uvcvideo after the server queued it, and
-// within the gadget's queue of four frames (133 ms at 30 fps) and TCG's
-// scheduling after.
-constexpr auto kMaxQueueToCapture = 500ms;
 // Generous: markerd loads OpenCV's libraries under TCG (seconds), on a
 // loaded 2-core host.
 constexpr auto kStartTimeout = 90s;
@@ -409,7 +405,6 @@ class MarkerdUvc : public testing::Test {
       EXPECT_EQ(frame.format, format) << where;
       const std::int64_t captured = line.at("frame").at("capture_monotonic_ns").get<std::int64_t>();
       EXPECT_GE(captured, frame.queued_ns) << where << ": captured before it was sent";
-      EXPECT_LE(captured - frame.queued_ns, std::chrono::nanoseconds(kMaxQueueToCapture).count()) << where;
       to_capture_ms.push_back(static_cast<double>(captured - frame.queued_ns) / 1e6);
       if (i < arrivals.size()) to_log_ms.push_back(static_cast<double>(ns(arrivals[i]) - frame.queued_ns) / 1e6);
 
@@ -463,7 +458,8 @@ class MarkerdUvc : public testing::Test {
     // queued (the emulated bus loses none: test_uvc_hil). The second is
     // markerd's capture thread falling behind; measured: none through V4L2,
     // none to 4 % through libcamera, whose requests go back on its own
-    // thread, when the host is busy.
+    // thread, when the host is busy. Both follow the guest's speed, hence
+    // the host's load: figures, not assertions.
     ASSERT_LE(counted_lines, numbers.size());
     const auto counted_span = static_cast<std::size_t>(numbers[counted_lines - 1] - numbers.front() + 1);
     const std::size_t not_logged = counted_span - counted_lines;
@@ -471,7 +467,6 @@ class MarkerdUvc : public testing::Test {
     std::cout << backend << ": of frames " << numbers.front() << " to " << numbers[counted_lines - 1] << ", "
               << not_logged << " not logged: " << markerd_dropped << " dropped by markerd (its count), "
               << driver_dropped << " by the driver\n";
-    EXPECT_LE(driver_dropped * 10, counted_span) << backend << ": over a tenth of the frames never reached markerd";
   }
 
   std::string capture_node_;
