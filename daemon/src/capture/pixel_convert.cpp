@@ -44,13 +44,35 @@ void yuyv_to_grey(const std::uint8_t* yuyv, std::ptrdiff_t yuyv_stride, int widt
   }
 }
 
-MjpegDecoder::MjpegDecoder() : handle_(tjInitDecompress()) {
+JpegDecoder::JpegDecoder() : handle_(tjInitDecompress()) {
   if (handle_ == nullptr) {
     throw std::runtime_error(std::string("TurboJPEG: cannot make a decompressor: ") + tjGetErrorStr2(nullptr));
   }
 }
 
-MjpegDecoder::~MjpegDecoder() { tjDestroy(handle_); }
+JpegDecoder::~JpegDecoder() { tjDestroy(handle_); }
+
+JpegDecoder::Outcome JpegDecoder::read_size(std::span<const std::uint8_t> jpeg, int& width, int& height) noexcept {
+  int subsampling = 0;
+  int colorspace = 0;
+  if (tjDecompressHeader3(handle_, jpeg.data(), jpeg.size(), &width, &height, &subsampling, &colorspace) != 0) {
+    return tjGetErrorCode(handle_) == TJERR_WARNING ? Outcome::damaged : Outcome::failed;
+  }
+  return Outcome::ok;
+}
+
+JpegDecoder::Outcome JpegDecoder::decode_grey(std::span<const std::uint8_t> jpeg, int width, int height,
+                                              std::uint8_t* grey, std::ptrdiff_t grey_stride) noexcept {
+  // LIMITSCANS: a progressive JPEG of thousands of tiny scans takes minutes
+  // to decode; no camera or encoder writes more than a few dozen.
+  if (tjDecompress2(handle_, jpeg.data(), jpeg.size(), grey, width, static_cast<int>(grey_stride), height, TJPF_GRAY,
+                    TJFLAG_STOPONWARNING | TJFLAG_LIMITSCANS) != 0) {
+    return tjGetErrorCode(handle_) == TJERR_WARNING ? Outcome::damaged : Outcome::failed;
+  }
+  return Outcome::ok;
+}
+
+const char* JpegDecoder::message() const noexcept { return tjGetErrorStr2(handle_); }
 
 const char* MjpegDecoder::decode(std::span<const std::uint8_t> jpeg, int width, int height, std::uint8_t* grey,
                                  std::ptrdiff_t grey_stride) noexcept {
@@ -60,11 +82,8 @@ const char* MjpegDecoder::decode(std::span<const std::uint8_t> jpeg, int width, 
   }
   int jpeg_width = 0;
   int jpeg_height = 0;
-  int subsampling = 0;
-  int colorspace = 0;
-  if (tjDecompressHeader3(handle_, jpeg.data(), jpeg.size(), &jpeg_width, &jpeg_height, &subsampling, &colorspace) !=
-      0) {
-    std::snprintf(message_, sizeof message_, "MJPEG: %s", tjGetErrorStr2(handle_));
+  if (jpeg_.read_size(jpeg, jpeg_width, jpeg_height) != JpegDecoder::Outcome::ok) {
+    std::snprintf(message_, sizeof message_, "MJPEG: %s", jpeg_.message());
     return message_;
   }
   if (jpeg_width != width || jpeg_height != height) {
@@ -72,11 +91,8 @@ const char* MjpegDecoder::decode(std::span<const std::uint8_t> jpeg, int width, 
                   jpeg_height, width, height);
     return message_;
   }
-  // A warning (a truncated frame, a corrupt entropy segment) stops the
-  // decode at once: the frame is reported broken either way.
-  if (tjDecompress2(handle_, jpeg.data(), jpeg.size(), grey, width, static_cast<int>(grey_stride), height, TJPF_GRAY,
-                    TJFLAG_STOPONWARNING) != 0) {
-    std::snprintf(message_, sizeof message_, "MJPEG: %s", tjGetErrorStr2(handle_));
+  if (jpeg_.decode_grey(jpeg, width, height, grey, grey_stride) != JpegDecoder::Outcome::ok) {
+    std::snprintf(message_, sizeof message_, "MJPEG: %s", jpeg_.message());
     return message_;
   }
   return nullptr;
