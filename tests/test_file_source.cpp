@@ -21,6 +21,7 @@
 
 #include <unistd.h>
 
+#include "image_fixtures.hpp"
 #include "markerd/daemon/capture/file_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/render.hpp"
@@ -279,6 +280,45 @@ TEST_F(FileSourceTest, FirstReadableImageSetsTheSize) {
   ASSERT_NE(frame, nullptr);
   EXPECT_TRUE(same_pixels(frame->image, images[0]));
   done(frame);
+}
+
+// A JPEG cut short or with damaged data decodes to a picture with grey or
+// garbled blocks; the frame is corrupt with the decoder's cause, not a
+// measurement. A header declaring a decompression bomb is refused before
+// anything is decoded, as the first image too.
+TEST_F(FileSourceTest, DamagedJpegsAndBombsAreCorruptFramesSayingWhy) {
+  const auto images = write_frames(4);
+  std::vector<std::uint8_t> jpeg;
+  ASSERT_TRUE(cv::imencode(".jpg", images[1], jpeg));
+  fs::remove(frame_path(1));
+  fs::remove(frame_path(2));
+  test::write_bytes(frames() / "frame_0001.jpg", test::first_half(jpeg));
+  test::write_bytes(frames() / "frame_0002.jpg", test::with_corrupt_entropy_data(jpeg));
+  test::write_bytes(frames() / "frame_.png", test::png_declaring(30000, 30000));  // first in name order
+
+  start(frames());
+  EXPECT_EQ(source_->geometry().width, 160);
+  const std::vector<std::pair<std::string, std::string>> expected = {
+      {"frame_.png", "declares 30000x30000 pixels"},
+      {"frame_0000.png", ""},
+      {"frame_0001.jpg", "the JPEG is truncated"},
+      {"frame_0002.jpg", "the JPEG is corrupt"},
+      {"frame_0003.png", ""}};
+  for (const auto& [file, cause] : expected) {
+    Frame* frame = next();
+    ASSERT_NE(frame, nullptr) << file;
+    if (cause.empty()) {
+      EXPECT_EQ(frame->status, FrameStatus::ok) << file << ": " << frame->cause();
+    } else {
+      EXPECT_EQ(frame->status, FrameStatus::corrupt_frame) << file;
+      const std::string text(frame->cause());
+      EXPECT_NE(text.find("image " + file + ": "), std::string::npos) << text;
+      EXPECT_NE(text.find(cause), std::string::npos) << text;
+      EXPECT_TRUE(frame->image.empty());
+    }
+    done(frame);
+  }
+  EXPECT_TRUE(source_->at_end());
 }
 
 TEST_F(FileSourceTest, MissingPathOrNoImagesIsNotFound) {

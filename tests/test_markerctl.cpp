@@ -14,11 +14,15 @@
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <random>
 #include <regex>
 #include <sstream>
 #include <string>
 #include <vector>
+
+#include "image_fixtures.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -402,6 +406,46 @@ TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
   EXPECT_EQ(last.code, 1) << last.describe();
   const auto last_lines = last.json_lines();
   EXPECT_NE(detection_at(last_lines, truth), nullptr) << last.describe();
+}
+
+// Images that do not decode whole, a decompression bomb, a directory and a
+// FIFO: each an error naming the file and the cause, never an empty
+// detection, and nothing on stderr but markerctl's own lines (libjpeg and
+// libpng print nothing of their own).
+TEST_F(Markerctl, DamagedImagesAreErrorsInMarkerctlsOwnWords) {
+  render("good.png", {"--dist", "0.5"});
+  const cv::Mat good = cv::imread(path("good.png"), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(good.empty());
+  markerd::test::Bytes jpeg;
+  markerd::test::Bytes png;
+  ASSERT_TRUE(cv::imencode(".jpg", good, jpeg));
+  ASSERT_TRUE(cv::imencode(".png", good, png));
+  markerd::test::write_bytes(path("half.jpg"), markerd::test::first_half(jpeg));
+  markerd::test::write_bytes(path("corrupt.jpg"), markerd::test::with_corrupt_entropy_data(jpeg));
+  markerd::test::write_bytes(path("half.png"), markerd::test::first_half(png));
+  markerd::test::write_bytes(path("bomb.png"), markerd::test::png_declaring(30000, 30000));
+  fs::create_directory(path("dir.png"));
+  ASSERT_TRUE(markerd::test::make_fifo(path("fifo.jpg")));
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"half.jpg", "the JPEG is truncated"},
+      {"corrupt.jpg", "the JPEG is corrupt"},
+      {"half.png", "the PNG is truncated"},
+      {"bomb.png", "the PNG declares 30000x30000 pixels"},
+      {"dir.png", "is a directory, not a file"},
+      {"fifo.jpg", "is a FIFO, not a file"}};
+  for (const auto& [name, cause] : cases) {
+    const Outcome r = run({"detect", "--verbose", path(name)});
+    EXPECT_EQ(r.code, 1) << name << "\n" << r.describe();
+    EXPECT_EQ(r.out, "") << name << ": no detection line for an image that was not read\n" << r.describe();
+    EXPECT_EQ(r.err.rfind("markerctl: " + path(name) + ": ", 0), 0u) << name << "\n" << r.describe();
+    EXPECT_NE(r.err.find(cause), std::string::npos) << name << "\n" << r.describe();
+    std::istringstream lines(r.err);
+    int count = 0;
+    for (std::string line; std::getline(lines, line); ++count) {
+      EXPECT_EQ(line.rfind("markerctl: ", 0), 0u) << name << ": a line not markerctl's own\n" << r.describe();
+    }
+    EXPECT_EQ(count, 2) << name << ": the image's error and the summary\n" << r.describe();
+  }
 }
 
 TEST_F(Markerctl, ImageOfAnotherSizeThanTheCameraIsAnError) {

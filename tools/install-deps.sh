@@ -12,6 +12,8 @@ packages=(
   libgpiod-dev libmodbus-dev libcamera-dev libsystemd-dev
   # detector peers and file formats
   libapriltag-dev libcairo2-dev libturbojpeg0-dev
+  # PNG files read with libpng's own API (its messages caught): image_file.cpp
+  libpng-dev
   # command line, config, JSON
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev
   # tests and benchmarks

@@ -1,24 +1,18 @@
 // markerctl detect: markers in image files, one JSON line per detection. An
-// image that cannot be read is reported and skipped; the exit status says
-// whether any was.
+// image that cannot be read or does not decode whole is reported and skipped;
+// the exit status says whether any was.
 
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
-#include <cerrno>
 #include <chrono>
-#include <cstring>
 #include <filesystem>
-#include <fstream>
 #include <iostream>
-#include <iterator>
 #include <memory>
 #include <nlohmann/json.hpp>
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <optional>
 
 #include "common.hpp"
+#include "markerd/daemon/capture/image_file.hpp"
 #include "markerd/detector/detector.hpp"
 
 namespace markerctl {
@@ -35,37 +29,6 @@ struct DetectOptions {
   bool verbose = false;
   std::vector<std::string> images;
 };
-
-// Reads an image as 8-bit grey, the way cv::imread(IMREAD_GRAYSCALE) does, but
-// from bytes read here so that a missing, unreadable, empty or undecodable
-// file each gets its own message. Returns nullopt after reporting.
-std::optional<cv::Mat> read_grey(const std::string& path) {
-  const auto report = [&](const std::string& why) {
-    std::cout.flush();
-    std::cerr << fmt::format("markerctl: {}: {}\n", path, why);
-    return std::nullopt;
-  };
-  std::error_code ec;
-  const auto status = std::filesystem::status(path, ec);
-  if (!std::filesystem::exists(status)) return report("no such file");
-  if (std::filesystem::is_directory(status)) return report("is a directory, not an image");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return report(fmt::format("cannot open: {}", std::strerror(errno)));
-  const std::vector<uchar> bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-  if (in.bad()) return report(fmt::format("cannot read: {}", std::strerror(errno)));
-  if (bytes.empty()) return report("empty file, not an image");
-  cv::Mat grey;
-  try {
-    grey = cv::imdecode(bytes, cv::IMREAD_GRAYSCALE);
-  } catch (const cv::Exception& e) {
-    return report(fmt::format("not a readable image ({})", e.err));
-  }
-  if (grey.empty()) {
-    return report(
-        fmt::format("not a readable image ({} bytes; corrupt, truncated or an unsupported format)", bytes.size()));
-  }
-  return grey;
-}
 
 nlohmann::ordered_json quad_json(const markerd::Quad& quad) {
   auto out = nlohmann::ordered_json::array();
@@ -119,30 +82,37 @@ int run_detect(const DetectOptions& o) {
   const auto detector = markerd::make_detector(config);
 
   int failed = 0;
+  const auto report = [&failed](const std::string& message) {
+    std::cout.flush();
+    std::cerr << fmt::format("markerctl: {}\n", message);
+    ++failed;
+  };
   std::vector<markerd::Detection> detections;
+  markerd::daemon::ImageFileReader reader;
+  markerd::GreyImage grey;
   for (const std::string& path : o.images) {
-    const auto grey = read_grey(path);
-    if (!grey) {
-      ++failed;
+    try {
+      // The size the header declares is checked before anything is decoded.
+      const markerd::daemon::ImageSize size = reader.open(path);
+      if (config.camera && (size.width != config.camera->width || size.height != config.camera->height)) {
+        report(fmt::format("{}: the image is {}x{} but the camera model {} is {}x{}", path, size.width, size.height,
+                           o.camera, config.camera->width, config.camera->height));
+        continue;
+      }
+      if (grey.width() != size.width || grey.height() != size.height) grey = markerd::GreyImage(size.width, size.height);
+      reader.decode(grey.data(), size.width);
+    } catch (const markerd::daemon::ImageFileError& e) {
+      report(e.what());
       continue;
     }
-    if (config.camera && (grey->cols != config.camera->width || grey->rows != config.camera->height)) {
-      std::cout.flush();
-      std::cerr << fmt::format("markerctl: {}: the image is {}x{} but the camera model {} is {}x{}\n", path, grey->cols,
-                               grey->rows, o.camera, config.camera->width, config.camera->height);
-      ++failed;
-      continue;
-    }
-    const markerd::GreyView view{grey->data, grey->cols, grey->rows, static_cast<std::ptrdiff_t>(grey->step[0])};
+    const markerd::GreyView view = grey.view();
     double time_ms = 0;
     try {
       const auto start = std::chrono::steady_clock::now();
       detector->detect(view, detections);
       time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     } catch (const markerd::DetectorError& e) {
-      std::cout.flush();
-      std::cerr << fmt::format("markerctl: {}: {}\n", path, e.what());
-      ++failed;
+      report(fmt::format("{}: {}", path, e.what()));
       continue;
     }
     for (const auto& d : detections) std::cout << json_line(detection_json(path, d, time_ms)) << '\n';
@@ -175,10 +145,12 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
       "Corners are pixels (pixel centres at integers), TL TR BR BL of the outer printed square, to 1e-4 px.\n"
       "The pose fields (tvec in metres) appear only with both --camera and --size. time_ms is the\n"
       "detection time of that image. An image without detections prints nothing (with --verbose a\n"
-      "{\"file\", \"detections\": 0, \"time_ms\"} line). Images are read as 8-bit grey as\n"
-      "cv::imread(IMREAD_GRAYSCALE) reads them: colour is converted to grey by the image decoder.\n"
-      "A file that cannot be read is reported on stderr and skipped; the others are still processed\n"
-      "and the exit status is then 1. The camera model must have the images' size.");
+      "{\"file\", \"detections\": 0, \"time_ms\"} line). Images (PNG, JPEG, PNM, BMP, TIFF) are read\n"
+      "as 8-bit grey, colour converted as cv::imread(IMREAD_GRAYSCALE) converts it, as stored (EXIF\n"
+      "orientation ignored), at most 64 megapixels (checked in the header before decoding).\n"
+      "A file that cannot be read or does not decode whole (truncated, corrupt) is reported on stderr\n"
+      "and skipped; the others are still processed and the exit status is then 1. The camera model\n"
+      "must have the images' size.");
   app->add_option("--family", o->family, "Marker family: " + family_names())->type_name("NAME")->capture_default_str();
   app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON), for the pose")->type_name("FILE");
   app->add_option("--size", o->size, "Marker size for the pose (0.08, 8cm; frame8: outer edge)")->type_name("LENGTH");
@@ -194,7 +166,7 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->add_flag("--uniform-ids", o->uniform_ids,
                 "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
   app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
-  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM, BMP, TIFF, ...)")->type_name("IMAGE")->required();
+  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")->type_name("IMAGE")->required();
   commands.push_back({app, [o] { return run_detect(*o); }});
 }
 

@@ -1,19 +1,12 @@
 #include "markerd/daemon/capture/file_source.hpp"
 
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
 #include <atomic>
-#include <cerrno>
 #include <cmath>
 #include <cstdint>
-#include <cstring>
 #include <fmt/format.h>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 #include <opencv2/videoio/registry.hpp>
@@ -25,27 +18,24 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/daemon/capture/image_file.hpp"
+
 namespace markerd::daemon {
 
 namespace {
 
 namespace fs = std::filesystem;
 
-// Extensions of the formats OpenCV's imread reads; other files in a replay
+// Extensions of the formats ImageFileReader reads; other files in a replay
 // directory (notes, a detection log) are not frames.
 bool is_image_name(const fs::path& path) {
-  static constexpr std::array<std::string_view, 21> kExtensions = {
-      ".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".dib", ".pbm", ".pgm", ".ppm", ".pnm", ".pxm",
-      ".tif", ".tiff", ".webp", ".jp2", ".sr", ".ras", ".exr", ".hdr", ".pic", ".pfm"};
+  static constexpr std::array<std::string_view, 12> kExtensions = {
+      ".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".dib", ".pbm", ".pgm", ".ppm", ".pnm", ".tif", ".tiff"};
   std::string extension = path.extension().string();
   std::transform(extension.begin(), extension.end(), extension.begin(),
                  [](char c) { return static_cast<char>((c >= 'A' && c <= 'Z') ? c - 'A' + 'a' : c); });
   return std::find(kExtensions.begin(), kExtensions.end(), extension) != kExtensions.end();
 }
-
-// Decoded as stored: an EXIF rotation would change the image's size from
-// frame to frame and is no part of a camera's frames.
-constexpr int kDecodeFlags = cv::IMREAD_GRAYSCALE | cv::IMREAD_IGNORE_ORIENTATION;
 
 std::vector<fs::path> list_images(const fs::path& directory) {
   std::vector<fs::path> images;
@@ -70,7 +60,7 @@ std::vector<fs::path> list_images(const fs::path& directory) {
   if (images.empty()) {
     throw CaptureError(CaptureError::Kind::not_found,
                        fmt::format("file source {}: no images in the directory (files ending in .png, .jpg, "
-                                   ".jpeg, .bmp, .pgm, .ppm, .tif, .tiff, .webp, ...)",
+                                   ".jpeg, .bmp, .pgm, .ppm, .pnm, .tif, .tiff, ...)",
                                    directory.string()));
   }
   return images;
@@ -86,38 +76,6 @@ std::string_view file_name_of(const fs::path& path) {
 void throw_missing(const fs::path& path) {
   throw CaptureError(CaptureError::Kind::not_found,
                      fmt::format("file source {}: no such file or directory", path.string()));
-}
-
-// Reads a whole file into `bytes`, which only ever grows: once it holds the
-// largest file of a replay, reading costs no allocation. Returns the length,
-// or the errno of the failure.
-struct ReadResult {
-  std::size_t length = 0;
-  int error = 0;
-};
-ReadResult read_whole_file(const fs::path& path, std::vector<std::uint8_t>& bytes) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return {0, errno};
-  ReadResult result;
-  struct stat status {};
-  if (::fstat(fd, &status) != 0) {
-    result.error = errno;
-  } else {
-    const auto size = static_cast<std::size_t>(std::max<off_t>(status.st_size, 0));
-    if (bytes.size() < size) bytes.resize(size);
-    while (result.length < size) {
-      const ssize_t n = ::read(fd, bytes.data() + result.length, size - result.length);
-      if (n < 0 && errno == EINTR) continue;
-      if (n < 0) {
-        result.error = errno;
-        break;
-      }
-      if (n == 0) break;  // shrunk while being read: what is there is the file
-      result.length += static_cast<std::size_t>(n);
-    }
-  }
-  ::close(fd);
-  return result;
 }
 
 // Publishes the frame as unreadable with a cause formatted on the stack.
@@ -250,19 +208,24 @@ class FileSource final : public CaptureSource {
  private:
   void probe_images() {
     images_ = list_images(settings_.path);
-    // The first image that decodes sets the size (and so the pool's slots);
-    // unreadable ones before it are corrupt frames when their turn comes.
+    // The first image whose header reads sets the size (and so the pool's
+    // slots); unreadable ones before it are corrupt frames when their turn
+    // comes.
+    std::string first_problem;
     for (const auto& image : images_) {
-      const cv::Mat grey = cv::imread(image.string(), kDecodeFlags);
-      if (grey.empty()) continue;
-      width_ = grey.cols;
-      height_ = grey.rows;
-      reference_ = image.filename().string();
-      return;
+      try {
+        const ImageSize size = reader_.open(image);
+        width_ = size.width;
+        height_ = size.height;
+        reference_ = image.filename().string();
+        return;
+      } catch (const ImageFileError& e) {
+        if (first_problem.empty()) first_problem = e.what();
+      }
     }
     throw CaptureError(CaptureError::Kind::config,
-                       fmt::format("file source {}: none of its {} images can be decoded", settings_.path.string(),
-                                   images_.size()));
+                       fmt::format("file source {}: none of its {} images can be read (the first: {})",
+                                   settings_.path.string(), images_.size(), first_problem));
   }
 
   void probe_video() {
@@ -343,26 +306,16 @@ class FileSource final : public CaptureSource {
   void fill_from_image(Frame& frame, cv::Mat& slot) {
     const fs::path& path = images_[next_image_];
     const std::string_view file = file_name_of(path);
-    const ReadResult read = read_whole_file(path, file_bytes_);
-    if (read.error != 0) return mark_corrupt(frame, "image {}: cannot read: {}", file, std::strerror(read.error));
-    if (read.length == 0) return mark_corrupt(frame, "image {}: empty file", file);
-
-    // imdecode leaves its destination as it was when no decoder knows the
-    // bytes, so that case is told apart first (from the file's signature).
-    if (!cv::haveImageReader(path.native())) {
-      return mark_corrupt(frame, "image {}: not in a format OpenCV reads", file);
-    }
-    const cv::Mat encoded(1, static_cast<int>(read.length), CV_8UC1, file_bytes_.data());
-    std::uint8_t* const slot_pixels = slot.data;
     try {
-      cv::imdecode(encoded, kDecodeFlags, &slot);
-    } catch (const cv::Exception& e) {
-      return mark_corrupt(frame, "image {}: cannot be decoded: {}", file, e.err);
-    }
-    if (slot.empty()) return mark_corrupt(frame, "image {}: cannot be decoded", file);
-    if (slot.data != slot_pixels || slot.cols != width_ || slot.rows != height_) {
-      return mark_corrupt(frame, "image {}: {}x{}, not the {}x{} of {}", file, slot.cols, slot.rows, width_, height_,
-                          reference_);
+      // The size the header declares is checked before anything is decoded.
+      const ImageSize size = reader_.open(path);
+      if (size.width != width_ || size.height != height_) {
+        return mark_corrupt(frame, "image {}: {}x{}, not the {}x{} of {}", file, size.width, size.height, width_,
+                            height_, reference_);
+      }
+      reader_.decode(slot.data, static_cast<std::ptrdiff_t>(slot.step[0]));
+    } catch (const ImageFileError& e) {
+      return mark_corrupt(frame, "image {}: {}", file, e.cause());
     }
   }
 
@@ -419,7 +372,7 @@ class FileSource final : public CaptureSource {
 
   std::vector<fs::path> images_;
   std::size_t next_image_ = 0;
-  std::vector<std::uint8_t> file_bytes_;
+  ImageFileReader reader_;
 
   cv::VideoCapture capture_;
   cv::Mat video_frame_;  // the backend's frame, reused while the size holds

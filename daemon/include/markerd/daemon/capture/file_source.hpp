@@ -13,8 +13,8 @@
 namespace markerd::daemon {
 
 struct FileSourceSettings {
-  // A directory of images (any format OpenCV's imread reads, recognised by
-  // its extension) or a video file OpenCV's VideoCapture reads. Absolute
+  // A directory of images (the formats ImageFileReader reads, image_file.hpp,
+  // recognised by their extension) or a video file OpenCV's VideoCapture reads. Absolute
   // once parsed: a relative path in the config is taken from the config
   // file's directory.
   std::filesystem::path path;
@@ -27,8 +27,8 @@ struct FileSourceSettings {
                                                             const std::filesystem::path& config_dir);
 
 // Probes the path at once, so that geometry() is known before open(): lists
-// the directory and decodes its first readable image, or reads the video's
-// first frame. Throws CaptureError: not_found for a missing path or a
+// the directory and reads the header of its first readable image, or reads
+// the video's first frame. Throws CaptureError: not_found for a missing path or a
 // directory without images, config for a path no image or frame can be read
 // from.
 [[nodiscard]] std::unique_ptr<CaptureSource> make_file_source(const FileSourceSettings& settings);
