@@ -10,6 +10,7 @@
 #include <iostream>
 #include <random>
 #include <string>
+#include <sys/stat.h>
 #include <unistd.h>
 #include <vector>
 
@@ -137,6 +138,27 @@ TEST(CameraModel, ValidFileInTheSameDirectoryLoads) {
   const CameraModel c = CameraModel::load(dir.write("good.yaml", kHeader + kGoodMatrix + kGoodDistortion));
   EXPECT_EQ(c.fx, 516);
   EXPECT_EQ(c.dist[4], 4.9959);
+}
+
+// A directory, a FIFO, a device or a file far too large where the camera
+// file belongs: refused at once by name, not handed to OpenCV's parser.
+TEST(CameraModel, WhatIsNoFileIsRefusedByName) {
+  const TempDir dir;
+  fs::create_directories(dir.path() / "camera.yaml");
+  expect_load_error(dir.path() / "camera.yaml", "the camera file is a directory, not a file");
+  ASSERT_EQ(::mkfifo((dir.path() / "pipe.yaml").c_str(), 0600), 0);
+  expect_load_error(dir.path() / "pipe.yaml", "the camera file is a FIFO, not a file");  // no writer: no wait
+  expect_load_error("/dev/zero", "the camera file is a character device, not a file");
+  expect_load_error(dir.write("huge.yaml", kHeader + std::string(std::size_t{2} << 20, '#')), "larger than the 1 MiB");
+}
+
+// What OpenCV's parser finds wrong is said with the file and the line.
+TEST(CameraModel, ParseErrorsNameTheFileAndTheLine) {
+  const TempDir dir;
+  expect_load_error(dir.write("unclosed.yaml", kHeader + "camera_matrix: [ 1, 2\n" + kGoodDistortion),
+                    "the camera file cannot be parsed: line ");
+  expect_load_error(dir.write("empty.yaml", "\n"), "the camera file is empty");
+  expect_load_error(dir.write("notes.yaml", "these are notes, not a calibration\n"), "the camera file");
 }
 
 TEST(CameraModel, SaveLoadRoundTrip) {

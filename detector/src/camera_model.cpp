@@ -5,9 +5,29 @@
 
 #include <cmath>
 #include <fmt/format.h>
+#include <regex>
+
+#include "markerd/base/read_file.hpp"
 
 namespace markerd {
 namespace {
+
+// A calibration is a few kilobytes; a larger file is not one.
+constexpr std::size_t kMaxCameraFileBytes = std::size_t{1} << 20;
+
+// OpenCV's parse errors read "<source>(<line>): <what>", the source empty
+// for text parsed from memory: "line 5: Missing ':' between key and value".
+// OpenCV 4.6 passes that text as the exception's function and the parser
+// function's name as its message (FileStorage::Impl::parseError swaps them),
+// so both are looked at.
+std::string parse_error_words(const cv::Exception& e) {
+  static const std::regex with_line(R"(^[^\n]*\((\d+)\): ([^\n]*)\n?$)");
+  std::smatch match;
+  for (const std::string* text : {&e.err, &e.func}) {
+    if (std::regex_match(*text, match, with_line)) return fmt::format("line {}: {}", match[1].str(), match[2].str());
+  }
+  return e.err;
+}
 
 [[noreturn]] void fail(const std::filesystem::path& path, const std::string& what) {
   throw CameraModelError(fmt::format("{}: {}", path.string(), what));
@@ -31,17 +51,33 @@ int read_int(const cv::FileStorage& fs, const std::filesystem::path& path, const
   const cv::FileNode node = fs[key];
   if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
   if (!node.isInt() && !node.isReal()) fail(path, fmt::format("key '{}' is not a number", key));
-  return static_cast<int>(node.real());
+  const double value = node.real();
+  // Checked before the conversion: 1e300 does not fit an int.
+  if (!(std::abs(value) <= 1e9) || value != std::floor(value)) {
+    fail(path, fmt::format("key '{}' must be a whole number of pixels, got {}", key, value));
+  }
+  return static_cast<int>(value);
 }
 
 }  // namespace
 
 CameraModel CameraModel::load(const std::filesystem::path& path) {
+  // Read here, bounded, and parsed from memory: FileStorage would open a
+  // directory, a FIFO or /dev/zero and fail (or wait) without saying why.
+  std::string text;
+  try {
+    text = read_regular_file(path, kMaxCameraFileBytes, "the camera file");
+  } catch (const FileError& e) {
+    throw CameraModelError(e.what());
+  }
+  if (text.find_first_not_of(" \t\r\n") == std::string::npos) fail(path, "the camera file is empty");
   cv::FileStorage fs;
   try {
-    if (!fs.open(path.string(), cv::FileStorage::READ)) fail(path, "cannot open or parse the camera file");
+    if (!fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) {
+      fail(path, "the camera file is not OpenCV's YAML, XML or JSON");
+    }
   } catch (const cv::Exception& e) {
-    fail(path, fmt::format("cannot parse the camera file ({})", e.err));
+    fail(path, fmt::format("the camera file cannot be parsed: {}", parse_error_words(e)));
   }
   CameraModel cam;
   cam.width = read_int(fs, path, "image_width");
