@@ -21,7 +21,9 @@ inline void write_bytes(const std::filesystem::path& path, const Bytes& bytes) {
       .write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
 }
 
-inline Bytes first_half(const Bytes& bytes) { return {bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(bytes.size() / 2)}; }
+inline Bytes first_half(const Bytes& bytes) {
+  return {bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(bytes.size() / 2)};
+}
 
 // Flips every bit of a run of bytes in the middle of the entropy-coded data
 // (after the start-of-scan header, before the end-of-image marker): the
@@ -36,7 +38,9 @@ inline Bytes with_corrupt_entropy_data(Bytes jpeg) {
   }
   if (scan == 0 || scan + 16 >= jpeg.size()) return {};
   const std::size_t data = jpeg.size() - 2 - scan;
-  for (std::size_t i = scan + data / 3; i < scan + data / 3 + data / 4; ++i) jpeg[i] = static_cast<std::uint8_t>(~jpeg[i]);
+  for (std::size_t i = scan + data / 3; i < scan + data / 3 + data / 4; ++i) {
+    jpeg[i] = static_cast<std::uint8_t>(~jpeg[i]);
+  }
   return jpeg;
 }
 

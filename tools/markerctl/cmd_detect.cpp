@@ -99,7 +99,9 @@ int run_detect(const DetectOptions& o) {
                            o.camera, config.camera->width, config.camera->height));
         continue;
       }
-      if (grey.width() != size.width || grey.height() != size.height) grey = markerd::GreyImage(size.width, size.height);
+      if (grey.width() != size.width || grey.height() != size.height) {
+        grey = markerd::GreyImage(size.width, size.height);
+      }
       reader.decode(grey.data(), size.width);
     } catch (const markerd::daemon::ImageFileError& e) {
       report(e.what());
@@ -166,7 +168,9 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->add_flag("--uniform-ids", o->uniform_ids,
                 "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
   app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
-  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")->type_name("IMAGE")->required();
+  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")
+      ->type_name("IMAGE")
+      ->required();
   commands.push_back({app, [o] { return run_detect(*o); }});
 }
 

@@ -266,15 +266,16 @@ ImageSize ImageFileReader::open(const std::filesystem::path& path) {
   const auto b = as_bytes(bytes_);
   if (b.empty()) throw ImageFileError(path, "the image is empty (0 bytes)");
 
+  Format format = Format::none;
   DeclaredSize size;
   std::string problem;
   std::string_view name;
   if (b.size() >= kPngSignature.size() && std::equal(kPngSignature.begin(), kPngSignature.end(), b.begin())) {
-    format_ = Format::png;
+    format = Format::png;
     name = "PNG";
     problem = png_size(b, size);
   } else if (b.size() >= 3 && b[0] == 0xff && b[1] == 0xd8 && b[2] == 0xff) {
-    format_ = Format::jpeg;
+    format = Format::jpeg;
     name = "JPEG";
     int width = 0;
     int height = 0;
@@ -291,38 +292,34 @@ ImageSize ImageFileReader::open(const std::filesystem::path& path) {
     }
     size = {width, height};
   } else if (b.size() >= 2 && b[0] == 'P' && b[1] >= '1' && b[1] <= '6') {
-    format_ = Format::pnm;
+    format = Format::pnm;
     name = "PNM";
     problem = pnm_size(b, size);
   } else if (b.size() >= 2 && b[0] == 'B' && b[1] == 'M') {
-    format_ = Format::bmp;
+    format = Format::bmp;
     name = "BMP";
     problem = bmp_size(b, size);
   } else if (b.size() >= 4 && ((b[0] == 'I' && b[1] == 'I' && b[2] == 42 && b[3] == 0) ||
                                (b[0] == 'M' && b[1] == 'M' && b[2] == 0 && (b[3] == 42 || b[3] == 43)) ||
                                (b[0] == 'I' && b[1] == 'I' && b[2] == 43 && b[3] == 0))) {
-    format_ = Format::tiff;
+    format = Format::tiff;
     name = "TIFF";
     problem = tiff_size(b, size);
   } else {
     throw ImageFileError(path, "not an image markerd reads (PNG, JPEG, PNM, BMP or TIFF, told by its first bytes)");
   }
-  if (!problem.empty()) {
-    format_ = Format::none;
-    throw ImageFileError(path, problem);
-  }
+  if (!problem.empty()) throw ImageFileError(path, problem);
   if (size.width <= 0 || size.height <= 0) {
-    format_ = Format::none;
     throw ImageFileError(path, fmt::format("the {} declares an empty image ({}x{})", name, size.width, size.height));
   }
   if (size.width > kMaxImageSide || size.height > kMaxImageSide || size.width * size.height > kMaxImagePixels) {
-    format_ = Format::none;
     throw ImageFileError(
         path, fmt::format("the {} declares {}x{} pixels ({:.1f} megapixels), more than the {} megapixels and {} "
                           "pixels a side markerd reads",
                           name, size.width, size.height, static_cast<double>(size.width * size.height) / 1e6,
                           kMaxImagePixels / 1'000'000, kMaxImageSide));
   }
+  format_ = format;
   size_ = {static_cast<int>(size.width), static_cast<int>(size.height)};
   return size_;
 }
@@ -379,9 +376,9 @@ void ImageFileReader::decode(std::uint8_t* grey, std::ptrdiff_t stride) {
     if (printed.find("Unexpected end of input stream") != std::string::npos) {
       throw ImageFileError(path_, fmt::format("the {} is truncated (OpenCV: {})", name, opencv_words(printed)));
     }
-    throw ImageFileError(path_, printed.empty()
-                                    ? fmt::format("the {} cannot be decoded (OpenCV's decoder gave no image)", name)
-                                    : fmt::format("the {} cannot be decoded (OpenCV: {})", name, opencv_words(printed)));
+    throw ImageFileError(
+        path_, printed.empty() ? fmt::format("the {} cannot be decoded (OpenCV's decoder gave no image)", name)
+                               : fmt::format("the {} cannot be decoded (OpenCV: {})", name, opencv_words(printed)));
   }
 }
 
