@@ -125,6 +125,26 @@ TEST_F(ImageFile, APngWithADamagedChunkIsAnError) {
   expect_error(path("damaged.png"), "the PNG is corrupt");
 }
 
+TEST_F(ImageFile, ADamagedTextChunkDoesNotRefuseThePixels) {
+  cv::Mat grey;
+  cv::extractChannel(colour_scene(), grey, 1);
+  const Bytes png = encode(".png", grey);
+  // A tEXt chunk right after IHDR (8 + 25 bytes in), its CRC broken.
+  Bytes text_chunk;
+  test::append_png_chunk(text_chunk, "tEXt", {'C', 'o', 'm', 'm', 'e', 'n', 't', 0, 'h', 'i'});
+  text_chunk.back() ^= 0xff;
+  Bytes damaged(png.begin(), png.begin() + 33);
+  damaged.insert(damaged.end(), text_chunk.begin(), text_chunk.end());
+  damaged.insert(damaged.end(), png.begin() + 33, png.end());
+  test::write_bytes(path("text.png"), damaged);
+  testing::internal::CaptureStderr();
+  const GreyImage read = read_grey_image(path("text.png"));
+  EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
+  ASSERT_EQ(read.width(), grey.cols);
+  const cv::Mat got(read.height(), read.width(), CV_8UC1, const_cast<std::uint8_t*>(read.data()));
+  EXPECT_EQ(cv::countNonZero(got != grey), 0);
+}
+
 TEST_F(ImageFile, ADecompressionBombIsRefusedByItsHeader) {
   const Bytes bomb = test::png_declaring(30000, 30000);
   ASSERT_LT(bomb.size(), 100u);

@@ -181,6 +181,14 @@ bool decode_png(PngContext& context, int width, int height, std::uint8_t* grey, 
   }
   png_set_read_fn(png, &context, png_read_bytes);
   png_set_user_limits(png, kMaxImageSide, kMaxImageSide);
+  // Every warning left refuses the image, so only those about the pixels
+  // may remain: a damaged text chunk or an sRGB profile that libpng knows to
+  // be wrong (common in files from image editors) says nothing about the
+  // grey levels read here. A critical chunk's CRC error stays an error.
+  png_set_crc_action(png, PNG_CRC_DEFAULT, PNG_CRC_QUIET_USE);
+#ifdef PNG_SKIP_sRGB_CHECK_PROFILE
+  png_set_option(png, PNG_SKIP_sRGB_CHECK_PROFILE, PNG_OPTION_ON);
+#endif
   png_read_info(png, info);
   png_uint_32 png_width = 0;
   png_uint_32 png_height = 0;
