@@ -298,7 +298,7 @@ TEST_F(ControlServerTest, EveryBadRequestGetsAnErrorNamingTheProblemAndTheConnec
   EXPECT_EQ(error_for(R"({"id": 1})"), R"(missing "cmd", the command's name ("help" lists them))");
   EXPECT_EQ(error_for(R"({"cmd": 5})"), R"("cmd" must be a string, got a number)");
   EXPECT_EQ(error_for(R"({"cmd": "launch"})"), R"(unknown command 'launch' ("help" lists the commands))");
-  EXPECT_EQ(error_for(R"({"cmd": "add", "a": "2", "b": 3})"), "argument 'a' must be a number, got a string");
+  EXPECT_EQ(error_for(R"({"cmd": "add", "a": "2", "b": 3})"), R"(argument 'a' must be a number, got a string ("2"))");
   EXPECT_EQ(error_for(R"({"cmd": "add", "a": 2, "b": 3, "c": 4})"), "unknown argument 'c' (for add: a, b)");
   EXPECT_EQ(error_for(R"({"cmd": "add", "a": 2})"), "add needs a and b");
   EXPECT_EQ(error_for(R"({"cmd": "fail"})"), "the handler failed");
@@ -340,6 +340,9 @@ TEST_F(ControlServerTest, ALineSplitAcrossManyWritesAndTwoRequestsInOneWrite) {
   EXPECT_EQ(client.reply(), (json{{"id", 4}, {"ok", true}, {"sum", 4}}));
 }
 
+constexpr const char* kTooLarge =
+    "request too large: longer than markerd's limit of 4 KiB (4096 bytes); closing the connection";
+
 TEST_F(ControlServerTest, ALineLongerThanTheLimitIsRefusedAndClosesOnlyThatConnection) {
   start();
   RawClient bystander(socket());
@@ -361,14 +364,14 @@ TEST_F(ControlServerTest, ALineLongerThanTheLimitIsRefusedAndClosesOnlyThatConne
     std::string request = R"({"cmd": "add", "id": 1, "a": 1, "b": 1)";
     request += std::string(settings_.max_request_bytes - request.size(), ' ') + "}";
     client.send(request + "\n" + R"({"cmd":"help"})" "\n");
-    EXPECT_EQ(client.reply(), (json{{"ok", false}, {"error", "request longer than 4096 bytes; closing the connection"}}));
+    EXPECT_EQ(client.reply(), (json{{"ok", false}, {"error", kTooLarge}}));
     EXPECT_TRUE(client.ends());
   }
   // Far more, and no newline ever: refused once the limit is passed.
   {
     RawClient client(socket());
     client.send(R"({"cmd": "echo", "x": ")" + std::string(3 * settings_.max_request_bytes, 'x'));
-    EXPECT_EQ(client.reply()["error"], "request longer than 4096 bytes; closing the connection");
+    EXPECT_EQ(client.reply()["error"], kTooLarge);
     EXPECT_TRUE(client.ends());
   }
   EXPECT_EQ(server_->stats().oversized, 2U);
@@ -451,6 +454,94 @@ TEST_F(ControlServerTest, ConnectionsBeyondTheLimitAreToldSoAndClosed) {
   RawClient d(socket());
   d.request({{"cmd", "help"}, {"id", 5}});
   EXPECT_EQ(d.reply()["id"], 5);
+}
+
+// A stop command, as rig.stop is: served however many clients hold the
+// socket. It counts what it was asked to do.
+struct StopCommand {
+  std::atomic<int> emergency_stops{0};
+  void register_with(ControlServer& server) {
+    server.register_command("stop", [this](const json& request) {
+      expect_arguments(request, {"emergency"});
+      if (bool_argument(request, "emergency").value_or(false)) ++emergency_stops;
+      return json{{"stopped", true}};
+    });
+    server.serve_beyond_client_limit("stop");
+  }
+};
+
+TEST_F(ControlServerTest, AnEmergencyStopGetsThroughWhenIdleClientsHoldEverySlot) {
+  ASSERT_EQ(settings_.max_clients, 16U) << "the default";
+  server_ = std::make_unique<ControlServer>(settings_);
+  register_test_commands(*server_);
+  StopCommand stop;
+  stop.register_with(*server_);
+  EXPECT_THROW(server_->serve_beyond_client_limit("launch"), std::logic_error);
+  server_->start();
+
+  // Sixteen clients that connect, ask once, and then say nothing.
+  std::vector<std::unique_ptr<RawClient>> idle;
+  for (int i = 0; i < 16; ++i) {
+    idle.push_back(std::make_unique<RawClient>(socket()));
+    idle.back()->request({{"cmd", "help"}, {"id", i}});
+    ASSERT_EQ(idle.back()->reply()["id"], i);
+  }
+  ASSERT_TRUE(eventually([&] { return server_->stats().clients == 16; }));
+
+  // Beyond the limit, anything but a stop is refused, saying what is served, and closed.
+  {
+    RawClient late(socket());
+    late.request({{"cmd", "help"}, {"id", 1}});
+    EXPECT_EQ(late.reply(),
+              (json{{"id", 1},
+                    {"ok", false},
+                    {"error", "too many clients (16 connected; beyond the limit only stop is served); try again later"}}));
+    EXPECT_TRUE(late.ends());
+  }
+  // Connections beyond the limit that send nothing do not keep the stop out either.
+  std::vector<std::unique_ptr<RawClient>> silent;
+  for (int i = 0; i < 8; ++i) silent.push_back(std::make_unique<RawClient>(socket()));
+
+  ControlClient operator_client(socket());
+  const json reply = operator_client.call({{"cmd", "stop"}, {"emergency", true}});
+  EXPECT_EQ(reply, (json{{"id", 1}, {"ok", true}, {"stopped", true}}));
+  EXPECT_EQ(stop.emergency_stops.load(), 1);
+  // The connection stays for more stops.
+  EXPECT_EQ(operator_client.call({{"cmd", "stop"}})["ok"], true);
+  EXPECT_GE(server_->stats().beyond_limit, 1U);
+
+  // The sixteen are still connected and served.
+  for (int i = 0; i < 16; ++i) {
+    idle[static_cast<std::size_t>(i)]->request({{"cmd", "add"}, {"id", i}, {"a", i}, {"b", 1}});
+    EXPECT_EQ(idle[static_cast<std::size_t>(i)]->reply()["sum"], i + 1);
+  }
+}
+
+TEST_F(ControlServerTest, AnIdleConnectionIsClosedAfterTheIdleTimeoutButAFollowerIsNot) {
+  settings_.idle_timeout = 300ms;
+  LineBroadcast& stream = make_stream();
+  start({&stream});
+  RawClient follower(socket());
+  follower.request({{"cmd", "detections"}, {"id", 1}});
+  EXPECT_EQ(follower.reply(), (json{{"id", 1}, {"ok", true}, {"stream", "detections"}}));
+
+  RawClient idle(socket());
+  idle.request({{"cmd", "help"}, {"id", 1}});
+  EXPECT_EQ(idle.reply()["ok"], true);
+  // A partial request is not activity: the line never ends.
+  idle.send(R"({"cmd": "he)");
+  EXPECT_EQ(idle.reply(30s),
+            (json{{"ok", false}, {"error", "idle for 0.3 s (no request, no reply read); closing the connection"}}));
+  EXPECT_TRUE(idle.ends(30s));
+  EXPECT_EQ(server_->stats().idle_closed, 1U);
+
+  // The follower outlives several timeouts, and still gets the stream.
+  std::this_thread::sleep_for(1s);
+  stream.publish(R"({"line":1})");
+  EXPECT_EQ(follower.line(), R"({"line":1})");
+  follower.request({{"cmd", "stop"}, {"id", 2}});
+  EXPECT_EQ(follower.reply(), (json{{"id", 2}, {"ok", true}, {"event", "end"}, {"stream", "detections"}}));
+  EXPECT_EQ(server_->stats().idle_closed, 1U);
 }
 
 TEST_F(ControlServerTest, CommandsAreRegisteredBeforeStartAndOnce) {
@@ -834,6 +925,77 @@ TEST_F(ControlServerTest, TheClientCallsAndNamesTheSocketWhenItCannotConnect) {
     EXPECT_EQ(std::string(e.what()),
               "cannot connect to " + missing.string() + ": No such file or directory (is markerd running?)");
   }
+}
+
+TEST_F(ControlServerTest, TheClientReportsARequestTooLargeInMarkerdsWords) {
+  EXPECT_EQ(ControlSettings{}.max_request_bytes, 1024U * 1024U) << "the default fits a 128 KiB plan, escaped";
+  start();
+  // Larger than the socket's buffers: markerd closes the connection while
+  // the client is still sending.
+  const json huge = {{"cmd", "echo"}, {"x", std::string(8 * 1024 * 1024, 'x')}};
+  {
+    ControlClient client(socket());
+    const json reply = client.call(huge);
+    EXPECT_EQ(reply, (json{{"ok", false}, {"error", kTooLarge}}));
+  }
+  {
+    ControlClient client(socket());
+    try {
+      client.send(huge);
+      FAIL() << "sent whole";
+    } catch (const ControlClientError& e) {
+      EXPECT_EQ(std::string(e.what()), socket().string() + ": markerd closed the connection: " + kTooLarge);
+    }
+  }
+  // Just over the limit: sent whole, then refused.
+  ControlClient client(socket());
+  EXPECT_EQ(client.call({{"cmd", "echo"}, {"x", std::string(5000, 'x')}}), (json{{"ok", false}, {"error", kTooLarge}}));
+}
+
+TEST_F(ControlServerTest, ArgumentsAreReadByNameTypeAndRangeWithErrorsThatNameThem) {
+  server_ = std::make_unique<ControlServer>(settings_);
+  server_->register_command("set", [](const json& request) {
+    expect_arguments(request, {"count", "gain", "axis", "label", "on"});
+    json result = json::object();
+    if (auto v = integer_argument(request, "count", {1, 100})) result["count"] = *v;
+    if (auto v = number_argument(request, "gain", {0.0, 2.5, "dB"})) result["gain"] = *v;
+    if (auto v = choice_argument(request, "axis", {"rail", "turntable", "both"})) result["axis"] = *v;
+    if (auto v = string_argument(request, "label")) result["label"] = *v;
+    if (auto v = bool_argument(request, "on")) result["on"] = *v;
+    return result;
+  });
+  // A handler that reads an argument unchecked: still no nlohmann jargon.
+  server_->register_command("raw", [](const json& request) {
+    return json{{"reason", request.value("reason", std::string("none"))}};
+  });
+  server_->start();
+  ControlClient client(socket());
+  const auto error_for = [&](json request) {
+    const json reply = client.call(std::move(request));
+    EXPECT_EQ(reply.value("ok", true), false) << reply;
+    return reply.value("error", std::string());
+  };
+  EXPECT_EQ(client.call({{"cmd", "set"}, {"id", 1}, {"count", 3.0}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"},
+                         {"on", true}}),
+            (json{{"id", 1}, {"ok", true}, {"count", 3}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"}, {"on", true}}));
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", "3"}}), R"(argument 'count' must be a whole number, got a string ("3"))");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 2.5}}), "argument 'count' must be a whole number, got a number (2.5)");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 0}}), "argument 'count' must be from 1 to 100, got 0");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 18446744073709551615ULL}}),
+            "argument 'count' must be from 1 to 100, got 18446744073709551615");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 1e300}}), "argument 'count' must be from 1 to 100, got 1e+300");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"gain", 3}}), "argument 'gain' must be from 0 to 2.5 dB, got 3");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"gain", json::array({1})}}), "argument 'gain' must be a number, got an array ([1])");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", "rial"}}), "argument 'axis' must be rail, turntable or both, got 'rial'");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", 1}}), "argument 'axis' must be rail, turntable or both, got a number (1)");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"label", std::string(100, 'y')}, {"on", "yes"}}),
+            R"(argument 'on' must be true or false, got a string ("yes"))");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"label", json::object({{"text", std::string(100, 'y')}})}}),
+            "argument 'label' must be a string, got an object ({\"text\":\"" + std::string(51, 'y') + "...)");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"colour", "red"}}), "unknown argument 'colour' (for set: count, gain, axis, label, on)");
+  EXPECT_EQ(error_for({{"cmd", "help"}, {"verbose", true}}), "unknown argument 'verbose': help takes none");
+  EXPECT_EQ(error_for({{"cmd", "raw"}, {"reason", 42}}),
+            "raw: an argument has the wrong type or value: type must be string, but is number");
 }
 
 // ---------------------------------------------------------------- markerctl

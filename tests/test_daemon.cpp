@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 
 #include <fcntl.h>
+#include <grp.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -374,6 +375,99 @@ TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
 
   const Outcome usage = run_markerd(dir_, {"--no-such-option"});
   EXPECT_EQ(usage.code, 2);
+}
+
+// What would keep the control socket from being set up is found by
+// --check-config (systemd's ExecStartPre), naming the file, line and key,
+// rather than by the start that follows it.
+TEST_F(DaemonTest, CheckConfigFindsWhatWouldKeepTheControlSocketFromStarting) {
+  const fs::path path = dir_ / "markerd.toml";
+  const std::string control = "socket = \"control.sock\"";
+  const auto check_with = [&](const std::string& lines) {
+    std::string text = base_config();
+    const auto at = text.find(control);
+    text.replace(at, control.size(), lines);
+    write_file(path, text);
+    const auto first = 1 + std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n');
+    return std::pair(run_markerd(dir_, {"--check-config", "--config", path.string()}), first);
+  };
+  {
+    const auto [outcome, line] = check_with("socket = \"control.sock\"\ngroup = \"markerd-test-no-such-group\"");
+    EXPECT_EQ(outcome.code, 1);
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.group: group 'markerd-test-no-such-group' does not exist",
+                                           path.string(), line + 1)),
+              std::string::npos)
+        << outcome.err;
+  }
+  {
+    const auto [outcome, line] = check_with("socket = \"nodir/c.sock\"");
+    EXPECT_EQ(outcome.code, 1);
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.socket: {}: its directory {}: No such file or directory",
+                                           path.string(), line, (dir_ / "nodir/c.sock").string(),
+                                           (dir_ / "nodir").string())),
+              std::string::npos)
+        << outcome.err;
+  }
+  {
+    write_file(dir_ / "not-a-socket", "text");
+    const auto [outcome, line] = check_with("socket = \"not-a-socket\"");
+    EXPECT_EQ(outcome.code, 1);
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.socket: {}: exists and is not a socket", path.string(),
+                                           line, (dir_ / "not-a-socket").string())),
+              std::string::npos)
+        << outcome.err;
+  }
+  {
+    const auto [outcome, line] = check_with("socket = \"control.sock\"\nidle_timeout_ms = 10");
+    EXPECT_EQ(outcome.code, 1);
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.idle_timeout_ms: must be from 1000 to 86400000 ms, got 10",
+                                           path.string(), line + 1)),
+              std::string::npos)
+        << outcome.err;
+  }
+  {
+    const auto [outcome, line] = check_with("socket = \"control.sock\"\nmax_clients = 0");
+    EXPECT_EQ(outcome.code, 1);
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.max_clients: must be from 1 to 256 clients, got 0",
+                                           path.string(), line + 1)),
+              std::string::npos)
+        << outcome.err;
+  }
+  // The process's own group, and settings in range: fine.
+  const group* own = ::getgrgid(::getegid());
+  ASSERT_NE(own, nullptr);
+  const auto [good, line] = check_with(fmt::format(
+      "socket = \"control.sock\"\ngroup = \"{}\"\nmax_clients = 4\nidle_timeout_ms = 5000", own->gr_name));
+  EXPECT_EQ(good.code, 0) << good.err;
+  const DaemonConfig config = load_daemon_config(path);
+  EXPECT_EQ(config.control.max_clients, 4U);
+  EXPECT_EQ(config.control.idle_timeout, 5s);
+  EXPECT_FALSE(fs::exists(dir_ / "control.sock")) << "a check makes nothing";
+}
+
+// Every command markerd serves, its own, the rig's, the sweep's and the
+// server's, refuses an argument it does not take, naming it, before it does
+// anything; the ones that stop the rig are served beyond the client limit.
+TEST_F(DaemonTest, EveryCommandRefusesAnArgumentItDoesNotTake) {
+  const fs::path path = dir_ / "markerd.toml";
+  write_file(path, base_config());
+  Daemon daemon(load_daemon_config(path));
+  daemon.start();
+  ControlClient client(dir_ / "control.sock");
+  const nlohmann::json help = client.call({{"cmd", "help"}});
+  ASSERT_EQ(help["ok"], true) << help.dump();
+  std::vector<std::string> beyond_limit;
+  for (const auto& command : help["commands"]) {
+    const std::string name = command["name"];
+    const nlohmann::json reply = client.call({{"cmd", name}, {"no_such_argument", 1}});
+    EXPECT_EQ(reply["ok"], false) << name << ": " << reply.dump();
+    EXPECT_EQ(reply.value("error", std::string()).rfind("unknown argument 'no_such_argument'", 0), 0U)
+        << name << ": " << reply.dump();
+    if (command.value("beyond_client_limit", false)) beyond_limit.push_back(name);
+  }
+  EXPECT_GE(help["commands"].size(), 13U);
+  EXPECT_EQ(beyond_limit, (std::vector<std::string>{"rig.status", "rig.stop", "sweep.abort", "sweep.pause"}));
+  EXPECT_EQ(daemon.rig()->rail().status().state, rig::AxisState::disabled) << "nothing was done";
 }
 
 }  // namespace

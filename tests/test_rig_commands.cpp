@@ -206,11 +206,13 @@ TEST_F(RigCommands, RefusedMovesNameTheAxisAndTheReasonAndMoveNothing) {
   EXPECT_NEAR(s["rail"]["target"].get<double>(), -3.0, 0.05);
 
   EXPECT_EQ(error({{"cmd", "rig.move"}, {"camera", 5}}), "unknown argument 'camera' (for rig.move: rail, turntable, relative)");
-  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", "250mm"}}), "argument 'rail' must be a number, got a string");
-  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", 250}, {"relative", 1}}), "argument 'relative' must be true or false, got a number");
+  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", "250mm"}}), R"(argument 'rail' must be a number, got a string ("250mm"))");
+  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", 250}, {"relative", 1}}), "argument 'relative' must be true or false, got a number (1)");
   EXPECT_EQ(error({{"cmd", "rig.move"}}), "rig.move needs a target: rail, turntable or both (numbers in the axes' units)");
   EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", "camera"}}), "argument 'axis' must be rail, turntable or both, got 'camera'");
-  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", 1}}), "argument 'axis' must be a string, got a number");
+  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", 1}}), "argument 'axis' must be rail, turntable or both, got a number (1)");
+  EXPECT_EQ(error({{"cmd", "rig.stop"}, {"emergency", "yes"}}), R"(argument 'emergency' must be true or false, got a string ("yes"))");
+  EXPECT_EQ(error({{"cmd", "rig.status"}, {"verbose", true}}), "unknown argument 'verbose': rig.status takes none");
   EXPECT_EQ(error({{"cmd", "rig.enable"}, {"axis", "camera"}}), "argument 'axis' must be rail, turntable or both, got 'camera'");
 }
 
@@ -250,6 +252,33 @@ TEST_F(RigCommands, StopRampsDownAndAnEmergencyStopFaultsUntilHomed) {
   ok({{"cmd", "rig.move"}, {"rail", 100}});
   s = wait_settled();
   EXPECT_DOUBLE_EQ(s["rail"]["position"].get<double>(), 100.0);
+}
+
+// The socket's sixteen connections all held by clients that say nothing (a
+// dashboard left open, a script that never closed its socket): the
+// operator's emergency stop still gets through, and acts.
+TEST_F(RigCommands, AnEmergencyStopGetsThroughWhileIdleClientsHoldEverySlot) {
+  home_both();
+  ok({{"cmd", "rig.move"}, {"rail", 2400}});
+  const fs::path socket = dir_ / "control.sock";
+  std::vector<std::unique_ptr<ControlClient>> idle;
+  for (std::size_t i = 1; i < server_->settings().max_clients; ++i) {  // client_ holds the first
+    idle.push_back(std::make_unique<ControlClient>(socket));
+  }
+  ControlClient operator_client(socket);
+  const json reply = operator_client.call({{"cmd", "rig.stop"}, {"emergency", true}});
+  EXPECT_EQ(reply.value("ok", false), true) << reply;
+  EXPECT_EQ(reply["emergency"], true);
+  // Its status shows the stop took; anything else waits for a free slot.
+  const json s = operator_client.call({{"cmd", "rig.status"}});
+  for (const char* axis : {"rail", "turntable"}) {
+    EXPECT_EQ(s[axis]["state"], "fault") << s;
+    EXPECT_EQ(s[axis]["fault"], "emergency stop") << s;
+  }
+  const json refused = operator_client.call({{"cmd", "rig.home"}});
+  EXPECT_EQ(refused.value("error", std::string()),
+            "too many clients (16 connected; beyond the limit only rig.status, rig.stop are served); try again later");
+  EXPECT_EQ(server_->stats().beyond_limit, 1U);
 }
 
 TEST_F(RigCommands, EnableAndDisableOneAxisOrBoth) {

@@ -142,10 +142,7 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
 
   detections_ = std::make_unique<LineBroadcast>("detections");
   sink_->set_line_observer([broadcast = detections_.get()](std::string_view line) { broadcast->publish(line); });
-  ControlSettings control;
-  control.socket_path = config_.control.socket;
-  control.group = config_.control.group;
-  control_ = std::make_unique<ControlServer>(control);
+  control_ = std::make_unique<ControlServer>(control_settings(config_.control));
 
   if (rig_) {
     sweep::RunnerSettings runner;
@@ -176,11 +173,16 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
 
 void Daemon::register_commands() {
   control_->register_command(
-      "status", [this](const nlohmann::json&) { return status_json(*this); },
+      "status",
+      [this](const nlohmann::json& request) {
+        expect_arguments(request, {});
+        return status_json(*this);
+      },
       "the camera, the pipeline's counters and latencies, the detection log, the rig");
   control_->register_command(
       "cameras",
-      [](const nlohmann::json&) {
+      [](const nlohmann::json& request) {
+        expect_arguments(request, {});
         nlohmann::json v4l2 = nlohmann::json::array();
         for (const auto& device : list_v4l2_devices()) v4l2.push_back(nlohmann::json(to_json(device)));
         nlohmann::json libcamera = nlohmann::json::array();
@@ -190,7 +192,13 @@ void Daemon::register_commands() {
       "the cameras this machine has, through V4L2 and libcamera: formats, sizes, intervals, controls");
   control_->register_stream(*detections_, "follow the detection log live: one JSON line per frame");
   if (rig_) register_rig_commands(*control_, *rig_);
-  if (sweep_) register_sweep_commands(*control_, *sweep_);
+  if (sweep_) {
+    register_sweep_commands(*control_, *sweep_);
+    // Like rig.stop (register_rig_commands), they stop the rig: served
+    // however many clients hold the socket.
+    control_->serve_beyond_client_limit("sweep.pause");
+    control_->serve_beyond_client_limit("sweep.abort");
+  }
 }
 
 Daemon::~Daemon() { stop(); }

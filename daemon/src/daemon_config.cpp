@@ -180,8 +180,17 @@ LogSettings parse_log(const ConfigTable& t, const std::filesystem::path& dir) {
   return l;
 }
 
+// "markerd.toml:51: control.socket", or without the line for a key not set.
+std::string control_origin(const ConfigTable& t, std::string_view key) {
+  const toml::node* node = t.raw().get(key);
+  if (node != nullptr && node->source().begin.line > 0) {
+    return fmt::format("{}:{}: control.{}", t.source(), node->source().begin.line, key);
+  }
+  return fmt::format("{}: control.{}", t.source(), key);
+}
+
 ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& dir) {
-  t.allow_only({"socket", "group"});
+  t.allow_only({"socket", "group", "max_clients", "idle_timeout_ms"});
   ControlConfig c;
   if (auto s = t.maybe<std::string>("socket")) {
     c.socket = resolve(dir, *s);
@@ -191,6 +200,13 @@ ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& d
   // sockaddr_un's path holds 107 characters and a NUL.
   if (c.socket.string().size() > 107) t.fail("socket", fmt::format("is longer than 107 characters: {}", c.socket.string()));
   c.group = t.optional<std::string>("group", "");
+  // Each client is a file descriptor and up to 2 MiB of buffers.
+  c.max_clients = static_cast<std::size_t>(t.optional<int>("max_clients", 16, {1, 256, "clients"}));
+  // Long enough for a person typing into socat; at most a day.
+  c.idle_timeout = std::chrono::milliseconds(
+      t.optional<std::int64_t>("idle_timeout_ms", c.idle_timeout.count(), {1000, 86'400'000, "ms"}));
+  c.socket_origin = control_origin(t, "socket");
+  c.group_origin = control_origin(t, "group");
   return c;
 }
 
@@ -235,6 +251,24 @@ DaemonConfig parse_daemon_config(const ConfigTable& root) {
 
 DaemonConfig load_daemon_config(const std::filesystem::path& path) {
   return parse_daemon_config(ConfigTable::load_file(path));
+}
+
+ControlSettings control_settings(const ControlConfig& config) {
+  ControlSettings settings;
+  settings.socket_path = config.socket;
+  settings.group = config.group;
+  settings.max_clients = config.max_clients;
+  settings.idle_timeout = config.idle_timeout;
+  return settings;
+}
+
+void check_control_setup(const ControlConfig& config) {
+  const auto problem = find_control_setup_problem(control_settings(config));
+  if (!problem) return;
+  if (problem->setting == ControlSetupProblem::Setting::group) {
+    throw ConfigError(fmt::format("{}: {}", config.group_origin, problem->message));
+  }
+  throw ConfigError(fmt::format("{}: {}: {}", config.socket_origin, config.socket.string(), problem->message));
 }
 
 DetectorConfig detector_config(const DaemonConfig& config) {

@@ -84,7 +84,7 @@ void ControlClient::fail(const std::string& why) const {
   throw ControlClientError(fmt::format("{}: {}", path_.string(), why));
 }
 
-void ControlClient::send(const nlohmann::json& request) {
+bool ControlClient::send_line(const nlohmann::json& request) {
   std::string line = request.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   line += '\n';
   std::size_t sent = 0;
@@ -92,11 +92,39 @@ void ControlClient::send(const nlohmann::json& request) {
     const ssize_t n = ::send(fd_, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
     if (n < 0) {
       if (errno == EINTR) continue;
-      fail(errno == EPIPE || errno == ECONNRESET ? std::string("markerd closed the connection")
-                                                  : fmt::format("cannot send: {}", std::strerror(errno)));
+      if (errno == EPIPE || errno == ECONNRESET) return false;
+      fail(fmt::format("cannot send: {}", std::strerror(errno)));
     }
     sent += static_cast<std::size_t>(n);
   }
+  return true;
+}
+
+std::optional<nlohmann::json> ControlClient::refusal_before_close() {
+  // markerd writes its last line before it closes: it is here already, or
+  // the end is.
+  const auto deadline = Clock::now() + std::chrono::seconds(2);
+  for (;;) {
+    std::optional<std::string> line;
+    try {
+      line = read_line(std::max(std::chrono::ceil<std::chrono::milliseconds>(deadline - Clock::now()),
+                                std::chrono::milliseconds(0)));
+    } catch (const ControlClientError&) {
+      return std::nullopt;  // the end, with no refusal before it
+    }
+    if (!line) return std::nullopt;
+    nlohmann::json reply = nlohmann::json::parse(*line, nullptr, false);
+    if (reply.is_object() && reply.contains("ok") && reply["ok"] == false && reply.contains("error")) return reply;
+  }
+}
+
+void ControlClient::send(const nlohmann::json& request) {
+  if (send_line(request)) return;
+  const auto refusal = refusal_before_close();
+  if (refusal && (*refusal)["error"].is_string()) {
+    fail(fmt::format("markerd closed the connection: {}", (*refusal)["error"].get<std::string>()));
+  }
+  fail("markerd closed the connection");
 }
 
 std::optional<std::string> ControlClient::read_line(std::optional<std::chrono::milliseconds> timeout) {
@@ -136,7 +164,15 @@ nlohmann::json ControlClient::call(nlohmann::json request, std::chrono::millisec
   if (!request.is_object()) fail("a request must be a JSON object");
   if (!request.contains("id")) request["id"] = next_id_++;
   const nlohmann::json id = request["id"];
-  send(request);
+  if (!send_line(request)) {
+    // Closed before it took the whole request (one too large, say): its
+    // reason is the reply.
+    if (auto refusal = refusal_before_close()) {
+      if (raw_line != nullptr) *raw_line = refusal->dump();
+      return std::move(*refusal);
+    }
+    fail("markerd closed the connection");
+  }
   const auto deadline = Clock::now() + timeout;
   for (;;) {
     const auto left = std::chrono::ceil<std::chrono::milliseconds>(deadline - Clock::now());
@@ -153,7 +189,7 @@ nlohmann::json ControlClient::call(nlohmann::json request, std::chrono::millisec
     }
     if (!reply.is_object()) fail(fmt::format("the reply is not a JSON object: {}", line->substr(0, 200)));
     // A refusal of the connection itself (too many clients, a request too
-    // long) carries no id; anything else is a stream's line or a reply to
+    // large, an idle connection closed) carries no id; anything else is a stream's line or a reply to
     // an earlier request, and not this one's.
     if ((reply.contains("id") && reply["id"] == id) ||
         (!reply.contains("id") && reply.contains("ok") && reply["ok"] == false)) {

@@ -1,7 +1,9 @@
 #include "markerd/daemon/control/control_server.hpp"
 
+#include <fcntl.h>
 #include <grp.h>
 #include <poll.h>
+#include <pwd.h>
 #include <sys/eventfd.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
@@ -10,6 +12,8 @@
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
+
+#include "markerd/base/read_file.hpp"
 
 #include <algorithm>
 #include <array>
@@ -41,6 +45,13 @@ constexpr std::size_t kReadChunk = 64 * 1024;
 constexpr auto kCloseLinger = 2s;
 // After accept() runs out of file descriptors, it is retried after this.
 constexpr auto kAcceptPause = 100ms;
+// Connections taken beyond max_clients at once, for the commands that stop
+// the rig; each must send its request within kBeyondLimitIdle. A few, not
+// one: a client that connects and sends nothing must not keep the next one,
+// with an emergency stop, out; and bounded, since every connection is a file
+// descriptor that markerd's camera and logs need too.
+constexpr std::size_t kBeyondLimitClients = 4;
+constexpr auto kBeyondLimitIdle = 5s;
 
 std::string errno_text(int error) { return std::strerror(error); }
 
@@ -93,23 +104,9 @@ bool someone_listens(const std::filesystem::path& path, const sockaddr_un& addre
                                  errno_text(error)));
 }
 
-const char* json_type(const json& value) {
-  switch (value.type()) {
-    case json::value_t::null: return "null";
-    case json::value_t::object: return "an object";
-    case json::value_t::array: return "an array";
-    case json::value_t::string: return "a string";
-    case json::value_t::boolean: return "a boolean";
-    case json::value_t::number_integer:
-    case json::value_t::number_unsigned:
-    case json::value_t::number_float: return "a number";
-    default: return "binary data";
-  }
-}
-
 // nlohmann's messages start with "[json.exception.parse_error.101] ": the
 // client needs the rest.
-std::string parse_error_text(const json::parse_error& e) {
+std::string json_error_text(const json::exception& e) {
   std::string_view text = e.what();
   if (const auto end = text.find("] "); text.starts_with("[json.exception.") && end != std::string_view::npos) {
     text.remove_prefix(end + 2);
@@ -127,58 +124,73 @@ std::string dump_line(const ordered_json& value) {
   return text;
 }
 
-}  // namespace
+bool member_of(gid_t gid) {
+  if (::getegid() == gid) return true;
+  const int count = ::getgroups(0, nullptr);
+  if (count <= 0) return false;
+  std::vector<gid_t> groups(static_cast<std::size_t>(count));
+  const int got = ::getgroups(count, groups.data());
+  return got > 0 && std::find(groups.begin(), groups.begin() + got, gid) != groups.begin() + got;
+}
 
-// ---------------------------------------------------------------- arguments
-
-void expect_arguments(const json& request, std::initializer_list<std::string_view> known) {
-  for (const auto& [key, value] : request.items()) {
-    if (key == "cmd" || key == "id") continue;
-    if (std::find(known.begin(), known.end(), key) != known.end()) continue;
-    std::string list;
-    for (const auto k : known) list += fmt::format("{}{}", list.empty() ? "" : ", ", k);
-    const std::string command = request.value("cmd", std::string());
-    throw ControlError(list.empty()
-                           ? fmt::format("unknown argument '{}': {} takes none", key, command)
-                           : fmt::format("unknown argument '{}' (for {}: {})", key, command, list));
+std::string user_name(uid_t uid) {
+  std::vector<char> buffer(16384);
+  passwd entry{};
+  passwd* found = nullptr;
+  if (::getpwuid_r(uid, &entry, buffer.data(), buffer.size(), &found) != 0 || found == nullptr) {
+    return fmt::format("uid {}", uid);
   }
-}
-
-namespace {
-
-const json* argument(const json& request, std::string_view name) {
-  const auto it = request.find(name);
-  if (it == request.end() || it->is_null()) return nullptr;
-  return &*it;
-}
-
-[[noreturn]] void wrong_type(std::string_view name, std::string_view wanted, const json& value) {
-  throw ControlError(fmt::format("argument '{}' must be {}, got {}", name, wanted, json_type(value)));
+  return fmt::format("'{}'", found->pw_name);
 }
 
 }  // namespace
 
-std::optional<std::string> string_argument(const json& request, std::string_view name) {
-  const json* value = argument(request, name);
-  if (value == nullptr) return std::nullopt;
-  if (!value->is_string()) wrong_type(name, "a string", *value);
-  return value->get<std::string>();
-}
-
-std::optional<double> number_argument(const json& request, std::string_view name) {
-  const json* value = argument(request, name);
-  if (value == nullptr) return std::nullopt;
-  if (!value->is_number()) wrong_type(name, "a number", *value);
-  const double number = value->get<double>();
-  if (!std::isfinite(number)) throw ControlError(fmt::format("argument '{}' must be a finite number", name));
-  return number;
-}
-
-std::optional<bool> bool_argument(const json& request, std::string_view name) {
-  const json* value = argument(request, name);
-  if (value == nullptr) return std::nullopt;
-  if (!value->is_boolean()) wrong_type(name, "true or false", *value);
-  return value->get<bool>();
+std::optional<ControlSetupProblem> find_control_setup_problem(const ControlSettings& settings) {
+  using Setting = ControlSetupProblem::Setting;
+  const auto problem = [](Setting setting, std::string message) {
+    return std::optional(ControlSetupProblem{setting, std::move(message)});
+  };
+  const std::filesystem::path& path = settings.socket_path;
+  if (path.empty()) return problem(Setting::socket, "no path configured");
+  if (path.native().size() >= sizeof(sockaddr_un::sun_path)) {
+    return problem(Setting::socket, fmt::format("the path is {} bytes long; a Unix socket's address holds at most {}",
+                                                path.native().size(), sizeof(sockaddr_un::sun_path) - 1));
+  }
+  std::filesystem::path directory = path.parent_path();
+  if (directory.empty()) directory = ".";
+  struct stat st {};
+  if (::stat(directory.c_str(), &st) != 0) {
+    const int error = errno;
+    return problem(Setting::socket,
+                   fmt::format("its directory {}: {}{}", directory.string(), errno_text(error),
+                               error == ENOENT ? " (it is not created here: systemd's RuntimeDirectory= does)" : ""));
+  }
+  if (!S_ISDIR(st.st_mode)) return problem(Setting::socket, fmt::format("{} is not a directory", directory.string()));
+  // bind() makes the socket file: it needs to write in the directory.
+  if (::faccessat(AT_FDCWD, directory.c_str(), W_OK | X_OK, AT_EACCESS) != 0) {
+    const int error = errno;
+    return problem(Setting::socket, fmt::format("markerd, running as user {}, cannot make the socket in {}: {}",
+                                                user_name(::geteuid()), directory.string(), errno_text(error)));
+  }
+  if (::lstat(path.c_str(), &st) == 0 && !S_ISSOCK(st.st_mode)) {
+    return problem(Setting::socket, "exists and is not a socket; it is left alone");
+  }
+  if (!settings.group.empty()) {
+    const std::optional<gid_t> gid = group_id(settings.group);
+    if (!gid) {
+      return problem(Setting::group, fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, "
+                                                 "or name another in [control] group)",
+                                                 settings.group));
+    }
+    // Only root, or a member, may give a file to a group.
+    if (::geteuid() != 0 && !member_of(*gid)) {
+      return problem(Setting::group,
+                     fmt::format("markerd, running as user {}, is not a member of group '{}' and cannot give the "
+                                 "socket to it (the unit's Group= or SupplementaryGroups= makes it one)",
+                                 user_name(::geteuid()), settings.group));
+    }
+  }
+  return std::nullopt;
 }
 
 // ---------------------------------------------------------------- the server
@@ -196,6 +208,12 @@ struct ControlServer::Client {
   bool closing = false;           // no more requests: send what is queued, then close
   bool dead = false;              // close now
   Clock::time_point close_deadline{};
+  // Accepted, a request received or reply bytes taken: the idle timeout
+  // runs from here. Bytes of a request not yet complete do not count, so a
+  // client trickling a line cannot hold its connection for ever.
+  Clock::time_point last_activity{};
+  bool beyond_limit = false;      // taken past max_clients: stop commands only
+  bool served = false;            // a request of it has been answered
 
   [[nodiscard]] std::size_t pending() const { return output.size() - output_sent; }
   [[nodiscard]] bool request_waiting() const { return input.find('\n', input_scanned) != std::string::npos; }
@@ -208,7 +226,11 @@ bool ControlServer::can_serve(const Client& client) const {
 
 ControlServer::ControlServer(ControlSettings settings) : settings_(std::move(settings)) {
   register_command(
-      "help", [this](const json&) { return help(); },
+      "help",
+      [this](const json& request) {
+        expect_arguments(request, {});
+        return help();
+      },
       "the commands this server knows, each with a line of help");
 }
 
@@ -230,14 +252,37 @@ void ControlServer::register_stream(LineBroadcast& broadcast, std::string help) 
   streams_.push_back(&broadcast);
 }
 
+void ControlServer::serve_beyond_client_limit(std::string_view command) {
+  if (running()) throw std::logic_error("ControlServer: mark commands before start()");
+  const auto found = commands_.find(command);
+  if (found == commands_.end() || found->second.stream != nullptr) {
+    throw std::logic_error(fmt::format("ControlServer: '{}' is not a registered command", command));
+  }
+  found->second.beyond_client_limit = true;
+}
+
 json ControlServer::help() const {
   json list = json::array();
   for (const auto& [name, command] : commands_) {
     json entry = {{"name", name}, {"help", command.help}};
     if (command.stream != nullptr) entry["stream"] = true;
+    if (command.beyond_client_limit) entry["beyond_client_limit"] = true;
     list.push_back(std::move(entry));
   }
   return {{"commands", std::move(list)}};
+}
+
+std::string ControlServer::beyond_limit_commands() const {
+  std::string list;
+  for (const auto& [name, command] : commands_) {
+    if (command.beyond_client_limit) list += fmt::format("{}{}", list.empty() ? "" : ", ", name);
+  }
+  return list;
+}
+
+std::size_t ControlServer::regular_clients() const {
+  return static_cast<std::size_t>(
+      std::count_if(clients_.begin(), clients_.end(), [](const auto& c) { return !c->beyond_limit; }));
 }
 
 void ControlServer::start() {
@@ -253,28 +298,12 @@ void ControlServer::set_up_socket() {
     socket_error(path, fmt::format("mode 0{:o} would give other users access; the socket moves the rig",
                                    static_cast<unsigned>(settings_.mode)));
   }
+  if (const auto problem = find_control_setup_problem(settings_)) socket_error(path, problem->message);
   const sockaddr_un address = socket_address(path);
-
-  std::filesystem::path directory = path.parent_path();
-  if (directory.empty()) directory = ".";
-  struct stat st {};
-  if (::stat(directory.c_str(), &st) != 0) {
-    const int error = errno;
-    socket_error(path, fmt::format("its directory {}: {}{}", directory.string(), errno_text(error),
-                                   error == ENOENT ? " (it is not created here: systemd's RuntimeDirectory= does)" : ""));
-  }
-  if (!S_ISDIR(st.st_mode)) socket_error(path, fmt::format("{} is not a directory", directory.string()));
-
   std::optional<gid_t> gid;
-  if (!settings_.group.empty()) {
-    gid = group_id(settings_.group);
-    if (!gid) {
-      socket_error(path, fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, or name "
-                                     "another in [control] group)",
-                                     settings_.group));
-    }
-  }
+  if (!settings_.group.empty()) gid = group_id(settings_.group);
 
+  struct stat st {};
   if (::lstat(path.c_str(), &st) == 0) {
     if (!S_ISSOCK(st.st_mode)) socket_error(path, "exists and is not a socket; it is left alone");
     if (someone_listens(path, address)) {
@@ -359,6 +388,8 @@ ControlServerStats ControlServer::stats() const noexcept {
   s.connections = counters_.connections.load(std::memory_order_relaxed);
   s.clients = counters_.clients.load(std::memory_order_relaxed);
   s.refused = counters_.refused.load(std::memory_order_relaxed);
+  s.beyond_limit = counters_.beyond_limit.load(std::memory_order_relaxed);
+  s.idle_closed = counters_.idle_closed.load(std::memory_order_relaxed);
   s.requests = counters_.requests.load(std::memory_order_relaxed);
   s.errors = counters_.errors.load(std::memory_order_relaxed);
   s.oversized = counters_.oversized.load(std::memory_order_relaxed);
@@ -393,7 +424,9 @@ void ControlServer::run(const std::stop_token& stop) {
       if (!client->closing && !client->peer_closed && !client->request_waiting()) events |= POLLIN;
       if (client->pending() > 0) events |= POLLOUT;
       fds.push_back({client->fd, events, 0});
-      if (client->closing && (!wake_at || client->close_deadline < *wake_at)) wake_at = client->close_deadline;
+      std::optional<Clock::time_point> deadline = client->closing ? std::optional(client->close_deadline)
+                                                                  : idle_deadline(*client);
+      if (deadline && (!wake_at || *deadline < *wake_at)) wake_at = deadline;
     }
     int timeout = -1;
     if (serve_now) {
@@ -432,6 +465,10 @@ void ControlServer::run(const std::stop_token& stop) {
     }
 
     const auto after = Clock::now();
+    for (auto& client : clients_) {
+      const auto deadline = idle_deadline(*client);
+      if (deadline && after >= *deadline) close_idle(*client, after);
+    }
     std::erase_if(clients_, [&](const std::unique_ptr<Client>& c) {
       const bool done = c->dead || (c->closing && (c->pending() == 0 || after >= c->close_deadline)) ||
                         (c->peer_closed && c->pending() == 0 && !c->request_waiting());
@@ -468,10 +505,11 @@ void ControlServer::accept_clients() {
     ucred peer{};
     socklen_t peer_size = sizeof peer;
     if (::getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &peer, &peer_size) != 0) peer = {};
-    if (clients_.size() >= settings_.max_clients) {
+    const bool beyond_limit = regular_clients() >= settings_.max_clients;
+    // Without commands to serve beyond the limit, nothing is gained by taking the connection.
+    if (beyond_limit && (beyond_limit_commands().empty() || !make_room_beyond_limit())) {
       counters_.refused.fetch_add(1, std::memory_order_relaxed);
-      const std::string line = dump_line(
-          {{"ok", false}, {"error", fmt::format("too many clients ({} connected); try again later", clients_.size())}});
+      const std::string line = dump_line({{"ok", false}, {"error", too_many_clients()}});
       // A fresh socket's buffer takes the line; if not, it is lost with the connection.
       [[maybe_unused]] const ssize_t n = ::send(fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
       ::close(fd);
@@ -482,9 +520,73 @@ void ControlServer::accept_clients() {
     auto client = std::make_unique<Client>();
     client->fd = fd;
     client->id = id;
-    spdlog::debug("control: client {} connected (pid {}, uid {})", id, peer.pid, peer.uid);
+    client->last_activity = Clock::now();
+    client->beyond_limit = beyond_limit;
+    if (beyond_limit) {
+      counters_.beyond_limit.fetch_add(1, std::memory_order_relaxed);
+      spdlog::info("control: client {} (pid {}, uid {}) connected beyond the limit of {}: served {} only", id,
+                   peer.pid, peer.uid, settings_.max_clients, beyond_limit_commands());
+    } else {
+      spdlog::debug("control: client {} connected (pid {}, uid {})", id, peer.pid, peer.uid);
+    }
     clients_.push_back(std::move(client));
   }
+}
+
+bool ControlServer::make_room_beyond_limit() {
+  const auto taken = [this] {
+    return std::count_if(clients_.begin(), clients_.end(),
+                         [](const auto& c) { return c->beyond_limit && !c->closing && !c->dead; });
+  };
+  // The oldest that has sent nothing gives way, after a last look at what it
+  // may have sent meanwhile (which is served, stop requests included).
+  for (auto& client : clients_) {
+    if (static_cast<std::size_t>(taken()) < kBeyondLimitClients) return true;
+    if (!client->beyond_limit || client->closing || client->dead || client->served) continue;
+    read_from(*client);
+    serve_buffered(*client);
+    if (client->served || client->closing || client->dead) continue;
+    counters_.refused.fetch_add(1, std::memory_order_relaxed);
+    close_after(*client, {{"ok", false}, {"error", too_many_clients()}});
+  }
+  return static_cast<std::size_t>(taken()) < kBeyondLimitClients;
+}
+
+std::string ControlServer::too_many_clients() const {
+  const std::string commands = beyond_limit_commands();
+  if (commands.empty()) return fmt::format("too many clients ({} connected); try again later", regular_clients());
+  return fmt::format("too many clients ({} connected; beyond the limit only {} {} served); try again later",
+                     regular_clients(), commands, commands.find(',') == std::string::npos ? "is" : "are");
+}
+
+std::optional<std::chrono::steady_clock::time_point> ControlServer::idle_deadline(const Client& client) const {
+  if (client.following != nullptr || client.closing || client.dead) return std::nullopt;
+  const auto timeout = client.beyond_limit
+                           ? std::min<std::chrono::milliseconds>(kBeyondLimitIdle, settings_.idle_timeout)
+                           : settings_.idle_timeout;
+  return client.last_activity + timeout;
+}
+
+void ControlServer::close_idle(Client& client, Clock::time_point now) {
+  if (client.beyond_limit && !client.served) {
+    counters_.refused.fetch_add(1, std::memory_order_relaxed);
+    close_after(client, {{"ok", false}, {"error", too_many_clients()}});
+    return;
+  }
+  counters_.idle_closed.fetch_add(1, std::memory_order_relaxed);
+  const double seconds = std::chrono::duration<double>(now - client.last_activity).count();
+  spdlog::info("control: client {}: no request and no reply read for {:.0f} s; connection closed", client.id,
+               seconds);
+  close_after(client, {{"ok", false},
+                       {"error", fmt::format("idle for {:g} s (no request, no reply read); closing the connection",
+                                             std::chrono::duration<double>(settings_.idle_timeout).count())}});
+}
+
+void ControlServer::close_after(Client& client, const ordered_json& reply) {
+  queue_reply(client, reply);
+  client.closing = true;
+  client.close_deadline = Clock::now() + kCloseLinger;
+  write_to(client);
 }
 
 void ControlServer::read_from(Client& client) {
@@ -516,13 +618,13 @@ void ControlServer::serve_buffered(Client& client) {
       counters_.oversized.fetch_add(1, std::memory_order_relaxed);
       counters_.requests.fetch_add(1, std::memory_order_relaxed);
       counters_.errors.fetch_add(1, std::memory_order_relaxed);
-      queue_reply(client, {{"ok", false},
-                           {"error", fmt::format("request longer than {} bytes; closing the connection",
-                                                 settings_.max_request_bytes)}});
       spdlog::warn("control: client {}: a request longer than {} bytes; connection closed", client.id,
                    settings_.max_request_bytes);
-      client.closing = true;
-      client.close_deadline = Clock::now() + kCloseLinger;
+      close_after(client, {{"ok", false},
+                           {"error", fmt::format("request too large: longer than markerd's limit of {} ({} bytes); "
+                                                 "closing the connection",
+                                                 format_bytes(settings_.max_request_bytes),
+                                                 settings_.max_request_bytes)}});
       start = client.input.size();
       break;
     }
@@ -556,6 +658,7 @@ void ControlServer::write_to(Client& client) {
       return;
     }
     client.output_sent += static_cast<std::size_t>(n);
+    if (n > 0) client.last_activity = Clock::now();
   }
   if (client.output_sent == client.output.size()) {
     client.output.clear();
@@ -588,6 +691,7 @@ void ControlServer::close_client(Client& client) {
 
 void ControlServer::handle_line(Client& client, std::string_view line) {
   counters_.requests.fetch_add(1, std::memory_order_relaxed);
+  client.last_activity = Clock::now();
   if (client.following != nullptr) {
     // Any line ends a stream. It is not run as a command: a client that
     // wants the stream to end may not know what else might arrive first.
@@ -608,6 +712,7 @@ void ControlServer::handle_line(Client& client, std::string_view line) {
   }
   const ordered_json reply = answer(client, line);
   if (!reply.value("ok", false)) counters_.errors.fetch_add(1, std::memory_order_relaxed);
+  client.served = true;
   queue_reply(client, reply);
 }
 
@@ -628,7 +733,7 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
       return true;
     });
   } catch (const json::parse_error& e) {
-    return refuse("malformed JSON: " + parse_error_text(e));
+    return refuse("malformed JSON: " + json_error_text(e));
   } catch (const ControlError& e) {
     return refuse(e.what());
   } catch (const json::exception& e) {
@@ -636,17 +741,23 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
   }
   if (!request.is_object()) {
     return refuse(fmt::format(R"(a request must be a JSON object such as {{"cmd":"help"}}, got {})",
-                              json_type(request)));
+                              json_type_name(request)));
   }
   if (const auto id = request.find("id"); id != request.end()) {
-    if (id->is_structured()) return refuse(fmt::format("\"id\" must be a string or a number, got {}", json_type(*id)));
+    if (id->is_structured()) return refuse(fmt::format("\"id\" must be a string or a number, got {}", json_type_name(*id)));
     reply["id"] = *id;
   }
   const auto cmd = request.find("cmd");
   if (cmd == request.end()) return refuse(R"(missing "cmd", the command's name ("help" lists them))");
-  if (!cmd->is_string()) return refuse(fmt::format("\"cmd\" must be a string, got {}", json_type(*cmd)));
+  if (!cmd->is_string()) return refuse(fmt::format("\"cmd\" must be a string, got {}", json_type_name(*cmd)));
   const std::string& name = cmd->get_ref<const std::string&>();
   const auto found = commands_.find(name);
+  if (client.beyond_limit && (found == commands_.end() || !found->second.beyond_client_limit)) {
+    counters_.refused.fetch_add(1, std::memory_order_relaxed);
+    client.closing = true;
+    client.close_deadline = Clock::now() + kCloseLinger;
+    return refuse(too_many_clients());
+  }
   if (found == commands_.end()) {
     return refuse(fmt::format(R"(unknown command '{}' ("help" lists the commands))", name));
   }
@@ -667,6 +778,11 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
     result = command.handler(request);
   } catch (const ControlError& e) {
     return refuse(e.what());
+  } catch (const json::exception& e) {
+    // A handler that read an argument without the readers of
+    // command_arguments.hpp: nlohmann cannot say which one.
+    spdlog::warn("control: {}: an argument read unchecked: {}", name, e.what());
+    return refuse(fmt::format("{}: an argument has the wrong type or value: {}", name, json_error_text(e)));
   } catch (const std::exception& e) {
     spdlog::warn("control: {} failed: {}", name, e.what());
     return refuse(e.what());

@@ -46,11 +46,10 @@ json axis_json(const Axis& axis, const AxisStatus& status) {
 
 // The axes an "axis" argument names (rail, turntable or both; both when absent).
 std::vector<Axis*> chosen_axes(rig::Rig& rig, const json& request) {
-  const std::string name = string_argument(request, "axis").value_or("both");
+  const std::string name = choice_argument(request, "axis", {"rail", "turntable", "both"}).value_or("both");
   if (name == "rail") return {&rig.rail()};
   if (name == "turntable") return {&rig.turntable()};
-  if (name == "both") return {&rig.rail(), &rig.turntable()};
-  throw ControlError(fmt::format("argument 'axis' must be rail, turntable or both, got '{}'", name));
+  return {&rig.rail(), &rig.turntable()};
 }
 
 std::string names_of(const std::vector<Axis*>& axes) {
@@ -253,6 +252,10 @@ void register_rig_commands(ControlServer& server, rig::Rig& rig) {
   server.register_command(
       "rig.disable", [&rig](const json& request) { return enable(rig, request, false); },
       "unpower the drives of axes at rest (axis: rail, turntable or both)");
+  // However many clients hold the socket, idle or busy, a stop gets
+  // through, and so does the status that shows it took.
+  server.serve_beyond_client_limit("rig.stop");
+  server.serve_beyond_client_limit("rig.status");
 }
 
 }  // namespace markerd::daemon

@@ -15,6 +15,7 @@
 #include "markerd/daemon/capture/libcamera_source.hpp"
 #include "markerd/daemon/capture/sim_camera.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
+#include "markerd/daemon/control/control_server.hpp"
 #include "markerd/daemon/log_writer.hpp"
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/detector/camera_model.hpp"
@@ -61,6 +62,12 @@ struct LogSettings {
 struct ControlConfig {
   std::filesystem::path socket;
   std::string group;  // empty: the daemon's own group
+  std::size_t max_clients = 16;
+  std::chrono::milliseconds idle_timeout{60'000};
+  // "markerd.toml:51: control.socket": where each is set, for the errors
+  // check_control_setup() finds after parsing.
+  std::string socket_origin;
+  std::string group_origin;
 };
 
 // [sweep]: where runs keep their records and the journal that resumes them.
@@ -87,6 +94,16 @@ struct DaemonConfig {
 // /var/log/markerd, /run/markerd and /var/lib/markerd.
 DaemonConfig load_daemon_config(const std::filesystem::path& path);
 DaemonConfig parse_daemon_config(const ConfigTable& root);
+
+// The control server's settings from [control].
+[[nodiscard]] ControlSettings control_settings(const ControlConfig& config);
+// What would keep markerd from setting up its control socket (the
+// directory missing or closed to this process, a file there that is not a
+// socket, a group that does not exist or that this process is not in), as a
+// ConfigError naming the file, the line and the key. For --check-config,
+// which runs as markerd will (systemd's ExecStartPre): parsing alone does
+// not look, so that tools reading the config elsewhere are not refused.
+void check_control_setup(const ControlConfig& config);
 
 // The detector configuration the pipeline's workers are made with.
 [[nodiscard]] DetectorConfig detector_config(const DaemonConfig& config);

@@ -32,7 +32,8 @@ class ControlClient {
 
   [[nodiscard]] const std::filesystem::path& socket_path() const { return path_; }
 
-  // Sends one request (an object) as one line.
+  // Sends one request (an object) as one line. ControlClientError when
+  // markerd closes the connection first, with the reason it gave.
   void send(const nlohmann::json& request);
 
   // The next line the server sent, without its '\n'; nothing when `timeout`
@@ -43,14 +44,21 @@ class ControlClient {
   // Sends `request` with an "id" of its own (unless it has one) and returns
   // the reply that carries it, as an object. ControlClientError when no
   // reply comes within `timeout`, or the reply is not JSON. An "ok": false
-  // reply is returned like any other. `raw_line`, when given, receives the
-  // reply's line as it came.
+  // reply is returned like any other, and so is markerd's refusal of the
+  // connection (a request too large, too many clients), even when it closed
+  // the connection before the request was sent whole. `raw_line`, when
+  // given, receives the reply's line as it came.
   [[nodiscard]] nlohmann::json call(nlohmann::json request,
                                     std::chrono::milliseconds timeout = std::chrono::seconds(10),
                                     std::string* raw_line = nullptr);
 
  private:
   [[noreturn]] void fail(const std::string& why) const;
+  // False when markerd closed the connection before it took the line.
+  [[nodiscard]] bool send_line(const nlohmann::json& request);
+  // The {"ok": false, "error": ...} line markerd sent before it closed the
+  // connection, if it sent one.
+  [[nodiscard]] std::optional<nlohmann::json> refusal_before_close();
 
   std::filesystem::path path_;
   int fd_ = -1;

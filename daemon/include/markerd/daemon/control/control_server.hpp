@@ -9,11 +9,16 @@
 // promptly (start a motion and return; a status command reports its
 // progress). A client that does not read what it is sent never holds the
 // server up: its requests wait until it has read its replies, and a stream
-// skips the lines it has no room for and tells it how many.
+// skips the lines it has no room for and tells it how many. A connection
+// that neither sends a request nor reads a reply for the idle timeout is
+// closed (a follower never is), and a few connections beyond the client
+// limit are still taken for the commands that stop the rig, so that no set
+// of clients, idle or busy, can keep an emergency stop out.
 
 #include <sys/types.h>
 
 #include <atomic>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
@@ -29,12 +34,14 @@
 #include <thread>
 #include <vector>
 
+#include "markerd/daemon/control/command_arguments.hpp"
 #include "markerd/daemon/control/line_broadcast.hpp"
 
 namespace markerd::daemon {
 
 // The daemon's [control] table (daemon_config.hpp's ControlConfig) gives
-// the path and the group; the rest are the defaults here.
+// the path, the group, the client limit and the idle timeout; the rest are
+// the defaults here.
 struct ControlSettings {
   // Its directory must exist (systemd's RuntimeDirectory=); it is never created here.
   std::filesystem::path socket_path = "/run/markerd/control.sock";
@@ -44,22 +51,19 @@ struct ControlSettings {
   // The socket file's permissions: never any for other users, since the
   // socket moves the rig.
   mode_t mode = 0660;
-  // A request line (without its '\n') longer than this is refused and the
-  // connection closed.
-  std::size_t max_request_bytes = 64 * 1024;
-  // Connections beyond this are told so and closed.
+  // A request line (without its '\n') longer than this is answered with an
+  // error naming the limit, and the connection closed. markerctl's largest
+  // request, a 128 KiB plan JSON-escaped, fits.
+  std::size_t max_request_bytes = 1024 * 1024;
+  // Connections beyond this are served only the commands marked with
+  // serve_beyond_client_limit(), and refused anything else.
   std::size_t max_clients = 16;
+  // A connection that neither sends a request nor reads a reply for this
+  // long is told so and closed; one following a stream never is.
+  std::chrono::milliseconds idle_timeout{60'000};
   // Bytes waiting to be sent to one client: past this its further requests
   // wait until it reads, and stream lines are skipped (and counted).
   std::size_t max_output_bytes = 1024 * 1024;
-};
-
-// What a handler throws to refuse a request: the reply is
-// {"ok": false, "error": what()}. Any other std::exception becomes an error
-// reply too; ControlError says the words are meant for the client.
-class ControlError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
 };
 
 // The socket cannot be set up (its directory is missing, another markerd
@@ -70,6 +74,18 @@ class ControlSocketError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// What would keep start() from setting up the socket, found without making
+// anything (markerd --check-config names the config key it belongs to):
+// the path too long, its directory missing or closed to this process, a
+// file there that is not a socket, a group that does not exist or that this
+// process is not a member of.
+struct ControlSetupProblem {
+  enum class Setting { socket, group };
+  Setting setting = Setting::socket;
+  std::string message;  // without the socket's path, which the caller names
+};
+[[nodiscard]] std::optional<ControlSetupProblem> find_control_setup_problem(const ControlSettings& settings);
+
 // Takes the whole request object (its "cmd", "id" and arguments) and
 // returns the result: an object's members are added to the reply beside
 // "id" and "ok"; null adds nothing; any other value becomes "result".
@@ -79,6 +95,8 @@ struct ControlServerStats {
   std::uint64_t connections = 0;       // accepted, in all
   std::uint64_t clients = 0;           // connected now
   std::uint64_t refused = 0;           // connections turned away: too many clients
+  std::uint64_t beyond_limit = 0;      // connections taken beyond max_clients, for stop commands
+  std::uint64_t idle_closed = 0;       // connections closed for the idle timeout
   std::uint64_t requests = 0;          // request lines answered
   std::uint64_t errors = 0;            // of them, answered with "ok": false
   std::uint64_t oversized = 0;         // connections closed for a request line too long
@@ -100,6 +118,10 @@ class ControlServer {
   // following the broadcast's lines. The broadcast must outlive the server;
   // the server is its one consumer.
   void register_stream(LineBroadcast& broadcast, std::string help = {});
+  // The command (registered already) is served to connections beyond
+  // max_clients too: one that stops the rig, or says where it stands, must
+  // get through whoever holds the other connections. Before start() only.
+  void serve_beyond_client_limit(std::string_view command);
 
   // Sets up the socket (ControlSocketError on failure, nothing left behind)
   // and starts serving. Once only.
@@ -115,11 +137,13 @@ class ControlServer {
   [[nodiscard]] ControlServerStats stats() const noexcept;
 
  private:
+  using Clock = std::chrono::steady_clock;
   struct Client;
   struct Command {
     CommandHandler handler;
     LineBroadcast* stream = nullptr;
     std::string help;
+    bool beyond_client_limit = false;
   };
 
   void set_up_socket();
@@ -132,6 +156,13 @@ class ControlServer {
   void handle_line(Client& client, std::string_view line);
   [[nodiscard]] nlohmann::ordered_json answer(Client& client, std::string_view line);
   [[nodiscard]] nlohmann::json help() const;
+  [[nodiscard]] std::string beyond_limit_commands() const;
+  [[nodiscard]] std::string too_many_clients() const;
+  [[nodiscard]] bool make_room_beyond_limit();
+  [[nodiscard]] std::size_t regular_clients() const;
+  [[nodiscard]] std::optional<Clock::time_point> idle_deadline(const Client& client) const;
+  void close_idle(Client& client, Clock::time_point now);
+  void close_after(Client& client, const nlohmann::ordered_json& reply);
   void queue_reply(Client& client, const nlohmann::ordered_json& reply);
   void queue_notice(Client& client);
   void drain_stream(LineBroadcast& broadcast);
@@ -157,6 +188,8 @@ class ControlServer {
     std::atomic<std::uint64_t> connections{0};
     std::atomic<std::uint64_t> clients{0};
     std::atomic<std::uint64_t> refused{0};
+    std::atomic<std::uint64_t> beyond_limit{0};
+    std::atomic<std::uint64_t> idle_closed{0};
     std::atomic<std::uint64_t> requests{0};
     std::atomic<std::uint64_t> errors{0};
     std::atomic<std::uint64_t> oversized{0};
@@ -166,15 +199,5 @@ class ControlServer {
 
   std::jthread thread_;
 };
-
-// ---- for handlers: arguments of a request, checked, with errors that name them ----
-
-// ControlError when the request has a member other than "cmd", "id" and `known`.
-void expect_arguments(const nlohmann::json& request, std::initializer_list<std::string_view> known);
-// The argument's value, or nothing when it is absent or null; ControlError
-// when it has another type ("argument 'axis' must be a string, got a number").
-[[nodiscard]] std::optional<std::string> string_argument(const nlohmann::json& request, std::string_view name);
-[[nodiscard]] std::optional<double> number_argument(const nlohmann::json& request, std::string_view name);
-[[nodiscard]] std::optional<bool> bool_argument(const nlohmann::json& request, std::string_view name);
 
 }  // namespace markerd::daemon
