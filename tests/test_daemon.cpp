@@ -443,6 +443,15 @@ TEST_F(DaemonTest, CheckConfigFindsWhatWouldKeepTheControlSocketFromStarting) {
   EXPECT_EQ(config.control.max_clients, 4U);
   EXPECT_EQ(config.control.idle_timeout, 5s);
   EXPECT_FALSE(fs::exists(dir_ / "control.sock")) << "a check makes nothing";
+
+  // The default socket outside systemd: its directory is the unit's
+  // RuntimeDirectory=, made at start, so its absence is no error here.
+  ControlConfig runtime_default;
+  runtime_default.socket = dir_ / "run-markerd" / "control.sock";
+  runtime_default.socket_is_runtime_default = true;
+  EXPECT_NO_THROW(check_control_setup(runtime_default));
+  runtime_default.socket_is_runtime_default = false;
+  EXPECT_THROW(check_control_setup(runtime_default), ConfigError);
 }
 
 // Every command markerd serves, its own, the rig's, the sweep's and the

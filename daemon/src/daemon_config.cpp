@@ -196,6 +196,7 @@ ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& d
     c.socket = resolve(dir, *s);
   } else {
     c.socket = from_environment("RUNTIME_DIRECTORY", "/run/markerd") / "control.sock";
+    c.socket_is_runtime_default = std::getenv("RUNTIME_DIRECTORY") == nullptr;  // NOLINT(concurrency-mt-unsafe)
   }
   // sockaddr_un's path holds 107 characters and a NUL.
   if (c.socket.string().size() > 107) t.fail("socket", fmt::format("is longer than 107 characters: {}", c.socket.string()));
@@ -263,12 +264,18 @@ ControlSettings control_settings(const ControlConfig& config) {
 }
 
 void check_control_setup(const ControlConfig& config) {
-  const auto problem = find_control_setup_problem(control_settings(config));
-  if (!problem) return;
-  if (problem->setting == ControlSetupProblem::Setting::group) {
-    throw ConfigError(fmt::format("{}: {}", config.group_origin, problem->message));
+  const ControlSettings settings = control_settings(config);
+  // The default directory outside systemd: the unit's RuntimeDirectory=
+  // makes it when the service starts (and ExecStartPre's check sees it).
+  const bool made_at_start = config.socket_is_runtime_default && !std::filesystem::exists(config.socket.parent_path());
+  if (!made_at_start) {
+    if (const auto problem = find_socket_path_problem(settings)) {
+      throw ConfigError(fmt::format("{}: {}: {}", config.socket_origin, config.socket.string(), *problem));
+    }
   }
-  throw ConfigError(fmt::format("{}: {}: {}", config.socket_origin, config.socket.string(), problem->message));
+  if (const auto problem = find_socket_group_problem(settings)) {
+    throw ConfigError(fmt::format("{}: {}", config.group_origin, *problem));
+  }
 }
 
 DetectorConfig detector_config(const DaemonConfig& config) {

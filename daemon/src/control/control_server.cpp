@@ -145,50 +145,47 @@ std::string user_name(uid_t uid) {
 
 }  // namespace
 
-std::optional<ControlSetupProblem> find_control_setup_problem(const ControlSettings& settings) {
-  using Setting = ControlSetupProblem::Setting;
-  const auto problem = [](Setting setting, std::string message) {
-    return std::optional(ControlSetupProblem{setting, std::move(message)});
-  };
+std::optional<std::string> find_socket_path_problem(const ControlSettings& settings) {
   const std::filesystem::path& path = settings.socket_path;
-  if (path.empty()) return problem(Setting::socket, "no path configured");
+  if (path.empty()) return "no path configured";
   if (path.native().size() >= sizeof(sockaddr_un::sun_path)) {
-    return problem(Setting::socket, fmt::format("the path is {} bytes long; a Unix socket's address holds at most {}",
-                                                path.native().size(), sizeof(sockaddr_un::sun_path) - 1));
+    return fmt::format("the path is {} bytes long; a Unix socket's address holds at most {}", path.native().size(),
+                       sizeof(sockaddr_un::sun_path) - 1);
   }
   std::filesystem::path directory = path.parent_path();
   if (directory.empty()) directory = ".";
   struct stat st {};
   if (::stat(directory.c_str(), &st) != 0) {
     const int error = errno;
-    return problem(Setting::socket,
-                   fmt::format("its directory {}: {}{}", directory.string(), errno_text(error),
-                               error == ENOENT ? " (it is not created here: systemd's RuntimeDirectory= does)" : ""));
+    return fmt::format("its directory {}: {}{}", directory.string(), errno_text(error),
+                       error == ENOENT ? " (it is not created here: systemd's RuntimeDirectory= does)" : "");
   }
-  if (!S_ISDIR(st.st_mode)) return problem(Setting::socket, fmt::format("{} is not a directory", directory.string()));
+  if (!S_ISDIR(st.st_mode)) return fmt::format("{} is not a directory", directory.string());
   // bind() makes the socket file: it needs to write in the directory.
   if (::faccessat(AT_FDCWD, directory.c_str(), W_OK | X_OK, AT_EACCESS) != 0) {
     const int error = errno;
-    return problem(Setting::socket, fmt::format("markerd, running as user {}, cannot make the socket in {}: {}",
-                                                user_name(::geteuid()), directory.string(), errno_text(error)));
+    return fmt::format("markerd, running as user {}, cannot make the socket in {}: {}", user_name(::geteuid()),
+                       directory.string(), errno_text(error));
   }
   if (::lstat(path.c_str(), &st) == 0 && !S_ISSOCK(st.st_mode)) {
-    return problem(Setting::socket, "exists and is not a socket; it is left alone");
+    return "exists and is not a socket; it is left alone";
   }
-  if (!settings.group.empty()) {
-    const std::optional<gid_t> gid = group_id(settings.group);
-    if (!gid) {
-      return problem(Setting::group, fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, "
-                                                 "or name another in [control] group)",
-                                                 settings.group));
-    }
-    // Only root, or a member, may give a file to a group.
-    if (::geteuid() != 0 && !member_of(*gid)) {
-      return problem(Setting::group,
-                     fmt::format("markerd, running as user {}, is not a member of group '{}' and cannot give the "
-                                 "socket to it (the unit's Group= or SupplementaryGroups= makes it one)",
-                                 user_name(::geteuid()), settings.group));
-    }
+  return std::nullopt;
+}
+
+std::optional<std::string> find_socket_group_problem(const ControlSettings& settings) {
+  if (settings.group.empty()) return std::nullopt;
+  const std::optional<gid_t> gid = group_id(settings.group);
+  if (!gid) {
+    return fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, or name another in "
+                       "[control] group)",
+                       settings.group);
+  }
+  // Only root, or a member, may give a file to a group.
+  if (::geteuid() != 0 && !member_of(*gid)) {
+    return fmt::format("markerd, running as user {}, is not a member of group '{}' and cannot give the socket to it "
+                       "(the unit's Group= or SupplementaryGroups= makes it one)",
+                       user_name(::geteuid()), settings.group);
   }
   return std::nullopt;
 }
@@ -298,7 +295,8 @@ void ControlServer::set_up_socket() {
     socket_error(path, fmt::format("mode 0{:o} would give other users access; the socket moves the rig",
                                    static_cast<unsigned>(settings_.mode)));
   }
-  if (const auto problem = find_control_setup_problem(settings_)) socket_error(path, problem->message);
+  if (const auto problem = find_socket_path_problem(settings_)) socket_error(path, *problem);
+  if (const auto problem = find_socket_group_problem(settings_)) socket_error(path, *problem);
   const sockaddr_un address = socket_address(path);
   std::optional<gid_t> gid;
   if (!settings_.group.empty()) gid = group_id(settings_.group);

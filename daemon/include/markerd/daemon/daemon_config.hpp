@@ -68,6 +68,9 @@ struct ControlConfig {
   // check_control_setup() finds after parsing.
   std::string socket_origin;
   std::string group_origin;
+  // Not set, and not under systemd: /run/markerd/control.sock, whose
+  // directory the unit's RuntimeDirectory= makes when it starts markerd.
+  bool socket_is_runtime_default = false;
 };
 
 // [sweep]: where runs keep their records and the journal that resumes them.
@@ -103,6 +106,8 @@ DaemonConfig parse_daemon_config(const ConfigTable& root);
 // ConfigError naming the file, the line and the key. For --check-config,
 // which runs as markerd will (systemd's ExecStartPre): parsing alone does
 // not look, so that tools reading the config elsewhere are not refused.
+// The default socket's directory, which systemd makes at start, may be
+// missing outside systemd.
 void check_control_setup(const ControlConfig& config);
 
 // The detector configuration the pipeline's workers are made with.

@@ -75,16 +75,12 @@ class ControlSocketError : public std::runtime_error {
 };
 
 // What would keep start() from setting up the socket, found without making
-// anything (markerd --check-config names the config key it belongs to):
-// the path too long, its directory missing or closed to this process, a
-// file there that is not a socket, a group that does not exist or that this
-// process is not a member of.
-struct ControlSetupProblem {
-  enum class Setting { socket, group };
-  Setting setting = Setting::socket;
-  std::string message;  // without the socket's path, which the caller names
-};
-[[nodiscard]] std::optional<ControlSetupProblem> find_control_setup_problem(const ControlSettings& settings);
+// anything, in words that leave the socket's path to the caller (markerd
+// --check-config names the config key): the path too long, its directory
+// missing or closed to this process, a file there that is not a socket; a
+// group that does not exist or that this process is not a member of.
+[[nodiscard]] std::optional<std::string> find_socket_path_problem(const ControlSettings& settings);
+[[nodiscard]] std::optional<std::string> find_socket_group_problem(const ControlSettings& settings);
 
 // Takes the whole request object (its "cmd", "id" and arguments) and
 // returns the result: an object's members are added to the reply beside
