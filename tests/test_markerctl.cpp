@@ -4,6 +4,7 @@
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -177,6 +178,54 @@ TEST_F(Markerctl, SweepCheckOfflineListsThePlanAndRefusesPointsBeyondTheRail) {
   EXPECT_EQ(far.code, 1) << far.describe();
   EXPECT_NE(far.out.find("3.5"), std::string::npos) << far.describe();
   EXPECT_NE(far.out.find("max_position"), std::string::npos) << far.describe();
+}
+
+// Plans that are not regular files, or too large for markerd to take, are
+// refused before anything is sent: /dev/zero does not fill memory, a FIFO
+// does not hang, and a plan over the limit says its size and the limit
+// (the socket named here does not exist: the plan's error comes first).
+TEST_F(Markerctl, SweepCheckAndStartRefuseWhatIsNotAPlanFileBeforeSending) {
+  const std::string socket = path("no-markerd.sock");
+  ASSERT_EQ(::mkfifo(path("fifo.toml").c_str(), 0600), 0);
+  std::string big = "name = \"big\"\n[[grid]]\ndistance_m = [0.5]\nangle_deg = [0]\n";
+  big += "#" + std::string(200 * 1024, 'x') + "\n";
+  {
+    std::ofstream out(path("big.toml"));
+    out << big;
+  }
+  for (const char* command : {"check", "start"}) {
+    SCOPED_TRACE(command);
+    const Outcome zero = run({"sweep", command, "/dev/zero", "--socket", socket});
+    EXPECT_EQ(zero.code, 1) << zero.describe();
+    EXPECT_NE(zero.err.find("/dev/zero: the plan is a character device, not a file"), std::string::npos)
+        << zero.describe();
+    const Outcome fifo = run({"sweep", command, path("fifo.toml"), "--socket", socket});
+    EXPECT_EQ(fifo.code, 1) << fifo.describe();
+    EXPECT_NE(fifo.err.find("the plan is a FIFO, not a file"), std::string::npos) << fifo.describe();
+    const Outcome large = run({"sweep", command, path("big.toml"), "--socket", socket});
+    EXPECT_EQ(large.code, 1) << large.describe();
+    EXPECT_NE(large.err.find("the plan is 200.1 KiB (" + std::to_string(big.size()) +
+                             " bytes), larger than the 128 KiB allowed"),
+              std::string::npos)
+        << large.describe();
+  }
+  const Outcome offline = run({"sweep", "check", path("big.toml"), "--config",
+                               std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
+  EXPECT_EQ(offline.code, 1) << offline.describe();
+  EXPECT_NE(offline.err.find("larger than the 128 KiB allowed"), std::string::npos) << offline.describe();
+}
+
+TEST_F(Markerctl, SweepCheckOfflineRefusesAPlanForAFamilyTheConfigDoesNotDetect) {
+  {
+    std::ofstream out(path("tag.toml"));
+    out << "name = \"tag\"\n[marker]\nfamily = \"tag36h11\"\nid = 5\nsize_m = 0.16\n"
+           "[[grid]]\ndistance_m = [0.5]\nangle_deg = [0]\n";
+  }
+  const Outcome r = run({"sweep", "check", path("tag.toml"), "--config",
+                         std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
+  EXPECT_EQ(r.code, 1) << r.describe();
+  EXPECT_NE(r.err.find("tag36h11"), std::string::npos) << r.describe();
+  EXPECT_NE(r.err.find("markerd detects frame8"), std::string::npos) << r.describe();
 }
 
 // ---------------------------------------------------------------- usage

@@ -4,6 +4,8 @@
 // finds points beyond the soft limits and estimates the run's duration.
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <cmath>
@@ -149,7 +151,90 @@ TEST(SweepPlan, TextIsKeptVerbatimAndParsesBackToTheSamePlan) {
 TEST(SweepPlan, LoadingAMissingFileNamesIt) {
   const auto path = kSourceDir / "config/plans/no-such-plan.toml";
   const std::string error = error_of([&] { (void)load_plan(path); });
-  EXPECT_EQ(error, path.string() + ": cannot open: No such file or directory");
+  EXPECT_EQ(error, path.string() + ": the plan cannot be read: No such file or directory");
+}
+
+TEST(SweepPlan, OnlyARegularFileOfAtMostTheLimitIsReadAsAPlan) {
+  // /dev/zero never ends and a FIFO without a writer never answers: both are
+  // refused at once, by what they are.
+  EXPECT_EQ(error_of([] { (void)load_plan("/dev/zero"); }), "/dev/zero: the plan is a character device, not a file");
+  const auto fifo = std::filesystem::temp_directory_path() / ("markerd-plan-fifo-" + std::to_string(::getpid()));
+  std::filesystem::remove(fifo);
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_EQ(error_of([&] { (void)load_plan(fifo); }), fifo.string() + ": the plan is a FIFO, not a file");
+  std::filesystem::remove(fifo);
+  EXPECT_THROW((void)load_plan(kSourceDir / "config/plans"), ConfigError);
+
+  // One byte over the limit, in a file and as text (what markerd's sweep
+  // commands are sent): the size and the limit, before anything is parsed.
+  const std::string grid = "[[grid]]\ndistance_m = [0.5]\nangle_deg = [0]\n";
+  std::string big = "name = \"big\"\n" + grid;
+  big += "#" + std::string(kMaxPlanBytes - big.size() - 2, 'x') + "\n";
+  ASSERT_EQ(big.size(), kMaxPlanBytes);
+  EXPECT_EQ(parse_plan(big).name, "big");  // at the limit: fine
+  big.insert(0, " ");
+  EXPECT_EQ(plan_error(big), "<string>: the plan is 128.0 KiB (131073 bytes), larger than the 128 KiB allowed");
+  const auto file = std::filesystem::temp_directory_path() / ("markerd-plan-big-" + std::to_string(::getpid()));
+  {
+    std::ofstream out(file);
+    out << big;
+  }
+  EXPECT_EQ(error_of([&] { (void)load_plan(file); }),
+            file.string() + ": the plan is 128.0 KiB (131073 bytes), larger than the 128 KiB allowed");
+  std::filesystem::remove(file);
+}
+
+TEST(SweepPlan, EveryNumberHasARangeThatMeansSomething) {
+  const std::string grid = "[[grid]]\ndistance_m = [0.5]\nangle_deg = [0]\n";
+  EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nsize_m = 1e300\n" + grid),
+            "<string>:3: marker.size_m: must be from 0.005 to 2 m, got 1e+300");
+  EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nsize_m = 0.001\n" + grid),
+            "<string>:3: marker.size_m: must be from 0.005 to 2 m, got 0.001");
+  EXPECT_EQ(plan_error("name = \"x\"\nframes_per_point = 1000000\n" + grid),
+            "<string>:2: frames_per_point: must be from 1 to 10000 frames, got 1000000");
+  EXPECT_EQ(plan_error("name = \"x\"\nrepeats = 9223372036854775807\n" + grid),
+            "<string>:2: repeats: must be an integer from -2147483648 to 2147483647, got 9223372036854775807");
+  EXPECT_EQ(plan_error("name = \"x\"\nsettle_s = 1e9\n" + grid), "<string>:2: settle_s: must be from 0 to 600 s, got 1000000000");
+  EXPECT_EQ(plan_error("name = \"x\"\npoint_timeout_s = inf\n" + grid),
+            "<string>:2: point_timeout_s: must be a finite number, got inf");
+  EXPECT_EQ(plan_error("name = \"x\"\nfault_timeout_s = 1e7\n" + grid),
+            "<string>:2: fault_timeout_s: must be from 0 to 604800 s (0: wait for ever), got 10000000");
+  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = [0.5, 1e300]\nangle_deg = [0]\n")),
+            "<string>:7: grid[0].distance_m: element 1: must be from 0.01 to 100 m (from the camera to the turntable "
+            "axis), got 1e+300");
+  // A step far below anything a rig resolves: the range, not a count of 300 digits.
+  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = { from = 0.3, to = 2.8, step = 1e-300 }\nangle_deg = [0]\n")),
+            "<string>:7: grid[0].distance_m.step: must be from 0.0001 to 100 m, got 1e-300");
+  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = [0.5]\nangle_deg = { from = 0, to = 80, step = 1e-300 }\n")),
+            "<string>:8: grid[0].angle_deg.step: must be from 0.001 to 180 deg, got 1e-300");
+  // A range whose end is far off: the count stays short.
+  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = { from = 0.3, to = 1e300, step = 1 }\nangle_deg = [0]\n")),
+            "<string>:7: grid[0].distance_m.step: makes 1e+300 values from 0.3 to 1e+300, more than 10000");
+  // The points a plan expands to are bounded, across grids too.
+  std::string grids;
+  for (int g = 0; g < 3; ++g) {
+    grids += "[[grid]]\nname = \"g" + std::to_string(g) +
+             "\"\ndistance_m = { from = 0.1, to = 10, step = 0.001 }\nangle_deg = { from = 0, to = 50, step = 1 }\n";
+  }
+  EXPECT_EQ(plan_error(plan_text(grids)),
+            "<string>: the plan makes at least 1009902 measurements (points times repeats), more than 1000000");
+}
+
+TEST(SweepPlan, APlanForAFamilyTheDetectorDoesNotFindIsAProblem) {
+  markerd::DetectorConfig frame8;
+  frame8.family = markerd::Family::frame8;
+  const PlanMarker tag{markerd::Family::tag36h11, 5, 0.16};
+  const auto problem = marker_problem(tag, frame8);
+  ASSERT_TRUE(problem.has_value());
+  EXPECT_NE(problem->find("tag36h11"), std::string::npos) << *problem;
+  EXPECT_NE(problem->find("frame8"), std::string::npos) << *problem;
+  EXPECT_FALSE(marker_problem({markerd::Family::frame8, 165, 0.16}, frame8).has_value());
+  // frame8's 0 and 255 come only with uniform_ids.
+  const auto zero = marker_problem({markerd::Family::frame8, 0, 0.08}, frame8);
+  ASSERT_TRUE(zero.has_value());
+  EXPECT_NE(zero->find("uniform_ids"), std::string::npos) << *zero;
+  frame8.frame8.uniform_ids = true;
+  EXPECT_FALSE(marker_problem({markerd::Family::frame8, 0, 0.08}, frame8).has_value());
 }
 
 TEST(SweepPlan, FloatRangesReachTheirEndWithoutDrift) {
@@ -218,7 +303,7 @@ distance_m = { from = 1.0, to = 2.0, step = 0 }
 angle_deg = [0]
 )";
   // plan_text puts 5 lines before the grids: "far"'s distance_m is line 13.
-  EXPECT_EQ(plan_error(plan_text(grids)), "<string>:13: grid[1].distance_m.step: must be a finite number > 0, got 0");
+  EXPECT_EQ(plan_error(plan_text(grids)), "<string>:13: grid[1].distance_m.step: must be from 0.0001 to 100 m, got 0");
 
   EXPECT_EQ(plan_error(plan_text(R"([[grid]]
 distance_m = [0.5]
@@ -230,8 +315,8 @@ angle_deg = { from = 0, to = 90, step = 5 }
 distance_m = [0.5, 0, 1.0]
 angle_deg = [0]
 )")),
-            "<string>:7: grid[0].distance_m: element 1: must be > 0 (metres from the camera to the turntable axis), "
-            "got 0");
+            "<string>:7: grid[0].distance_m: element 1: must be from 0.01 to 100 m (from the camera to the turntable "
+            "axis), got 0");
   EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = []\nangle_deg = [0]\n")),
             "<string>:7: grid[0].distance_m: is empty: a grid needs at least one value on each axis");
   EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = [0.5]\nangle_deg = [nan]\n")),
@@ -246,8 +331,8 @@ angle_deg = [0]
   EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = { from = 2, to = 1, step = 0.1 }\nangle_deg = [0]\n")),
             "<string>:7: grid[0].distance_m.to: must be >= from (2), got 1 (a range ascends; for another order list "
             "the values)");
-  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = { from = 1, to = 2, step = 1e-6 }\nangle_deg = [0]\n")),
-            "<string>:7: grid[0].distance_m.step: makes 1000001 values from 1 to 2, more than 10000");
+  EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = { from = 0.01, to = 2, step = 1e-4 }\nangle_deg = [0]\n")),
+            "<string>:7: grid[0].distance_m.step: makes 19901 values from 0.01 to 2, more than 10000");
   EXPECT_EQ(plan_error(plan_text("[[grid]]\ndistance_m = 0.5\nangle_deg = [0]\n")),
             "<string>:7: grid[0].distance_m: must be a list of numbers ([0.5, 0.95]) or a range ({ from = 0.3, to = "
             "2.8, step = 0.1 })");
@@ -265,13 +350,14 @@ TEST(SweepPlan, TopLevelErrorsNameTheLineAndTheKey) {
   EXPECT_EQ(plan_error("name = \"a b\"\n" + grid),
             "<string>:1: name: must be 1 to 64 of A-Z a-z 0-9 . _ - (it names the plan's runs), got \"a b\"");
   EXPECT_EQ(plan_error(grid), "<string>: missing key 'name' (a string)");
-  EXPECT_EQ(plan_error("name = \"x\"\nrepeats = 0\n" + grid), "<string>:2: repeats: must be >= 1, got 0");
+  EXPECT_EQ(plan_error("name = \"x\"\nrepeats = 0\n" + grid),
+            "<string>:2: repeats: must be from 1 to 1000 measurements per point, got 0");
   EXPECT_EQ(plan_error("name = \"x\"\nframes_per_point = 2.5\n" + grid),
             "<string>:2: frames_per_point: must be an integer");
   EXPECT_EQ(plan_error("name = \"x\"\nsettle_s = -1\n" + grid),
-            "<string>:2: settle_s: must be a finite number >= 0, got -1");
+            "<string>:2: settle_s: must be from 0 to 600 s, got -1");
   EXPECT_EQ(plan_error("name = \"x\"\npoint_timeout_s = 0\n" + grid),
-            "<string>:2: point_timeout_s: must be a finite number > 0, got 0");
+            "<string>:2: point_timeout_s: must be from 0.1 to 86400 s, got 0");
   EXPECT_EQ(plan_error("name = \"x\"\ndetection_threshold = 1.5\n" + grid),
             "<string>:2: detection_threshold: must lie in (0, 1] (a share of the frames), got 1.5");
   EXPECT_EQ(plan_error("name = \"x\"\n"), "<string>: missing [[grid]]: a plan visits the points of one or more grids");
@@ -284,7 +370,7 @@ TEST(SweepPlan, TopLevelErrorsNameTheLineAndTheKey) {
   EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nfamily = \"aruco4x4_50\"\n" + grid),
             "<string>:2: marker.id: must be 0 .. 49 for aruco4x4_50, got 165 (the default: give the marker's id)");
   EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nsize_m = 0\n" + grid),
-            "<string>:3: marker.size_m: must be a finite number > 0 (metres), got 0");
+            "<string>:3: marker.size_m: must be from 0.005 to 2 m, got 0");
   EXPECT_EQ(plan_error("name = \"x\"\nname = \"y\"\n" + grid).substr(0, 11), "<string>:2:");  // TOML syntax
 }
 

@@ -3,16 +3,13 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
-#include <cstring>
-#include <fstream>
 #include <memory>
 #include <optional>
-#include <sstream>
 #include <utility>
 #include <variant>
 
+#include "markerd/base/read_file.hpp"
 #include "markerd/rig/motion_profile.hpp"
 
 namespace markerd::sweep {
@@ -25,8 +22,21 @@ constexpr std::size_t kMaxValuesPerAxis = 10000;
 constexpr std::size_t kMaxSteps = 1000000;
 // Plan names end up in run directory names, grid names in report files.
 constexpr std::size_t kMaxNameLength = 64;
-// Times are kept in milliseconds: this keeps the conversion far from overflow.
-constexpr double kMaxSeconds = 1e7;
+
+// The ranges in which a plan's numbers mean something physically. A rig's
+// rail is a few metres long and resolves hundredths of a millimetre; a
+// printed marker is a few millimetres to a poster; a measurement takes
+// seconds, and a fault worth waiting for hours, not months.
+constexpr ConfigTable::Range<int> kFramesPerPoint{1, 10000, "frames"};
+constexpr ConfigTable::Range<int> kRepeats{1, 1000, "measurements per point"};
+constexpr ConfigTable::Range<double> kSettleSeconds{0, 600, "s"};
+constexpr ConfigTable::Range<double> kPointTimeoutSeconds{0.1, 86400, "s"};
+constexpr ConfigTable::Range<double> kFaultTimeoutSeconds{0, 7 * 86400, "s (0: wait for ever)"};
+constexpr ConfigTable::Range<double> kMarkerSize{0.005, 2, "m"};
+constexpr double kMinDistance = 0.01;  // metres: a camera touching the marker sees no marker
+constexpr double kMaxDistance = 100;
+constexpr ConfigTable::Range<double> kDistanceStep{0.0001, 100, "m"};
+constexpr ConfigTable::Range<double> kAngleStep{0.001, 180, "deg"};
 
 bool valid_name(std::string_view name) {
   const auto allowed = [](char c) {
@@ -44,25 +54,12 @@ std::string read_name(const ConfigTable& t, std::string_view key, std::string na
   return name;
 }
 
-// A number of seconds, kept as milliseconds.
+// A number of seconds in `range`, kept as milliseconds.
 std::chrono::milliseconds read_seconds(const ConfigTable& t, std::string_view key, std::chrono::milliseconds fallback,
-                                       bool zero_allowed) {
-  const auto seconds = t.maybe<double>(key);
+                                       ConfigTable::Range<double> range) {
+  const auto seconds = t.maybe<double>(key, range);
   if (!seconds) return fallback;
-  const double s = *seconds;
-  if (!std::isfinite(s) || s < 0 || (!zero_allowed && s == 0)) {
-    t.fail(key, fmt::format("must be a finite number {} 0, got {}", zero_allowed ? ">=" : ">", s));
-  }
-  if (s > kMaxSeconds) t.fail(key, fmt::format("must be at most {} s, got {}", kMaxSeconds, s));
-  const std::chrono::milliseconds ms(std::llround(s * 1000));
-  if (!zero_allowed && ms.count() == 0) t.fail(key, fmt::format("must be at least 0.001 s (a millisecond), got {}", s));
-  return ms;
-}
-
-int read_at_least_one(const ConfigTable& t, std::string_view key, int fallback) {
-  const int value = t.optional<int>(key, fallback);
-  if (value < 1) t.fail(key, fmt::format("must be >= 1, got {}", value));
-  return value;
+  return std::chrono::milliseconds(std::llround(*seconds * 1000));
 }
 
 PlanMarker parse_marker(const ConfigTable& root) {
@@ -86,10 +83,7 @@ PlanMarker parse_marker(const ConfigTable& root) {
     t->fail("id", fmt::format("must be 0 .. {} for {}, got {}{}", info.id_count - 1, info.name, marker.id,
                               id_given ? "" : " (the default: give the marker's id)"));
   }
-  marker.size_m = t->optional<double>("size_m", marker.size_m);
-  if (!std::isfinite(marker.size_m) || !(marker.size_m > 0)) {
-    t->fail("size_m", fmt::format("must be a finite number > 0 (metres), got {}", marker.size_m));
-  }
+  marker.size_m = t->optional<double>("size_m", marker.size_m, kMarkerSize);
   return marker;
 }
 
@@ -98,8 +92,9 @@ enum class Quantity { distance, angle };
 // What is wrong with one value of an axis, if anything.
 std::optional<std::string> value_problem(Quantity quantity, double value) {
   if (!std::isfinite(value)) return fmt::format("must be a finite number, got {}", value);
-  if (quantity == Quantity::distance && !(value > 0)) {
-    return fmt::format("must be > 0 (metres from the camera to the turntable axis), got {}", value);
+  if (quantity == Quantity::distance && !(value >= kMinDistance && value <= kMaxDistance)) {
+    return fmt::format("must be from {} to {} m (from the camera to the turntable axis), got {}", kMinDistance,
+                       kMaxDistance, value);
   }
   // At 90 deg the marker is seen edge on: nothing to detect, and ground_truth's
   // pose would be degenerate.
@@ -118,9 +113,10 @@ std::vector<double> parse_range(const ConfigTable& range, Quantity quantity) {
   range.allow_only({"from", "to", "step"});
   const double from = range.required<double>("from");
   const double to = range.required<double>("to");
-  const double step = range.required<double>("step");
+  // A step below what any rig resolves is a typo (1e-300 would make a count
+  // of 300 digits).
+  const double step = range.required<double>("step", quantity == Quantity::distance ? kDistanceStep : kAngleStep);
   if (auto problem = value_problem(quantity, from)) range.fail("from", *problem);
-  if (!std::isfinite(step) || !(step > 0)) range.fail("step", fmt::format("must be a finite number > 0, got {}", step));
   if (!std::isfinite(to)) range.fail("to", fmt::format("must be a finite number, got {}", to));
   if (!(from <= to)) {
     range.fail("to", fmt::format("must be >= from ({}), got {} (a range ascends; for another order list the values)",
@@ -130,7 +126,8 @@ std::vector<double> parse_range(const ConfigTable& range, Quantity quantity) {
   // 24.999999999999996, and 2.8 belongs to the range.
   const double steps_to_end = (to - from) / step + 1e-9;
   if (!(steps_to_end < static_cast<double>(kMaxValuesPerAxis))) {
-    range.fail("step", fmt::format("makes {:.0f} values from {} to {}, more than {}", std::floor(steps_to_end) + 1, from,
+    // {:.7g}: exact up to ten million, and a far `to` prints as 1e+300, not 300 digits.
+    range.fail("step", fmt::format("makes {:.7g} values from {} to {}, more than {}", std::floor(steps_to_end) + 1, from,
                                    to, kMaxValuesPerAxis));
   }
   const auto last = static_cast<std::size_t>(std::floor(steps_to_end));
@@ -307,6 +304,7 @@ std::string describe_values(const std::vector<double>& values, std::string_view 
 }  // namespace
 
 SweepPlan parse_plan(std::string_view text, std::string source) {
+  if (text.size() > kMaxPlanBytes) throw ConfigError(plan_too_large(source, text.size()));
   const ConfigTable root = ConfigTable::parse(text, source);
   root.allow_only({"name", "description", "frames_per_point", "repeats", "settle_s", "point_timeout_s",
                    "detection_threshold", "fault_timeout_s", "marker", "grid"});
@@ -315,11 +313,11 @@ SweepPlan parse_plan(std::string_view text, std::string source) {
   plan.text = std::string(text);
   plan.name = read_name(root, "name", root.required<std::string>("name"), "the plan's runs");
   plan.description = root.optional<std::string>("description", "");
-  plan.frames_per_point = read_at_least_one(root, "frames_per_point", plan.frames_per_point);
-  plan.repeats = read_at_least_one(root, "repeats", plan.repeats);
-  plan.settle = read_seconds(root, "settle_s", plan.settle, true);
-  plan.point_timeout = read_seconds(root, "point_timeout_s", plan.point_timeout, false);
-  plan.fault_timeout = read_seconds(root, "fault_timeout_s", plan.fault_timeout, true);
+  plan.frames_per_point = root.optional<int>("frames_per_point", plan.frames_per_point, kFramesPerPoint);
+  plan.repeats = root.optional<int>("repeats", plan.repeats, kRepeats);
+  plan.settle = read_seconds(root, "settle_s", plan.settle, kSettleSeconds);
+  plan.point_timeout = read_seconds(root, "point_timeout_s", plan.point_timeout, kPointTimeoutSeconds);
+  plan.fault_timeout = read_seconds(root, "fault_timeout_s", plan.fault_timeout, kFaultTimeoutSeconds);
   plan.detection_threshold = root.optional<double>("detection_threshold", plan.detection_threshold);
   if (!(plan.detection_threshold > 0 && plan.detection_threshold <= 1)) {
     root.fail("detection_threshold",
@@ -328,25 +326,53 @@ SweepPlan parse_plan(std::string_view text, std::string source) {
   plan.marker = parse_marker(root);
   plan.grids = parse_grids(root, text, source);
 
+  // Each grid is bounded (values per axis, repeats), so the sum cannot
+  // overflow before it passes the limit.
   std::size_t steps = 0;
   for (const PlanGrid& grid : plan.grids) {
     steps += grid.distances_m.size() * grid.angles_deg.size() * static_cast<std::size_t>(plan.repeats);
+    if (steps > kMaxSteps) break;
   }
   if (steps > kMaxSteps) {
-    root.fail(fmt::format("the plan makes {} measurements (points times repeats), more than {}", steps, kMaxSteps));
+    root.fail(fmt::format("the plan makes {}{} measurements (points times repeats), more than {}",
+                          plan.grids.size() > 1 ? "at least " : "", steps, kMaxSteps));
   }
   return plan;
+}
+
+std::string plan_too_large(std::string_view source, std::size_t bytes) {
+  return fmt::format("{}: the plan is {} ({} bytes), larger than the {} allowed", source, format_bytes(bytes), bytes,
+                     format_bytes(kMaxPlanBytes));
+}
+
+std::string read_plan_file(const std::filesystem::path& path) {
+  try {
+    return read_regular_file(path, kMaxPlanBytes, "the plan");
+  } catch (const FileError& e) {
+    throw ConfigError(e.what());
+  }
 }
 
 SweepPlan load_plan(const std::filesystem::path& path) {
   // Read here rather than by ConfigTable::load_file: the text goes into the
   // run's records verbatim, and is parsed again from there.
-  std::ifstream file(path, std::ios::binary);
-  if (!file) throw ConfigError(fmt::format("{}: cannot open: {}", path.string(), std::strerror(errno)));
-  std::ostringstream text;
-  text << file.rdbuf();
-  if (file.bad()) throw ConfigError(fmt::format("{}: cannot read: {}", path.string(), std::strerror(errno)));
-  return parse_plan(text.str(), path.string());
+  return parse_plan(read_plan_file(path), path.string());
+}
+
+std::optional<std::string> marker_problem(const PlanMarker& marker, const DetectorConfig& detector) {
+  const FamilyInfo& info = family_info(marker.family);
+  if (marker.family != detector.family) {
+    return fmt::format("the plan's marker is {} #{}, but markerd detects {} (its config's [marker] family): run the "
+                       "plan on a markerd configured for {}, or give the plan the family markerd detects",
+                       info.name, marker.id, family_info(detector.family).name, info.name);
+  }
+  const bool reported = marker.id >= info.first_default_id && marker.id <= info.last_default_id;
+  if (!reported && !(marker.family == Family::frame8 && detector.frame8.uniform_ids)) {
+    return fmt::format("the plan's marker is {} #{}, an id markerd's detector does not report (frame8's 0 and 255 "
+                       "need [detector.frame8] uniform_ids = true in markerd's config)",
+                       info.name, marker.id);
+  }
+  return std::nullopt;
 }
 
 std::vector<PlanStep> plan_steps(const SweepPlan& plan) {

@@ -6,7 +6,9 @@
 //   sweep pause | resume | abort [--reason TEXT]
 //
 // The plan file is read here and sent as text: markerd may not be allowed to
-// read where the operator keeps it, and the run's records keep the text.
+// read where the operator keeps it, and the run's records keep the text. A
+// plan over sweep::kMaxPlanBytes (or not a regular file) is refused here,
+// before anything is sent.
 
 #include <unistd.h>
 
@@ -26,7 +28,6 @@
 #include "common.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/sweep/plan.hpp"
-#include "markerd/sweep/records.hpp"
 
 namespace markerctl {
 
@@ -37,8 +38,8 @@ using namespace std::chrono_literals;
 
 std::string read_plan_text(const std::string& context, const std::string& path) {
   try {
-    return markerd::sweep::read_text_file(path);
-  } catch (const std::exception& e) {
+    return markerd::sweep::read_plan_file(path);
+  } catch (const markerd::ConfigError& e) {
     throw runtime_error(context, e.what());
   }
 }
@@ -118,6 +119,9 @@ int run_check(const std::string& socket, const std::string& plan_path, const std
       const markerd::sweep::SweepPlan plan = markerd::sweep::parse_plan(text, plan_path);
       const markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
       if (!config.rig) throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
+      if (auto problem = markerd::sweep::marker_problem(plan.marker, markerd::daemon::detector_config(config))) {
+        throw runtime_error(context, fmt::format("plan {} cannot run with {}: {}", plan_path, config_path, *problem));
+      }
       const double fps = std::visit([](const auto& s) { return s.fps; }, config.camera.source);
       const markerd::sweep::PlanCheck check = markerd::sweep::check_plan(plan, *config.rig, fps);
       std::cout << markerd::sweep::format_plan_check(plan, check);

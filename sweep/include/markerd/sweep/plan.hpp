@@ -16,6 +16,7 @@
 #include <string_view>
 #include <vector>
 
+#include "markerd/detector/detector.hpp"
 #include "markerd/detector/family.hpp"
 #include "markerd/base/config_table.hpp"
 #include "markerd/rig/rig_config.hpp"
@@ -62,9 +63,29 @@ struct SweepPlan {
   std::chrono::milliseconds fault_timeout{std::chrono::minutes(10)};
 };
 
-// Parses and checks a plan. ConfigError on any mistake.
+// The largest plan text anyone reads or sends: the thesis's plans are a
+// few KiB, and lists of thousands of values fit. Every reader of plans holds to it: markerctl before it
+// sends a plan, markerd's sweep commands, the loaders here; markerd's control
+// requests are long enough for a plan of this size, JSON-escaped.
+inline constexpr std::size_t kMaxPlanBytes = 128 * 1024;
+
+// Parses and checks a plan. ConfigError on any mistake, a text over
+// kMaxPlanBytes included.
 SweepPlan parse_plan(std::string_view text, std::string source = "<string>");
+// The text of a plan file: a regular file of at most kMaxPlanBytes
+// (ConfigError otherwise, naming the file and saying why: a FIFO, /dev/zero
+// or a file too large fails at once).
+[[nodiscard]] std::string read_plan_file(const std::filesystem::path& path);
 SweepPlan load_plan(const std::filesystem::path& path);
+// "big.toml: the plan is 200 KiB (204800 bytes), larger than the 128 KiB allowed"
+[[nodiscard]] std::string plan_too_large(std::string_view source, std::size_t bytes);
+
+// Why markerd's detectors, set up as `detector`, cannot measure the plan's
+// marker (another family; an id the detector does not report), or nothing.
+// markerd runs one family's detector, from its config: a plan for another
+// family would end "done" with nothing detected. The marker's size is no
+// problem: the runner rescales poses to it.
+[[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker, const DetectorConfig& detector);
 
 // One unit of work: a measurement (repeat) at a point. A run is the plan's
 // steps in order; the journal records each one done.
