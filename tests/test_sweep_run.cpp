@@ -13,6 +13,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -363,6 +364,9 @@ TEST_F(SweepRunTest, ARunCutOffIsResumedByTheNextDaemonAtTheStepItWasIn) {
     done_before = sweep::read_run(run).points.size();
   }
   ASSERT_TRUE(fs::exists(dir_ / "state/sweep-journal.json"));
+  // A journal write that a full disk cut off leaves an empty temporary
+  // beside the journal: it is not the journal.
+  write_file(dir_ / "state/sweep-journal.json.tmp", "");
   auto d = make_daemon();
   auto& r = runner(*d);
   EXPECT_EQ(r.progress().run_directory, run);
@@ -371,10 +375,201 @@ TEST_F(SweepRunTest, ARunCutOffIsResumedByTheNextDaemonAtTheStepItWasIn) {
   expect_every_step_once(records);
   ASSERT_GE(records.events.size(), 2U);
   EXPECT_EQ(count_events(records, "restarted"), 1U);
+  // The records say what interrupted the run: markerd was stopped.
+  EXPECT_EQ(count_events(records, "stopped"), 1U);
   for (const auto& e : records.events) {
+    if (e.kind == "stopped") {
+      EXPECT_EQ(e.step, done_before);
+      EXPECT_NE(e.reason.find("markerd was stopped"), std::string::npos) << e.reason;
+    }
     if (e.kind == "restarted") {
       EXPECT_EQ(e.step, done_before);
+      EXPECT_NE(e.reason.find(fmt::format("markerd stopped at step {}", done_before)), std::string::npos) << e.reason;
     }
+  }
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::done);
+}
+
+TEST_F(SweepRunTest, ARunMarkerdLeftWithoutAWordIsResumedAndItsRecordsSaySo) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 2; }));
+    d->stop();
+  }
+  // What a kill -9 or a power cut leaves: the journal as it was while the
+  // run went on, and a temporary cut short beside it.
+  write_file(dir_ / "state/sweep-journal.json",
+             nlohmann::json{{"run_directory", run.string()}, {"state", "running"}, {"paused", false}}.dump());
+  write_file(dir_ / "state/sweep-journal.json.tmp", R"({"run_directory": "/va)");
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  EXPECT_EQ(r.progress().run_directory, run);
+  EXPECT_EQ(r.wait_finished(120s), RunState::done) << r.progress().reason;
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  ASSERT_EQ(count_events(records, "restarted"), 1U);
+  for (const auto& e : records.events) {
+    if (e.kind == "restarted") {
+      EXPECT_NE(e.reason.find("kill -9"), std::string::npos) << e.reason;
+    }
+  }
+}
+
+// A failed run whose stop record a full disk kept off the disk: the journal
+// says it failed, so no markerd resumes it, and once there is room its stop
+// record says failed and why. The full disk: the temporaries that the
+// records and the journal are written through are made /dev/full, where
+// every write fails with ENOSPC.
+TEST_F(SweepRunTest, AFailedRunWhoseStopRecordCouldNotBeWrittenIsNeverResumed) {
+  fs::path run;
+  std::string reason;
+  std::size_t steps_done = 0;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    auto* rail = dynamic_cast<rig::SimDrive*>(&d->rig()->rail().drive());
+    ASSERT_NE(rail, nullptr);
+    std::string plan = kPlan;
+    plan.replace(plan.find("fault_timeout_s = 60"), 20, "fault_timeout_s = 1");
+    run = r.start(sweep::parse_plan(plan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 2; }));
+    fs::create_symlink("/dev/full", run / "stop.json.tmp");
+    fs::create_symlink("/dev/full", dir_ / "state/sweep-journal.json.tmp");
+    rail->set_communication_lost(true);
+    ASSERT_EQ(r.wait_finished(30s), RunState::failed);
+    reason = r.progress().reason;
+    steps_done = r.progress().steps_done;
+    EXPECT_NE(r.progress().reason.find("stop record could not be written"), std::string::npos) << r.progress().reason;
+    EXPECT_FALSE(fs::exists(run / "stop.json"));
+    // The journal could not be replaced, so it was overwritten in place: it
+    // says the run failed.
+    const auto journal = nlohmann::json::parse(read_file(dir_ / "state/sweep-journal.json"));
+    EXPECT_EQ(journal["state"], "failed") << journal.dump();
+    EXPECT_EQ(journal["stop"]["exit_status"], "failed") << journal.dump();
+    d->stop();
+    rail->set_communication_lost(false);
+  }
+  // markerd starts again on a disk that is still full: the run is not
+  // resumed, nothing moves, and the runner says how that run ended.
+  fs::remove(dir_ / "state/sweep-journal.json.tmp");
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    EXPECT_EQ(r.progress().state, RunState::failed);
+    std::this_thread::sleep_for(500ms);
+    const rig::RigSnapshot s = d->rig()->snapshot();
+    EXPECT_FALSE(s.rail.homed);
+    EXPECT_FALSE(s.rail.moving);
+    EXPECT_FALSE(fs::exists(run / "stop.json"));
+    EXPECT_TRUE(fs::exists(dir_ / "state/sweep-journal.json"));
+    // Nor does a new run take its journal away while it cannot be ended.
+    try {
+      (void)r.start(sweep::parse_plan(kPlan, "small.toml"));
+      ADD_FAILURE() << "a new run replaced the journal of a run whose end is not recorded";
+    } catch (const sweep::SweepError& e) {
+      EXPECT_NE(std::string(e.what()).find("stop record still cannot be written"), std::string::npos) << e.what();
+    }
+  }
+  // With room on the disk again the next markerd writes the stop record.
+  fs::remove(run / "stop.json.tmp");
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  EXPECT_EQ(r.progress().state, RunState::failed);
+  EXPECT_EQ(r.progress().run_directory, run);
+  EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
+  const sweep::RunRecords records = sweep::read_run(run);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::failed);
+  EXPECT_NE(records.stop->reason.find("fault_timeout"), std::string::npos) << records.stop->reason;
+  EXPECT_NE(records.stop->reason.find("rail"), std::string::npos) << records.stop->reason;
+  // The stop record starts with what the runner said when the run failed.
+  const std::string failure = reason.substr(0, reason.find(" (its stop record"));
+  EXPECT_EQ(records.stop->reason.rfind(failure, 0), 0U) << records.stop->reason << "\n" << failure;
+  EXPECT_EQ(records.stop->steps_done, steps_done);
+  EXPECT_EQ(records.points.size(), steps_done);
+  EXPECT_EQ(count_events(records, "restarted"), 0U);
+  EXPECT_FALSE(d->rig()->snapshot().rail.homed);
+}
+
+TEST_F(SweepRunTest, AnAbortedRunWhoseStopRecordCouldNotBeWrittenIsNeverResumed) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 1; }));
+    fs::create_symlink("/dev/full", run / "stop.json.tmp");
+    r.abort("the operator needs the rig");
+    ASSERT_EQ(r.wait_finished(10s), RunState::aborted);
+    EXPECT_FALSE(fs::exists(run / "stop.json"));
+    EXPECT_EQ(nlohmann::json::parse(read_file(dir_ / "state/sweep-journal.json"))["state"], "aborted");
+  }
+  fs::remove(run / "stop.json.tmp");
+  auto d = make_daemon();
+  EXPECT_EQ(runner(*d).progress().state, RunState::aborted);
+  const sweep::RunRecords records = sweep::read_run(run);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::aborted);
+  EXPECT_EQ(records.stop->reason.rfind("the operator needs the rig", 0), 0U) << records.stop->reason;
+  EXPECT_EQ(count_events(records, "restarted"), 0U);
+  EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
+}
+
+// The simulated camera renders the config's 80 mm marker; a plan that says
+// its marker is 160 mm gets poses for a 160 mm marker: twice as far.
+TEST_F(SweepRunTest, ThePlansMarkerSizeIsWhatThePosesAreFor) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  std::string plan = kPlan;
+  plan.replace(plan.find("size_m = 0.08"), 13, "size_m = 0.16");
+  plan.replace(plan.find("repeats = 2"), 11, "repeats = 1");
+  plan.replace(plan.find("[0.4, 0.7, 1.0, 1.3]"), 20, "[0.5]");
+  plan.resize(plan.find("[[grid]]\nname = \"angle\""));
+  const fs::path run = r.start(sweep::parse_plan(plan, "big-marker.toml"));
+  ASSERT_EQ(r.wait_finished(60s), RunState::done) << r.progress().reason;
+  const sweep::RunRecords records = sweep::read_run(run);
+  ASSERT_EQ(records.points.size(), 1U);
+  const sweep::PointRecord& p = records.points.front();
+  ASSERT_EQ(p.frames.size(), 4U);
+  for (const sweep::FrameSample& f : p.frames) {
+    ASSERT_TRUE(f.detected);
+    ASSERT_TRUE(f.has_pose);
+    EXPECT_NEAR(f.tvec_m[2], 2 * p.truth_tvec_m[2], 0.03 * p.truth_tvec_m[2]);
+    EXPECT_NEAR(f.distance_error_mm, 1000 * std::hypot(p.truth_tvec_m[0], p.truth_tvec_m[1], p.truth_tvec_m[2]),
+                30 * p.distance_m);
+  }
+}
+
+TEST_F(SweepRunTest, APlanForAFamilyTheDaemonDoesNotDetectIsRefusedAtCheckAndStart) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  std::string text = kPlan;
+  text.replace(text.find("family = \"frame8\""), 17, "family = \"tag36h11\"");
+  const sweep::SweepPlan plan = sweep::parse_plan(text, "tag.toml");
+  for (const auto& attempt : {std::function<void()>([&] { (void)r.check(plan); }),
+                              std::function<void()>([&] { (void)r.start(plan); })}) {
+    try {
+      attempt();
+      ADD_FAILURE() << "a tag36h11 plan passed on a frame8 markerd";
+    } catch (const sweep::SweepError& e) {
+      EXPECT_NE(std::string(e.what()).find("tag36h11"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("frame8"), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(r.progress().state, RunState::idle);
+  EXPECT_TRUE(fs::is_empty(dir_ / "state/runs"));
+
+  daemon::ControlClient client(dir_ / "control.sock");
+  for (const char* command : {"sweep.check", "sweep.start"}) {
+    const nlohmann::json reply = client.call({{"cmd", command}, {"plan", text}, {"source", "tag.toml"}});
+    EXPECT_FALSE(reply.value("ok", true)) << reply.dump();
+    const std::string error = reply.value("error", std::string());
+    EXPECT_NE(error.find("tag36h11"), std::string::npos) << reply.dump();
+    EXPECT_NE(error.find("frame8"), std::string::npos) << reply.dump();
   }
 }
 

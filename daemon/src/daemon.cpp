@@ -59,6 +59,8 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
 
   [[nodiscard]] double camera_fps() const override { return configured_fps(daemon_.config_.camera.source); }
 
+  [[nodiscard]] DetectorConfig detector_config() const override { return daemon::detector_config(daemon_.config_); }
+
   [[nodiscard]] nlohmann::json config_record() const override {
     return {{"file", daemon_.config_.source}, {"text", config_text_}};
   }

@@ -392,6 +392,27 @@ void write_file_atomically(const fs::path& path, std::string_view text) {
   sync_directory(path.has_parent_path() ? path.parent_path() : fs::path("."));
 }
 
+void overwrite_file_in_place(const fs::path& path, std::string_view text) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC);
+  if (fd < 0) fail(path, "open to overwrite", errno);
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) fail(path, "stat", errno);
+  std::string padded(text);
+  if (std::cmp_less(padded.size(), st.st_size)) padded.resize(static_cast<std::size_t>(st.st_size), ' ');
+  std::size_t written = 0;
+  while (written < padded.size()) {
+    const ssize_t n = ::pwrite(fd, padded.data() + written, padded.size() - written, static_cast<off_t>(written));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) fail(path, "overwrite", n < 0 ? errno : EIO);
+    written += static_cast<std::size_t>(n);
+  }
+  if (::fdatasync(fd) != 0) fail(path, "sync", errno);
+}
+
 RunRecorder RunRecorder::create(const fs::path& directory, const RunStart& start) {
   if (::mkdir(directory.c_str(), 0755) != 0) fail(directory, "create the run directory", errno);
   sync_directory(directory.has_parent_path() ? directory.parent_path() : fs::path("."));

@@ -6,10 +6,12 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "markerd/base/read_file.hpp"
 #include "markerd/rig/motion_profile.hpp"
 #include "markerd/sweep/report.hpp"
 
 #include <algorithm>
+#include <exception>
 #include <cmath>
 #include <numbers>
 #include <utility>
@@ -32,7 +34,8 @@ std::string_view to_string(RunState state) {
   return "?";
 }
 
-FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& marker) {
+FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& marker,
+                              double detector_marker_size_m) {
   FrameSample sample;
   sample.sequence = frame.sequence;
   const Detection* found = nullptr;
@@ -46,7 +49,8 @@ FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& m
   if (found == nullptr) return sample;
   sample.detected = true;
   if (!found->pose) return sample;
-  const MarkerPose& pose = found->pose->best;
+  MarkerPose pose = found->pose->best;
+  if (detector_marker_size_m > 0) pose.translation *= marker.size_m / detector_marker_size_m;
   sample.has_pose = true;
   const Eigen::Vector3d rvec = pose.rvec();
   for (int i = 0; i < 3; ++i) {
@@ -98,6 +102,32 @@ class SweepRunner::Interrupted {
 };
 
 namespace {
+
+constexpr std::string_view kJournalRunning = "running";
+constexpr std::string_view kJournalPaused = "paused";
+constexpr std::string_view kJournalStopped = "stopped";
+// A journal is read whole; anything near this is not one.
+constexpr std::size_t kMaxJournalBytes = 64 * 1024;
+// The in-place fallback must stay within the journal file's first block.
+constexpr std::size_t kMaxJournalReason = 1500;
+
+std::string journal_reason(std::string_view reason) {
+  if (reason.size() <= kMaxJournalReason) return std::string(reason);
+  return std::string(reason.substr(0, kMaxJournalReason)) + "...";
+}
+
+ExitStatus exit_status(RunState state) {
+  return state == RunState::done ? ExitStatus::done : state == RunState::aborted ? ExitStatus::aborted : ExitStatus::failed;
+}
+
+RunState run_state(ExitStatus status) {
+  switch (status) {
+    case ExitStatus::done: return RunState::done;
+    case ExitStatus::aborted: return RunState::aborted;
+    case ExitStatus::failed: return RunState::failed;
+  }
+  return RunState::failed;
+}
 
 // A run that cannot go on: its stop record says why.
 class RunFailed : public std::runtime_error {
@@ -192,6 +222,9 @@ SweepRunner::SweepRunner(rig::Rig& rig, rig::RigConfig rig_config, SweepEnvironm
 SweepRunner::~SweepRunner() { stop(); }
 
 PlanCheck SweepRunner::check(const SweepPlan& plan) const {
+  if (auto problem = marker_problem(plan.marker, environment_.detector_config())) {
+    throw SweepError(fmt::format("plan {} cannot run on this markerd: {}", plan.source, *problem));
+  }
   return check_plan(plan, rig_config_, environment_.camera_fps());
 }
 
@@ -201,6 +234,28 @@ fs::path SweepRunner::start(SweepPlan plan) {
     const std::lock_guard state_lock(mutex_);
     if (state_ == RunState::running || state_ == RunState::paused || state_ == RunState::suspended) {
       throw SweepError(fmt::format("run {} is {}: abort it first", run_->run_id, to_string(state_)));
+    }
+  }
+  // A previous run that ended while its stop record could not be written
+  // (a full disk) is ended in its records before a new run replaces the
+  // journal that says how it ended.
+  std::error_code ec;
+  if (fs::exists(settings_.journal, ec)) {
+    nlohmann::json previous;
+    try {
+      previous = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
+    } catch (const std::exception&) {
+      previous = nlohmann::json::object();  // unreadable: reported at markerd's start; the operator starts anew
+    }
+    if (previous.contains("stop")) {
+      try {
+        finish_ended_run(previous);
+      } catch (const std::exception& e) {
+        throw SweepError(fmt::format("the previous run {} ended, but its stop record still cannot be written ({}); "
+                                     "free space in {} first",
+                                     previous.value("run_directory", std::string()), e.what(),
+                                     settings_.runs_directory.string()));
+      }
     }
   }
   const PlanCheck checked = check(plan);
@@ -235,7 +290,7 @@ fs::path SweepRunner::start(SweepPlan plan) {
   // The journal first: a markerd killed between here and the run's first
   // record finds a journal naming a run that never started, and forgets it,
   // rather than a started run that no journal names.
-  write_journal(run->directory, false);
+  write_journal(run->directory, kJournalRunning, false);
   run->recorder = RunRecorder::create(run->directory, start);
   run->recorder.append_event({now, "started", {}, 0});
   run->plan = std::move(plan);
@@ -249,10 +304,14 @@ fs::path SweepRunner::start(SweepPlan plan) {
 bool SweepRunner::resume_from_journal() {
   const std::lock_guard lock(start_mutex_);
   std::error_code ec;
+  // A temporary left by a journal write that was cut off (a crash, a full
+  // disk) is not the journal: that is only ever replaced whole, by rename.
+  fs::remove(fs::path(settings_.journal).concat(".tmp"), ec);
   if (!fs::exists(settings_.journal, ec)) return false;
   nlohmann::json journal;
   try {
-    journal = nlohmann::json::parse(read_text_file(settings_.journal));
+    journal = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
+    if (!journal.is_object()) throw std::runtime_error("not a JSON object");
   } catch (const std::exception& e) {
     throw std::runtime_error(fmt::format("sweep journal {}: cannot be read: {}", settings_.journal.string(), e.what()));
   }
@@ -261,6 +320,19 @@ bool SweepRunner::resume_from_journal() {
     spdlog::warn("sweep journal {}: run {} never started (markerd stopped while starting it); forgetting it",
                  settings_.journal.string(), directory.string());
     fs::remove(settings_.journal, ec);
+    return false;
+  }
+  if (journal.contains("stop")) {
+    // The run ended (failed, aborted, done) and markerd could not write its
+    // stop record, or stopped before it removed the journal: it is not
+    // resumed, whatever its records hold.
+    try {
+      finish_ended_run(journal);
+    } catch (const std::exception& e) {
+      spdlog::error("sweep journal {}: run {} ended ({}), and its stop record still cannot be written: {}",
+                    settings_.journal.string(), directory.string(), journal["stop"].value("exit_status", "?"),
+                    e.what());
+    }
     return false;
   }
   RunRecords records = read_run(directory);
@@ -282,6 +354,9 @@ bool SweepRunner::resume_from_journal() {
     throw std::runtime_error(fmt::format("sweep run {}: its plan now expands to {} steps, it started with {}",
                                          directory.string(), run->steps.size(), records.start.steps));
   }
+  if (auto problem = marker_problem(run->plan.marker, environment_.detector_config())) {
+    throw std::runtime_error(fmt::format("sweep run {}: {}", directory.string(), *problem));
+  }
   run->directory = directory;
   run->run_id = records.start.run_id;
   run->done = records.points.size();
@@ -293,15 +368,74 @@ bool SweepRunner::resume_from_journal() {
     for (const FrameSample& f : last.frames) detected += f.detected ? 1 : 0;
     if (!last.frames.empty()) run->last_rate = static_cast<double>(detected) / static_cast<double>(last.frames.size());
   }
-  run->estimate_per_step = check(run->plan).estimated_duration / std::max<std::size_t>(1, run->steps.size());
+  run->estimate_per_step =
+      check_plan(run->plan, rig_config_, environment_.camera_fps()).estimated_duration /
+      std::max<std::size_t>(1, run->steps.size());
+  // The interruption and its cause: markerd stopping wrote "stopped" (and a
+  // "stopped" event); a journal still saying the run was going means
+  // markerd ended without a word.
+  const std::string state = journal.value("state", std::string(kJournalRunning));
+  const std::string cause =
+      state == kJournalStopped
+          ? fmt::format("markerd stopped at step {} ({})", journal.value("step", run->done),
+                        journal.value("reason", std::string("no reason recorded")))
+          : fmt::format("markerd ended without stopping the run (a crash, kill -9 or a power cut) while it was {}",
+                        state);
   run->recorder = RunRecorder::resume(directory);
   run->recorder.append_event({std::chrono::system_clock::now(), "restarted",
-                              fmt::format("markerd started again; continuing at step {} of {}", run->done,
+                              fmt::format("{}; markerd started again, continuing at step {} of {}", cause, run->done,
                                           run->steps.size()),
                               run->done});
-  spdlog::info("sweep {}: resuming at step {} of {}", run->run_id, run->done, run->steps.size());
+  spdlog::info("sweep {}: resuming at step {} of {} ({})", run->run_id, run->done, run->steps.size(), cause);
   launch(std::move(run));
   return true;
+}
+
+void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
+  const fs::path directory = journal.value("run_directory", "");
+  const RunRecords records = read_run(directory);
+  RunStop stop = records.stop ? *records.stop : stop_from_json(journal.at("stop"));
+  std::string shown = stop.reason;
+  std::exception_ptr failure;
+  if (!records.stop) {
+    stop.reason += stop.reason.empty() ? "" : " ";
+    stop.reason += "(this stop record was written from the journal when markerd started again: it had not been "
+                   "written when the run ended)";
+    try {
+      write_file_atomically(directory / "stop.json", to_json(stop).dump(2) + "\n");
+      shown = stop.reason;
+    } catch (const std::exception& e) {
+      failure = std::current_exception();
+      shown += fmt::format(" (its stop record could not be written: {}; the journal keeps it)", e.what());
+    }
+  }
+  if (!failure) {
+    std::error_code ec;
+    fs::remove(settings_.journal, ec);
+  }
+  spdlog::warn("sweep {}: {} at step {}, not resumed: {}", records.start.run_id, to_string(stop.status),
+               stop.steps_done, shown);
+  // The runner shows how that run ended, as if it had just ended here.
+  auto run = std::make_unique<Run>();
+  run->plan = records.start.plan;
+  run->steps = plan_steps(run->plan);
+  run->directory = directory;
+  run->run_id = records.start.run_id;
+  run->done = records.points.size();
+  run->done_at_begin = run->done;
+  run->ended = Clock::now();
+  run->began = *run->ended;
+  {
+    const std::lock_guard lock(mutex_);
+    if (state_ != RunState::running && state_ != RunState::paused && state_ != RunState::suspended) {
+      run_ = std::move(run);
+      state_ = run_state(stop.status);
+      reason_ = shown;
+      phase_.clear();
+    }
+  }
+  changed_.notify_all();
+  if (failure) std::rethrow_exception(failure);
 }
 
 void SweepRunner::launch(std::unique_ptr<Run> run) {
@@ -309,6 +443,7 @@ void SweepRunner::launch(std::unique_ptr<Run> run) {
   {
     const std::lock_guard collection_lock(collection_mutex_);
     marker_ = run->plan.marker;
+    detector_marker_size_m_ = environment_.detector_config().marker_size_m;
   }
   const bool paused = run->start_paused;
   {
@@ -320,7 +455,7 @@ void SweepRunner::launch(std::unique_ptr<Run> run) {
     reason_.clear();
     phase_.clear();
   }
-  write_journal(run_->directory, paused);
+  write_journal(run_->directory, paused ? kJournalPaused : kJournalRunning, paused);
   changed_.notify_all();
   thread_ = std::jthread([this](const std::stop_token& stop) { run_thread(stop); });
 }
@@ -419,7 +554,7 @@ void SweepRunner::observe(const FrameObservation& frame) noexcept {
       c.have_snapshot = true;
     }
   }
-  c.samples.push_back(make_frame_sample(frame, marker_));  // within the capacity reserved for the step
+  c.samples.push_back(make_frame_sample(frame, marker_, detector_marker_size_m_));  // within the capacity reserved for the step
   if (static_cast<int>(c.samples.size()) >= c.wanted) {
     c.active = false;
     collection_changed_.notify_all();
@@ -449,11 +584,7 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
       } catch (const Interrupted& interrupted) {
         switch (interrupted.kind) {
           case Interrupted::Kind::stop:
-            // markerd stops: the journal stays, the next markerd resumes here.
-            stop_motion();
-            spdlog::info("sweep {}: markerd stops at step {}; the run resumes when it starts again", run_->run_id,
-                         step.index);
-            set_phase("");
+            leave_for_restart();
             return;
           case Interrupted::Kind::abort: {
             std::string reason;
@@ -484,8 +615,7 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
   } catch (const Interrupted& interrupted) {
     // Raised while paused or suspended: markerd stopping, or an abort.
     if (interrupted.kind == Interrupted::Kind::stop) {
-      stop_motion();
-      set_phase("");
+      leave_for_restart();
       return;
     }
     std::string reason;
@@ -704,7 +834,7 @@ void SweepRunner::wait_paused() {
     phase_.clear();
   }
   changed_.notify_all();
-  write_journal(run_->directory, true);
+  write_journal(run_->directory, kJournalPaused, true);
   const std::size_t at = run_->done;
   run_->recorder.append_event({std::chrono::system_clock::now(), "paused", {}, at});
   spdlog::info("sweep {}: paused at step {}", run_->run_id, at);
@@ -718,7 +848,7 @@ void SweepRunner::wait_paused() {
     state_ = RunState::running;
   }
   changed_.notify_all();
-  write_journal(run_->directory, false);
+  write_journal(run_->directory, kJournalRunning, false);
   run_->recorder.append_event({std::chrono::system_clock::now(), "resumed", {}, at});
   spdlog::info("sweep {}: resumed at step {}", run_->run_id, at);
 }
@@ -811,22 +941,52 @@ void SweepRunner::stop_and_disable() noexcept {
   }
 }
 
+void SweepRunner::leave_for_restart() noexcept {
+  // markerd stops: the journal stays, and says so, and so do the run's
+  // events; the next markerd resumes here and names the interruption.
+  stop_motion();
+  const std::size_t at = run_->done;
+  bool paused = false;
+  {
+    const std::lock_guard lock(mutex_);
+    paused = pause_requested_;
+  }
+  const std::string reason = "markerd was stopped (SIGTERM, SIGINT or its service stopped)";
+  try {
+    write_journal(run_->directory, kJournalStopped, paused, reason);
+    run_->recorder.append_event({std::chrono::system_clock::now(), "stopped", reason, at});
+  } catch (const std::exception& e) {
+    // The journal still names the run: the next markerd resumes it, and
+    // records the interruption without its cause.
+    spdlog::error("sweep {}: cannot record that markerd stops: {}", run_->run_id, e.what());
+  }
+  spdlog::info("sweep {}: markerd stops at step {}; the run resumes when it starts again", run_->run_id, at);
+  set_phase("");
+}
+
 void SweepRunner::end_run(RunState state, const std::string& reason) {
+  // The axes are told to stop first (it takes no disk), then the end goes
+  // into the journal, the file a restarted markerd reads: from then on the
+  // run can never be resumed as though it had only been cut off.
+  stop_motion();
+  const bool recorded = record_end_in_journal(state, reason);
   stop_and_disable();
   RunStop record;
   record.time = std::chrono::system_clock::now();
-  record.status = state == RunState::done ? ExitStatus::done
-                  : state == RunState::aborted ? ExitStatus::aborted
-                                               : ExitStatus::failed;
+  record.status = exit_status(state);
   record.reason = reason;
   record.steps_done = run_->done;
+  std::string ended_reason = reason;
   try {
     run_->recorder.finish(record);
     std::error_code ec;
     fs::remove(settings_.journal, ec);
   } catch (const std::exception& e) {
-    // The journal stays: the next markerd finds the run unfinished and says so.
+    // The journal stays, saying how the run ended: the next markerd (or the
+    // next start) writes the stop record from it and does not resume the run.
     spdlog::error("sweep {}: cannot write its stop record: {}", run_->run_id, e.what());
+    ended_reason += fmt::format(" (its stop record could not be written: {}{})", e.what(),
+                                recorded ? "; the journal keeps it" : "; nor could the journal be updated");
   }
   // The summary the operator finds in the morning, from the records alone:
   // the tables now; `markerctl report` draws the plots (running gnuplot is
@@ -842,7 +1002,7 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   {
     const std::lock_guard lock(mutex_);
     state_ = state;
-    reason_ = reason;
+    reason_ = ended_reason;
     phase_.clear();
     run_->current.reset();
     run_->ended = Clock::now();
@@ -851,13 +1011,45 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   if (state == RunState::done) {
     spdlog::info("sweep {}: done, {} steps; records in {}", run_->run_id, run_->done, run_->directory.string());
   } else {
-    spdlog::warn("sweep {}: {} at step {}: {}", run_->run_id, to_string(state), run_->done, reason);
+    spdlog::warn("sweep {}: {} at step {}: {}", run_->run_id, to_string(state), run_->done, ended_reason);
   }
 }
 
-void SweepRunner::write_journal(const fs::path& run_directory, bool paused) {
-  const nlohmann::json journal{{"run_directory", run_directory.string()}, {"paused", paused}};
+void SweepRunner::write_journal(const fs::path& run_directory, std::string_view state, bool paused,
+                                std::string_view reason) {
+  nlohmann::json journal{{"run_directory", run_directory.string()}, {"state", state}, {"paused", paused}};
+  if (run_) journal["step"] = run_->done;
+  if (!reason.empty()) journal["reason"] = journal_reason(reason);
   write_file_atomically(settings_.journal, journal.dump() + "\n");
+}
+
+bool SweepRunner::record_end_in_journal(RunState state, const std::string& reason) noexcept {
+  try {
+    RunStop stop;
+    stop.time = std::chrono::system_clock::now();
+    stop.status = exit_status(state);
+    stop.reason = journal_reason(reason);
+    stop.steps_done = run_->done;
+    const nlohmann::json journal{{"run_directory", run_->directory.string()},
+                                 {"state", to_string(state)},
+                                 {"paused", false},
+                                 {"step", run_->done},
+                                 {"stop", to_json(stop)}};
+    const std::string text = journal.dump() + "\n";
+    try {
+      write_file_atomically(settings_.journal, text);
+    } catch (const std::exception& e) {
+      // A full disk has no room for a new temporary; the journal's own
+      // block has room for this.
+      spdlog::error("sweep {}: cannot replace the journal ({}); overwriting it in place", run_->run_id, e.what());
+      overwrite_file_in_place(settings_.journal, text);
+    }
+    return true;
+  } catch (const std::exception& e) {
+    spdlog::error("sweep {}: cannot record in the journal that the run {}: {}", run_->run_id, to_string(state),
+                  e.what());
+    return false;
+  }
 }
 
 }  // namespace markerd::sweep

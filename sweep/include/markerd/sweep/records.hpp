@@ -166,4 +166,13 @@ std::string read_text_file(const std::filesystem::path& path);
 // rename, fsync of the directory.
 void write_file_atomically(const std::filesystem::path& path, std::string_view text);
 
+// The fallback when write_file_atomically fails for want of space: writes
+// `text` over the existing file's first bytes, padded with spaces to the
+// file's old length (a JSON reader skips them), and syncs it. A small file's
+// block is already allocated, so on a full disk this usually still works
+// where a new temporary cannot be written. Not atomic: a crash in the middle
+// can leave a mixture, which a reader must refuse (the journal's reader does:
+// it fails to parse). std::runtime_error naming the path when it cannot.
+void overwrite_file_in_place(const std::filesystem::path& path, std::string_view text);
+
 }  // namespace markerd::sweep

@@ -8,9 +8,11 @@
 // States: idle -> running <-> paused, running <-> suspended (a fault), and
 // then done, aborted or failed. A run that ends, however it ends, leaves both
 // axes stopped and disabled. A journal file in the state directory names the
-// run in progress, so that markerd, restarted after a crash, a kill -9 or a
-// power cut, resumes it at the first step without a record: no step done
-// twice, none lost.
+// run in progress and its state, so that markerd, restarted after a crash, a
+// kill -9, a power cut or a SIGTERM, resumes it at the first step without a
+// record: no step done twice, none lost. A run that ended (failed, aborted,
+// done) has that written to the journal before anything else, and is never
+// resumed.
 
 #include <chrono>
 #include <condition_variable>
@@ -49,7 +51,12 @@ struct FrameObservation {
 
 // A frame reduced to what a point record keeps: the plan's marker found or
 // not, its pose, and the pose's error against the truth.
-[[nodiscard]] FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& marker);
+// `detector_marker_size_m` is the size the detector posed the marker with
+// (markerd's config); the pose is rescaled to the plan's marker size. That is
+// exact: a square of side k s seen at the same corners lies at k times the
+// translation, with the same rotation and reprojection error.
+[[nodiscard]] FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& marker,
+                                            double detector_marker_size_m);
 
 // What the runner needs from the daemon around it.
 class SweepEnvironment {
@@ -60,6 +67,9 @@ class SweepEnvironment {
   [[nodiscard]] virtual std::optional<std::string> camera_problem() const = 0;
   // Frames per second the camera delivers (for estimates; 0: unknown).
   [[nodiscard]] virtual double camera_fps() const = 0;
+  // What markerd's detectors find (the family, frame8's options) and the
+  // marker size their poses assume.
+  [[nodiscard]] virtual DetectorConfig detector_config() const = 0;
   // Parts of the start document: the config markerd runs with, the camera
   // (source, model), where the detection log goes.
   [[nodiscard]] virtual nlohmann::json config_record() const = 0;
@@ -113,15 +123,23 @@ class SweepRunner {
   SweepRunner(const SweepRunner&) = delete;
   SweepRunner& operator=(const SweepRunner&) = delete;
 
-  // Dry run of a plan on this rig and camera.
+  // Dry run of a plan on this rig, camera and detector. SweepError when the
+  // detector cannot measure the plan's marker (marker_problem).
   [[nodiscard]] PlanCheck check(const SweepPlan& plan) const;
-  // Starts a run: SweepError when one is going or the plan does not fit the
-  // rig (naming the points), std::runtime_error when the records cannot be
-  // written. Returns the run's directory.
+  // Starts a run: SweepError when one is going, the plan does not fit the
+  // rig (naming the points) or its marker the detector, or the previous run
+  // ended without its stop record and it still cannot be written;
+  // std::runtime_error when the records cannot be written. Returns the run's
+  // directory.
   std::filesystem::path start(SweepPlan plan);
-  // At markerd's start: when the journal names an unfinished run, continues
-  // it (paused if it was paused) and returns true. A journal that cannot be
-  // read is an error naming it; a finished run's stale journal is removed.
+  // At markerd's start: when the journal names a run that was interrupted
+  // (markerd stopped, crashed, was killed, lost power), continues it (paused
+  // if it was paused), records the interruption and its cause, and returns
+  // true. A run the journal says has ended (failed, aborted, done: its stop
+  // record could not be written then) is not resumed: its stop record is
+  // written now if it can be, and the runner shows that run's end. A journal
+  // that cannot be read is an error naming it; a finished run's stale journal
+  // is removed.
   bool resume_from_journal();
 
   void pause();   // SweepError unless running or suspended
@@ -129,7 +147,8 @@ class SweepRunner {
   void abort(std::string reason = "aborted by the operator");  // SweepError unless a run is going
 
   // markerd stops: the run thread stops where it is (motion stopped), the
-  // journal stays, and the next markerd resumes the run. Idempotent.
+  // journal and the run's events record it, and the next markerd resumes the
+  // run. Idempotent.
   void stop();
 
   [[nodiscard]] SweepProgress progress() const;
@@ -161,10 +180,22 @@ class SweepRunner {
   void checkpoint();
   void sleep_checked(std::chrono::steady_clock::duration duration);
   void end_run(RunState state, const std::string& reason);
+  void leave_for_restart() noexcept;
   void stop_motion() noexcept;
   void stop_and_disable() noexcept;
   [[nodiscard]] std::optional<std::string> fault() const;
-  void write_journal(const std::filesystem::path& run_directory, bool paused);
+  // The journal's states: "running", "paused" (a run going), "stopped"
+  // (markerd stopped it, to be resumed), "done", "aborted", "failed" (ended:
+  // never resumed).
+  void write_journal(const std::filesystem::path& run_directory, std::string_view state, bool paused,
+                     std::string_view reason = {});
+  // The end, in the journal, before anything else; when the journal cannot
+  // be replaced (a full disk), overwritten in place. False when neither worked.
+  bool record_end_in_journal(RunState state, const std::string& reason) noexcept;
+  // A journal naming a run that ended: writes its stop record if missing and
+  // removes the journal. Leaves the runner showing that run's end. Throws
+  // when the stop record cannot be written.
+  void finish_ended_run(const nlohmann::json& journal);
   void set_phase(const char* phase);
 
   rig::Rig& rig_;
@@ -202,6 +233,7 @@ class SweepRunner {
   std::condition_variable collection_changed_;
   Collection collection_;
   PlanMarker marker_;  // the run's, read by observe() under collection_mutex_
+  double detector_marker_size_m_ = 0;  // what the detector's poses assume, ditto
 
   std::jthread thread_;
 };
