@@ -573,6 +573,30 @@ TEST_F(SweepRunTest, APlanForAFamilyTheDaemonDoesNotDetectIsRefusedAtCheckAndSta
   }
 }
 
+TEST_F(SweepRunTest, WrongTypedSweepArgumentsAreNamed) {
+  auto d = make_daemon();
+  daemon::ControlClient client(dir_ / "control.sock");
+  const auto error_of = [&](const nlohmann::json& request) {
+    const nlohmann::json reply = client.call(request);
+    EXPECT_FALSE(reply.value("ok", true)) << reply.dump();
+    return reply.value("error", std::string());
+  };
+  for (const char* command : {"sweep.check", "sweep.start"}) {
+    const std::string source = error_of({{"cmd", command}, {"plan", kPlan}, {"source", 3}});
+    EXPECT_NE(source.find("'source'"), std::string::npos) << source;
+    EXPECT_EQ(source.find("json.exception"), std::string::npos) << source;
+    const std::string plan = error_of({{"cmd", command}, {"plan", 3}});
+    EXPECT_NE(plan.find("'plan'"), std::string::npos) << plan;
+  }
+  const fs::path run = runner(*d).start(sweep::parse_plan(kPlan, "small.toml"));
+  const std::string reason = error_of({{"cmd", "sweep.abort"}, {"reason", 5}});
+  EXPECT_NE(reason.find("'reason'"), std::string::npos) << reason;
+  EXPECT_EQ(reason.find("json.exception"), std::string::npos) << reason;
+  EXPECT_NE(runner(*d).progress().state, RunState::aborted);
+  runner(*d).abort();
+  EXPECT_EQ(runner(*d).wait_finished(10s), RunState::aborted);
+}
+
 TEST_F(SweepRunTest, AJournalNamingARunThatNeverStartedIsForgotten) {
   // markerd killed inside sweep.start, after the journal and before the
   // run's start record.

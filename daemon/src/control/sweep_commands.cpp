@@ -10,13 +10,11 @@ namespace {
 using nlohmann::json;
 
 sweep::SweepPlan plan_argument(const json& request) {
-  if (!request.contains("plan") || !request["plan"].is_string()) {
-    throw ControlError("\"plan\" must be the plan's TOML text (markerctl sweep reads the file)");
-  }
-  const std::string text = request.value("plan", std::string());
-  const std::string source = request.value("source", std::string("<plan>"));
+  const auto text = string_argument(request, "plan");
+  if (!text) throw ControlError("argument 'plan' is missing: the plan's TOML text (markerctl sweep reads the file)");
+  const std::string source = string_argument(request, "source").value_or("<plan>");
   try {
-    return sweep::parse_plan(text, source);
+    return sweep::parse_plan(*text, source);  // refuses a text over sweep::kMaxPlanBytes, saying so
   } catch (const ConfigError& e) {
     throw ControlError(e.what());
   }
@@ -52,7 +50,11 @@ void register_sweep_commands(ControlServer& server, sweep::SweepRunner& runner) 
       [&runner](const json& request) {
         expect_arguments(request, {"plan", "source"});
         const sweep::SweepPlan plan = plan_argument(request);
-        return check_json(runner.check(plan), plan);
+        try {
+          return check_json(runner.check(plan), plan);
+        } catch (const sweep::SweepError& e) {
+          throw ControlError(e.what());
+        }
       },
       "the dry run of a plan (plan: its TOML text): its points, what does not fit the rig, the estimated duration");
   server.register_command(
@@ -98,7 +100,7 @@ void register_sweep_commands(ControlServer& server, sweep::SweepRunner& runner) 
       [&runner](const json& request) {
         expect_arguments(request, {"reason"});
         try {
-          runner.abort(request.value("reason", std::string("aborted by the operator")));
+          runner.abort(string_argument(request, "reason").value_or("aborted by the operator"));
         } catch (const sweep::SweepError& e) {
           throw ControlError(e.what());
         }
