@@ -236,6 +236,8 @@ fs::path SweepRunner::start(SweepPlan plan) {
       throw SweepError(fmt::format("run {} is {}: abort it first", run_->run_id, to_string(state_)));
     }
   }
+  // The previous run's thread has ended the run; it may still be logging.
+  if (thread_.joinable()) thread_.join();
   // A previous run that ended while its stop record could not be written
   // (a full disk) is ended in its records before a new run replaces the
   // journal that says how it ended.
@@ -1018,7 +1020,7 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
 void SweepRunner::write_journal(const fs::path& run_directory, std::string_view state, bool paused,
                                 std::string_view reason) {
   nlohmann::json journal{{"run_directory", run_directory.string()}, {"state", state}, {"paused", paused}};
-  if (run_) journal["step"] = run_->done;
+  if (run_ && run_->directory == run_directory) journal["step"] = run_->done;
   if (!reason.empty()) journal["reason"] = journal_reason(reason);
   write_file_atomically(settings_.journal, journal.dump() + "\n");
 }
