@@ -459,7 +459,10 @@ TEST_F(SweepKillTest, KilledAtRandomMomentsTheRunCompletesAsIfUninterrupted) {
     const sweep::RunRecords records = check_records(setup, run);
     std::vector<std::size_t> restarted_at;
     for (const auto& e : records.events) {
-      if (e.kind == "restarted") restarted_at.push_back(e.step);
+      if (e.kind != "restarted") continue;
+      restarted_at.push_back(e.step);
+      // The records name the interruption: markerd ended without a word.
+      EXPECT_NE(e.reason.find("kill -9"), std::string::npos) << e.reason;
     }
     EXPECT_EQ(restarted_at, cut_at) << "one restarted event per kill that cut the run off, at the step it was in";
     const sweep::RunSummary summary = sweep::summarize(records);
