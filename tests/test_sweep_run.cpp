@@ -613,6 +613,25 @@ TEST_F(SweepRunTest, AJournalNamingARunThatNeverStartedIsForgotten) {
   EXPECT_EQ(runner(*d).wait_finished(10s), RunState::aborted);
 }
 
+TEST_F(SweepRunTest, AJournalNamingAnEndedRunWhoseRecordsAreGoneDoesNotBlockANewRun) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  // A run that ended without its stop record, whose directory the operator
+  // has since removed.
+  const nlohmann::json stop{{"schema", 1}, {"time", "2026-12-01T00:00:00.000Z"}, {"exit_status", "failed"},
+                            {"reason", "no space left"}, {"steps_done", 3}};
+  write_file(dir_ / "state/sweep-journal.json",
+             nlohmann::json{{"run_directory", (dir_ / "state/runs/20261201T000000Z-gone").string()},
+                            {"state", "failed"},
+                            {"stop", stop}}
+                 .dump());
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  EXPECT_TRUE(fs::exists(run / "start.json"));
+  EXPECT_EQ(nlohmann::json::parse(read_file(dir_ / "state/sweep-journal.json"))["run_directory"], run.string());
+  r.abort();
+  EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
+}
+
 TEST_F(SweepRunTest, TheControlSocketsSweepCommands) {
   auto d = make_daemon();
   daemon::ControlClient client(dir_ / "control.sock");

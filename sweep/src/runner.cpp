@@ -395,6 +395,14 @@ bool SweepRunner::resume_from_journal() {
 
 void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
   const fs::path directory = journal.value("run_directory", "");
+  std::error_code ec;
+  if (!fs::exists(directory / "start.json", ec)) {
+    // Its records are gone (the operator removed them): nothing to end.
+    spdlog::warn("sweep journal {}: run {} has no records any more; forgetting it", settings_.journal.string(),
+                 directory.string());
+    fs::remove(settings_.journal, ec);
+    return;
+  }
   const RunRecords records = read_run(directory);
   RunStop stop = records.stop ? *records.stop : stop_from_json(journal.at("stop"));
   std::string shown = stop.reason;
@@ -411,10 +419,7 @@ void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
       shown += fmt::format(" (its stop record could not be written: {}; the journal keeps it)", e.what());
     }
   }
-  if (!failure) {
-    std::error_code ec;
-    fs::remove(settings_.journal, ec);
-  }
+  if (!failure) fs::remove(settings_.journal, ec);
   spdlog::warn("sweep {}: {} at step {}, not resumed: {}", records.start.run_id, to_string(stop.status),
                stop.steps_done, shown);
   // The runner shows how that run ended, as if it had just ended here.
