@@ -519,6 +519,37 @@ TEST_F(SweepRunTest, AnAbortedRunWhoseStopRecordCouldNotBeWrittenIsNeverResumed)
   EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
 }
 
+// When not even the journal can record the end, it is removed: the run is
+// not resumed, and its records end without a stop record (incomplete).
+TEST_F(SweepRunTest, ARunWhoseEndNothingCanRecordIsNotResumedEither) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 1; }));
+    fs::create_symlink("/dev/full", run / "stop.json.tmp");
+    fs::create_symlink("/dev/full", dir_ / "state/sweep-journal.json.tmp");
+    // The journal itself a file no write reaches.
+    const fs::path journal = dir_ / "state/sweep-journal.json";
+    fs::remove(journal);
+    fs::create_symlink("/dev/full", journal);
+    r.abort("the operator needs the rig");
+    ASSERT_EQ(r.wait_finished(10s), RunState::aborted);
+    EXPECT_NE(r.progress().reason.find("so that the run is not resumed"), std::string::npos) << r.progress().reason;
+    EXPECT_FALSE(fs::exists(journal) || fs::is_symlink(journal));
+  }
+  fs::remove(run / "stop.json.tmp");
+  fs::remove(dir_ / "state/sweep-journal.json.tmp");
+  auto d = make_daemon();
+  EXPECT_EQ(runner(*d).progress().state, RunState::idle);
+  std::this_thread::sleep_for(300ms);
+  EXPECT_FALSE(d->rig()->snapshot().rail.homed);
+  const sweep::RunRecords records = sweep::read_run(run);
+  EXPECT_FALSE(records.stop.has_value());
+  EXPECT_EQ(count_events(records, "restarted"), 0U);
+}
+
 // The simulated camera renders the config's 80 mm marker; a plan that says
 // its marker is 160 mm gets poses for a 160 mm marker: twice as far.
 TEST_F(SweepRunTest, ThePlansMarkerSizeIsWhatThePosesAreFor) {

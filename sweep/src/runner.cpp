@@ -993,7 +993,9 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
     // next start) writes the stop record from it and does not resume the run.
     spdlog::error("sweep {}: cannot write its stop record: {}", run_->run_id, e.what());
     ended_reason += fmt::format(" (its stop record could not be written: {}{})", e.what(),
-                                recorded ? "; the journal keeps it" : "; nor could the journal be updated");
+                                recorded ? "; the journal keeps it"
+                                         : "; nor could the journal record the end: it was removed, so that the run "
+                                           "is not resumed");
   }
   // The summary the operator finds in the morning, from the records alone:
   // the tables now; `markerctl report` draws the plots (running gnuplot is
@@ -1053,8 +1055,15 @@ bool SweepRunner::record_end_in_journal(RunState state, const std::string& reaso
     }
     return true;
   } catch (const std::exception& e) {
-    spdlog::error("sweep {}: cannot record in the journal that the run {}: {}", run_->run_id, to_string(state),
-                  e.what());
+    // A journal that still says "running" would have the next markerd resume
+    // a run that ended. Without it the run is not resumed; its records end
+    // without a stop record, as an incomplete run.
+    std::error_code ec;
+    fs::remove(settings_.journal, ec);
+    spdlog::error("sweep {}: cannot record in the journal that the run {} ({}); {}", run_->run_id, to_string(state),
+                  e.what(),
+                  ec ? fmt::format("nor remove the journal ({}): the next markerd may resume the run", ec.message())
+                     : std::string("removed the journal, so that no markerd resumes the run"));
     return false;
   }
 }

@@ -190,7 +190,8 @@ class SweepRunner {
   void write_journal(const std::filesystem::path& run_directory, std::string_view state, bool paused,
                      std::string_view reason = {});
   // The end, in the journal, before anything else; when the journal cannot
-  // be replaced (a full disk), overwritten in place. False when neither worked.
+  // be replaced (a full disk), overwritten in place. When neither works the
+  // journal is removed, so that the run is not resumed, and this is false.
   bool record_end_in_journal(RunState state, const std::string& reason) noexcept;
   // A journal naming a run that ended: writes its stop record if missing and
   // removes the journal. Leaves the runner showing that run's end. Throws
