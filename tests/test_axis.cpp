@@ -8,6 +8,8 @@
 #include <chrono>
 #include <cmath>
 #include <functional>
+#include <future>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -28,6 +30,11 @@ struct DriveLog {
   std::vector<std::int64_t> targets;
   std::atomic<bool> hold_busy{false};  // report busy forever: a drive that never arrives
   std::atomic<bool> refuse_moves{false};  // start_move fails as on a dead bus
+  // status() blocks while set: a drive whose update is stuck (a simulation
+  // that spins, a read that hangs) with the axis's supervisor inside it.
+  std::atomic<bool> block_status{false};
+  std::atomic<int> blocked_in_status{0};
+  std::atomic<int> emergency_stops{0};
 
   std::size_t size() {
     const std::lock_guard<std::mutex> lock(mutex);
@@ -55,8 +62,16 @@ class RecordingDrive final : public Drive {
   void start_homing(const HomingSteps& h) override { sim_->start_homing(h); }
   void stop() override { sim_->stop(); }
   void reset_alarm() override { sim_->reset_alarm(); }
-  void emergency_stop() noexcept override { sim_->emergency_stop(); }
+  void emergency_stop() noexcept override {
+    ++log_->emergency_stops;
+    sim_->emergency_stop();
+  }
   DriveStatus status() const override {
+    if (log_->block_status) {
+      ++log_->blocked_in_status;
+      while (log_->block_status) std::this_thread::sleep_for(1ms);
+      --log_->blocked_in_status;
+    }
     DriveStatus s = sim_->status();
     if (log_->hold_busy) s.busy = true;
     return s;
@@ -157,7 +172,13 @@ TEST(Axis, ConstructorRejectsBadSettingsNamingTheAxisAndTheSetting) {
   EXPECT_EQ(make(s), "rail: invalid setting approach_direction: must be 1 or -1, got 0");
   s = rail_settings();
   s.settle_time = -1ms;
-  EXPECT_EQ(make(s), "rail: invalid setting settle_ms: must be >= 0, got -1");
+  EXPECT_EQ(make(s), "rail: invalid setting settle_ms: must be from 0 to 60000 ms, got -1");
+  // Longer would overflow steady_clock's nanoseconds into a settle time in the past.
+  s.settle_time = std::chrono::milliseconds(std::numeric_limits<std::int64_t>::max());
+  EXPECT_EQ(make(s), "rail: invalid setting settle_ms: must be from 0 to 60000 ms, got 9223372036854775807");
+  s = rail_settings();
+  s.homing.timeout = std::chrono::hours(1000);
+  EXPECT_EQ(make(s), "rail: invalid setting homing.timeout_s: must be > 0 and at most 3600 s, got 3600000 s");
   s = rail_settings();
   s.homing.search_velocity = 80;
   EXPECT_EQ(make(s), "rail: invalid setting homing.search_velocity: must be between 0 (default) and max_velocity (50), got 80");
@@ -433,4 +454,53 @@ TEST(Axis, ATimeScaledSimFinishesALongMoveFast) {
   // 2402 mm at 50 mm/s (and 0.25 s of each ramp): 48.29 simulated seconds,
   // a quarter of a second of real time at this scale.
   EXPECT_GE(t.clock->now() - start, 48.29);
+}
+
+// At the highest time scale a poll of the axis spans seconds of simulated
+// time: every switch, brake and latch of the homing still happens in order,
+// at the right place.
+TEST(Axis, HomesAndMovesExactlyAtTheHighestTimeScale) {
+  TestAxis t(rail_settings(), rail_sim(), SimClock::kMaxTimeScale);
+  t.home();
+  EXPECT_DOUBLE_EQ(t.axis->status().position, -2.0);
+  EXPECT_EQ(t.axis->status().fault, "");
+  t.axis->move_to(87.5);
+  ASSERT_TRUE(t.axis->wait_settled(30s)) << t.axis->status().fault;
+  EXPECT_DOUBLE_EQ(t.axis->status().position, 87.5);
+}
+
+// A stop must not wait behind a supervisor stuck in its drive (the SIGTERM
+// that never completed): within a bound it gives up on the controlled stop,
+// stops the drive the fail-safe way, and says so.
+TEST(Axis, StopReturnsWithinABoundWhileTheDrivesUpdateIsStuck) {
+  AxisSettings settings = rail_settings();
+  TestAxis t(settings);
+  t.home();
+  t.axis->move_to(90);
+  ASSERT_TRUE(eventually([&] { return t.axis->status().state == AxisState::moving; }));
+  t.log->block_status = true;
+  ASSERT_TRUE(eventually([&] { return t.log->blocked_in_status.load() > 0; }));
+  const int stops_before = t.log->emergency_stops.load();
+  auto stopped = std::async(std::launch::async, [&] { return axis_error([&] { t.axis->stop(); }); });
+  const bool returned = stopped.wait_for(30s) == std::future_status::ready;
+  // Let the supervisor go either way, so that a failure does not hang the test.
+  t.log->block_status = false;
+  ASSERT_TRUE(returned) << "stop() still waits for the axis";
+  EXPECT_EQ(stopped.get(),
+            "rail: stop: the axis has been busy with its drive for more than 2 s; emergency stop instead (the axis is "
+            "disabled)");
+  EXPECT_GT(t.log->emergency_stops.load(), stops_before);
+  EXPECT_FALSE(t.sim->status().enabled);
+  ASSERT_TRUE(eventually([&] { return t.axis->status().state == AxisState::fault; }));
+  EXPECT_EQ(t.axis->status().fault, "emergency stop");
+  // Other commands are refused the same way rather than waiting.
+  t.log->block_status = true;
+  ASSERT_TRUE(eventually([&] { return t.log->blocked_in_status.load() > 0; }));
+  auto cleared = std::async(std::launch::async, [&] { return axis_error([&] { t.axis->clear_fault(); }); });
+  const bool cleared_returned = cleared.wait_for(30s) == std::future_status::ready;
+  t.log->block_status = false;
+  ASSERT_TRUE(cleared_returned);
+  EXPECT_EQ(cleared.get(),
+            "rail: clear_fault refused: the axis has been busy with its drive for more than 2 s (a drive that does not "
+            "answer?)");
 }

@@ -632,7 +632,16 @@ enable = { line = 22 }
             std::string::npos);
   EXPECT_NE(config_error(kMinimal + "rt_priority = 120\n").find("rig.rail.gpio.rt_priority: must be 0"),
             std::string::npos);
-  EXPECT_NE(config_error(kMinimal + "debounce_ms = -1\n").find("rig.rail.gpio.debounce_ms: must be >= 0"),
+  EXPECT_NE(config_error(kMinimal + "debounce_ms = -1\n").find("rig.rail.gpio.debounce_ms: must be from 0 to 1000 ms, got -1"),
+            std::string::npos);
+  // Durations are checked before they are converted: no overflow into a short one.
+  EXPECT_NE(config_error(kMinimal + "enable_settle_ms = 1e300\n")
+                .find("rig.rail.gpio.enable_settle_ms: must be from 0 to 10000 ms, got 1e+300"),
+            std::string::npos)
+      << config_error(kMinimal + "enable_settle_ms = 1e300\n");
+  EXPECT_NE(config_error("chip = \"gpiochip0\"\nstep = { line = 9223372036854775807 }\ndir = { line = 27 }\n"
+                         "enable = { line = 22 }\n")
+                .find("rig.rail.gpio.step.line: must be from 0 to 65535, got 9223372036854775807"),
             std::string::npos);
 }
 

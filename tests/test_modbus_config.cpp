@@ -140,6 +140,10 @@ TEST(RegisterMap, ErrorsNameFileLineAndKey) {
   std::string bad_bit = kMinimal;
   bad_bit.replace(bad_bit.find("busy = 1"), 8, "busy = 16");
   EXPECT_EQ(error_of([&] { parse(bad_bit); }), "map.toml:15: status.busy: bit must be 0 to 15, got 16");
+  EXPECT_EQ(error_of([] { parse(kMinimal + "[deceleration]\naddress = 9223372036854775807\n"); }),
+            "map.toml:19: deceleration.address: must be from 0 to 65535, got 9223372036854775807");
+  EXPECT_EQ(error_of([] { parse(kMinimal + "[deceleration]\naddress = 9\nscale = 1e300\n"); }),
+            "map.toml:20: deceleration.scale: must be from 1e-12 to 1000000000000, got 1e+300");
   std::string coil_value = kMinimal;
   const std::string stop = "[commands.stop]\naddress = 8\nvalue = 2";
   coil_value.replace(coil_value.find(stop), stop.size(), "[commands.stop]\ntable = \"coil\"\naddress = 8\nvalue = 2");
@@ -192,7 +196,13 @@ TEST(ModbusConfig, BusAndDriveErrorsNameFileLineAndKey) {
             0u);
   EXPECT_EQ(bus("type = \"can\"\n"), "rig.toml:2: rig.buses.rtu0.type: must be \"rtu\" or \"tcp\", got \"can\"");
   EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"/dev/ttyS0\"\nretries = 11\n"),
-            "rig.toml:4: rig.buses.rtu0.retries: must be 0 to 10, got 11");
+            "rig.toml:4: rig.buses.rtu0.retries: must be from 0 to 10, got 11");
+  // The timeouts bound every wait on the bus: no overflow into a short or
+  // negative one.
+  EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"/dev/ttyS0\"\nresponse_timeout_ms = 9223372036854775807\n"),
+            "rig.toml:4: rig.buses.rtu0.response_timeout_ms: must be from 1 to 10000 ms, got 9223372036854775807");
+  EXPECT_EQ(bus("type = \"tcp\"\nhost = \"10.0.0.2\"\nport = 4294967798\n"),
+            "rig.toml:4: rig.buses.rtu0.port: must be from 1 to 65535, got 4294967798");
 
   const auto drive = [](const std::string& body) {
     return error_of([&] {
@@ -201,7 +211,13 @@ TEST(ModbusConfig, BusAndDriveErrorsNameFileLineAndKey) {
     });
   };
   EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 0\nmap = \"drives/generic.toml\"\n"),
-            "rig.toml:3: rig.rail.modbus.unit_id: must be 1 to 247, got 0");
+            "rig.toml:3: rig.rail.modbus.unit_id: must be from 1 to 247, got 0");
+  EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 1\nmap = \"drives/generic.toml\"\ncompletion_margin_ms = -1\n"),
+            "rig.toml:5: rig.rail.modbus.completion_margin_ms: must be from 0 to 600000 ms, got -1");
+  // A directory where the map belongs is named at the key, not parsed as an empty map.
+  EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 1\nmap = \"drives\"\n"),
+            "rig.toml:4: rig.rail.modbus.map: " + (kSourceDir / "config/drives").string() +
+                ": the register map is a directory, not a file");
   EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 1\nmap = \"drives/nothing.toml\"\n"),
             "rig.toml:4: rig.rail.modbus.map: no such file: " + (kSourceDir / "config/drives/nothing.toml").string());
 }

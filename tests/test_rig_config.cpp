@@ -162,7 +162,7 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     const auto [error, where] = error_with("settle_ms = 200", "settle_ms = -5");
-    EXPECT_EQ(error, where + ": rig.rail.settle_ms: must be >= 0, got -5");
+    EXPECT_EQ(error, where + ": rig.rail.settle_ms: must be from 0 to 60000 ms, got -5");
   }
   {
     const auto [error, where] = error_with("switch = \"limit_min\"", "switch = \"limit_mid\"");
@@ -175,7 +175,7 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     const auto [error, where] = error_with("time_scale = 10.0", "time_scale = 0.5");
-    EXPECT_EQ(error, where + ": rig.sim.time_scale: must be a finite number >= 1 (the axes' timeouts run in real time), got 0.5");
+    EXPECT_EQ(error, where + ": rig.sim.time_scale: must be from 1 to 1000 simulated seconds per second, got 0.5");
   }
   {
     const auto [error, where] = error_with("limit_min_at = -3.0", "limit_min_at = 5.0");
@@ -197,6 +197,46 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
     const auto [error, where] = error_with("d0_mm = 300.0", "d0_mm = 300.0\nrail_sign = -1");
     EXPECT_EQ(error, where + ": rig.geometry.d0_mm: puts the camera at d = -2200 mm from the turntable axis at rail position 2500 mm "
                     "(must be > 0 over the rail's soft limits)");
+  }
+}
+
+// Every number has a range it means something in; a value outside it is
+// refused where it stands instead of overflowing a conversion at run time
+// (a settle time of INT64_MAX ms was "settled" at once) or spinning the
+// simulation (time_scale 1e308).
+TEST_F(RigConfigFile, NumbersOutsideTheirPhysicalRangesAreRefused) {
+  const struct {
+    const char* line;
+    const char* replacement;
+    const char* expected;
+  } cases[] = {
+      {"settle_ms = 200", "settle_ms = 9223372036854775807",
+       "rig.rail.settle_ms: must be from 0 to 60000 ms, got 9223372036854775807"},
+      {"settle_ms = 200", "settle_ms = 100000000", "rig.rail.settle_ms: must be from 0 to 60000 ms, got 100000000"},
+      {"time_scale = 10.0", "time_scale = 1e308",
+       "rig.sim.time_scale: must be from 1 to 1000 simulated seconds per second, got 1e+308"},
+      {"time_scale = 10.0", "time_scale = nan", "rig.sim.time_scale: must be a finite number, got nan"},
+      {"home_offset = -3.0", "home_offset = -3.0\ntimeout_s = 1e300",
+       "rig.rail.homing.timeout_s: must be from 0.1 to 3600 s, got 1e+300"},
+      {"home_offset = -3.0", "home_offset = -3e300",
+       "rig.rail.homing.home_offset: must be from -1000000 to 1000000 mm, got -3e+300"},
+      {"units_per_step = 0.025", "units_per_step = 1e-300",
+       "rig.rail.units_per_step: must be from 1e-09 to 1000 mm, got 1e-300"},
+      {"max_velocity = 50.0", "max_velocity = inf", "rig.rail.max_velocity: must be a finite number, got inf"},
+      {"acceleration = 60.0", "acceleration = 1e12", "rig.turntable.acceleration: must be from 1e-06 to 100000000 deg/s^2, got 1000000000000"},
+      {"d0_mm = 300.0", "d0_mm = 1e200", "rig.geometry.d0_mm: must be from -100000 to 100000 mm, got 1e+200"},
+      {"limit_max_at = 95.0", "limit_max_at = 1e20", "rig.turntable.sim.limit_max_at: must be from -1000000 to 1000000 deg, got 1e+20"},
+      {"settle_ms = 200", "settle_ms = 200\nmax_retries = 2147483648",
+       "rig.rail.max_retries: must be from 0 to 100, got 2147483648"},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.replacement);
+    const auto [error, where] = error_with(c.line, c.replacement);
+    const auto key_line = std::string(c.replacement).find('\n') == std::string::npos
+                              ? where
+                              : fmt::format("{}:{}", where.substr(0, where.rfind(':')),
+                                            std::stoi(where.substr(where.rfind(':') + 1)) + 1);
+    EXPECT_EQ(error, key_line + ": " + c.expected);
   }
 }
 

@@ -6,6 +6,9 @@
 
 #include <chrono>
 #include <cmath>
+#include <functional>
+#include <limits>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <thread>
@@ -88,6 +91,65 @@ TEST(SimClock, ScalesRealTimeAndMapsToSteadyClock) {
   EXPECT_EQ(manual.now(), 0.0);
   manual.advance(2.5);
   EXPECT_DOUBLE_EQ(manual.now(), 2.5);
+}
+
+// Beyond kMaxTimeScale a poll spans so much simulated time that events can no
+// longer be told apart (1e308 gave a false "not found within 150 s" and a loop
+// that never ended); beyond kMaxAdvance the nanosecond count would overflow.
+TEST(SimClock, RefusesTimeScalesAndStepsThatBreakTheSimulation) {
+  EXPECT_NO_THROW(SimClock(SimClock::kMaxTimeScale));
+  EXPECT_THROW(SimClock(1e308), std::invalid_argument);
+  EXPECT_THROW(SimClock(SimClock::kMaxTimeScale * 1.001), std::invalid_argument);
+  EXPECT_THROW(SimClock(std::numeric_limits<double>::infinity()), std::invalid_argument);
+  EXPECT_THROW(SimClock(std::nan("")), std::invalid_argument);
+  EXPECT_THROW(SimClock(-1.0), std::invalid_argument);
+
+  SimClock manual(SimClock::Manual{});
+  EXPECT_THROW(manual.advance(1e300), std::invalid_argument);
+  EXPECT_THROW(manual.advance(std::nan("")), std::invalid_argument);
+  manual.advance(SimClock::kMaxAdvance - 1);
+  EXPECT_THROW(manual.advance(2), std::invalid_argument);
+  EXPECT_DOUBLE_EQ(manual.now(), SimClock::kMaxAdvance - 1);
+
+  // A time far outside any run maps to a clamped real time, not an overflow.
+  const SimClock running(1.0);
+  EXPECT_GT(running.to_steady(1e300), running.epoch());
+  EXPECT_LT(running.to_steady(-1e300), running.epoch());
+}
+
+// A whole homing in one update, late in simulated time: what one poll of the
+// axes spans at the highest time scale after years of uptime. Every event is
+// taken in order, the reference is the switch edge, and the update ends.
+TEST(SimDrive, HomesInOneLongUpdateLateInSimulatedTime) {
+  SimDriveSettings settings = Sim::defaults();
+  settings.start_position_steps = 5000;
+  Sim sim(settings);
+  sim.clock->advance(1e8);  // a running clock at 1000x after three years
+  sim.drive->enable(true);
+  sim.drive->start_homing(homing_on(HomingSteps::Switch::limit_min, -1, -100));
+  sim.clock->advance(60);
+  const DriveStatus s = sim.drive->status();
+  ASSERT_FALSE(s.alarm) << s.alarm_cause;
+  EXPECT_FALSE(s.busy);
+  EXPECT_TRUE(s.homed);
+  EXPECT_NEAR(sim.drive->actual_position_steps(), -100.5, 1e-3);
+}
+
+// An emergency stop does not wait for the model's lock: it leaves a flag that
+// the next update applies, and applies it at once when the lock is free.
+TEST(SimDrive, EmergencyStopStopsAMoveInProgress) {
+  Sim sim;
+  sim.drive->enable(true);
+  sim.drive->start_move(50000, 2000, 10000);
+  sim.clock->advance(1);
+  sim.drive->emergency_stop();
+  const double at = sim.drive->actual_position_steps();
+  sim.clock->advance(1);
+  const DriveStatus s = sim.drive->status();
+  EXPECT_FALSE(s.enabled);
+  EXPECT_FALSE(s.busy);
+  EXPECT_EQ(sim.drive->actual_position_steps(), at);
+  EXPECT_GT(at, 0);
 }
 
 TEST(SimDrive, MovesAlongTheTrapezoidProfile) {

@@ -5,7 +5,9 @@
 //
 // Locking. Impl::command_mutex serialises every drive command and the state
 // machine: callers and the supervisor take it for a whole command or poll step,
-// so the Drive sees one thread at a time, as drive.hpp asks. Axis::mutex_
+// so the Drive sees one thread at a time, as drive.hpp asks. Nobody waits for
+// it longer than kCommandWait: a drive call that never returns must not hold
+// up a stop (it becomes an emergency stop) nor the supervisor's shutdown. Axis::mutex_
 // guards only the published AxisStatus and is never held across a drive call,
 // so status() and wait_settled() never wait on a slow bus. emergency_stop()
 // takes neither: it calls the drive at once and leaves a flag (an atomic) for
@@ -29,6 +31,10 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 constexpr auto kPollPeriod = std::chrono::milliseconds(2);
+// The longest a command waits for the axis while another command or a poll
+// step holds it. Normal holds are a drive command's round trip; beyond this
+// the drive is not answering, and a stop becomes an emergency stop.
+constexpr auto kCommandWait = std::chrono::seconds(2);
 // A move's timeout is twice its planned duration plus this: room for a drive
 // that starts late or runs a gentler ramp than planned.
 constexpr auto kTimeoutMargin = std::chrono::seconds(2);
@@ -54,7 +60,12 @@ bool in_position(const AxisSettings& settings, std::int64_t position_steps, std:
   return settings.retry_deadband > 0 ? error <= settings.retry_deadband : position_steps == target_steps;
 }
 
-Clock::duration seconds(double s) { return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s)); }
+// Saturates at a day: a planned duration beyond that (a tiny velocity over a
+// long travel) must not overflow the clock's nanosecond count.
+Clock::duration seconds(double s) {
+  constexpr double kMax = 86400;
+  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(std::isnan(s) ? kMax : std::clamp(s, 0.0, kMax)));
+}
 
 }  // namespace
 
@@ -103,7 +114,9 @@ std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& s) {
     return problem("retry_deadband", fmt::format("must be 0 (off) or at least half a step ({} {})", s.units_per_step / 2, s.unit));
   }
   if (s.max_retries < 0) return problem("max_retries", fmt::format("must be >= 0, got {}", s.max_retries));
-  if (s.settle_time.count() < 0) return problem("settle_ms", fmt::format("must be >= 0, got {}", s.settle_time.count()));
+  if (s.settle_time.count() < 0 || s.settle_time > kMaxSettleTime) {
+    return problem("settle_ms", fmt::format("must be from 0 to {} ms, got {}", kMaxSettleTime.count(), s.settle_time.count()));
+  }
   const HomingSettings& h = s.homing;
   if (h.direction != 1 && h.direction != -1) {
     return problem("homing.direction", fmt::format("must be 1 or -1, got {}", h.direction));
@@ -117,13 +130,20 @@ std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& s) {
                    fmt::format("must be between 0 (default) and max_velocity ({}), got {}", s.max_velocity, h.latch_velocity));
   }
   if (!non_negative(h.backoff)) return problem("homing.backoff", fmt::format("must be >= 0, got {}", h.backoff));
+  if (h.backoff / s.units_per_step >= kMaxSteps) return problem("homing.backoff", "is more than 2^53 steps");
   if (!std::isfinite(h.home_offset)) return problem("homing.home_offset", "must be a finite number");
-  if (h.timeout.count() <= 0) return problem("homing.timeout_s", "must be > 0");
+  if (std::abs(h.home_offset) / s.units_per_step >= kMaxSteps) {
+    return problem("homing.home_offset", "is more than 2^53 steps away from 0");
+  }
+  if (h.timeout.count() <= 0 || h.timeout > kMaxHomingTimeout) {
+    return problem("homing.timeout_s", fmt::format("must be > 0 and at most {} s, got {} s", kMaxHomingTimeout.count() / 1000,
+                                                   std::chrono::duration<double>(h.timeout).count()));
+  }
   return std::nullopt;
 }
 
 struct Axis::Impl {
-  std::mutex command_mutex;
+  std::timed_mutex command_mutex;
   // The supervisor's sleep between polls; a stop request cuts it short.
   std::mutex wake_mutex;
   std::condition_variable_any wake;
@@ -161,7 +181,7 @@ Axis::Axis(AxisSettings settings, std::unique_ptr<Drive> drive)
     throw AxisError(fmt::format("{}: invalid setting {}: {}", settings_.name, p->key, p->message));
   }
   {
-    const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+    const std::lock_guard<std::timed_mutex> lock(impl_->command_mutex);
     publish(drive_->status(), Clock::now());
   }
   supervisor_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
@@ -176,6 +196,16 @@ Axis::~Axis() {
 }
 
 // --- Commands (caller's thread) ---
+
+std::unique_lock<std::timed_mutex> Axis::lock_command(std::string_view command) {
+  std::unique_lock<std::timed_mutex> lock(impl_->command_mutex, std::defer_lock);
+  if (!lock.try_lock_for(kCommandWait)) {
+    refuse(command, fmt::format("the axis has been busy with its drive for more than {} s (a drive that does not "
+                                "answer?)",
+                                std::chrono::duration<double>(kCommandWait).count()));
+  }
+  return lock;
+}
 
 void Axis::refuse(std::string_view command, std::string_view reason) const {
   throw AxisError(fmt::format("{}: {} refused: {}", settings_.name, command, reason));
@@ -196,7 +226,7 @@ DriveStatus Axis::read_drive_for_command() {
 }
 
 void Axis::enable() {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  const auto lock = lock_command("enable");
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
   if (m.state == AxisState::fault) refuse("enable", fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
@@ -213,7 +243,7 @@ void Axis::enable() {
 }
 
 void Axis::disable() {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  const auto lock = lock_command("disable");
   (void)read_drive_for_command();
   Impl& m = *impl_;
   if (m.state == AxisState::moving || m.state == AxisState::homing || m.state == AxisState::stopping) {
@@ -230,7 +260,7 @@ void Axis::disable() {
 }
 
 void Axis::home() {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  const auto lock = lock_command("home");
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
   constexpr std::string_view command = "home";
@@ -267,10 +297,10 @@ void Axis::home() {
 }
 
 void Axis::move_to(double position) {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  const std::string command = fmt::format("move to {} {}", position, settings_.unit);
+  const auto lock = lock_command(command);
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
-  const std::string command = fmt::format("move to {} {}", position, settings_.unit);
   if (!std::isfinite(position)) refuse(command, "the target is not a finite number");
   if (m.state == AxisState::fault) refuse(command, fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
   if (ds.inputs.estop) refuse(command, "the e-stop input is active");
@@ -291,7 +321,15 @@ void Axis::move_to(double position) {
 }
 
 void Axis::stop() {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  std::unique_lock<std::timed_mutex> lock(impl_->command_mutex, std::defer_lock);
+  if (!lock.try_lock_for(kCommandWait)) {
+    // Something holds the axis (a drive call that blocks, a simulation that
+    // spins): a controlled stop cannot be had, so the fail-safe one instead.
+    emergency_stop();
+    throw AxisError(fmt::format("{}: stop: the axis has been busy with its drive for more than {} s; emergency stop "
+                                "instead (the axis is disabled)",
+                                settings_.name, std::chrono::duration<double>(kCommandWait).count()));
+  }
   (void)read_drive_for_command();
   Impl& m = *impl_;
   if (m.state != AxisState::moving && m.state != AxisState::homing) return;
@@ -329,7 +367,7 @@ void Axis::emergency_stop() noexcept {
 }
 
 void Axis::clear_fault() {
-  const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+  const auto lock = lock_command("clear_fault");
   DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
   if (m.state != AxisState::fault) return;
@@ -561,7 +599,10 @@ void Axis::publish(const DriveStatus& ds, Clock::time_point now) {
 void Axis::run(const std::stop_token& stop) {
   while (!stop.stop_requested()) {
     {
-      const std::lock_guard<std::mutex> lock(impl_->command_mutex);
+      // Bounded, so that a command stuck in its drive cannot keep the
+      // supervisor (and the destructor's join) from seeing the stop request.
+      std::unique_lock<std::timed_mutex> lock(impl_->command_mutex, std::defer_lock);
+      if (!lock.try_lock_for(kCommandWait)) continue;
       try {
         step();
       } catch (...) {

@@ -45,7 +45,12 @@ std::int64_t now_ns() {
   return std::int64_t{ts.tv_sec} * kNsPerSecond + ts.tv_nsec;
 }
 
-std::int64_t seconds_to_ns(double seconds) { return std::llround(seconds * 1e9); }
+// Saturated at about 31 years (and NaN taken as that): a profile time or a
+// timeout beyond it must not overflow the nanosecond count into the past.
+std::int64_t seconds_to_ns(double seconds) {
+  constexpr double kMaxSeconds = 1e9;
+  return std::llround((std::isnan(seconds) ? kMaxSeconds : std::clamp(seconds, -kMaxSeconds, kMaxSeconds)) * 1e9);
+}
 
 void sleep_until_ns(std::int64_t due_ns) {
   const timespec due{static_cast<time_t>(due_ns / kNsPerSecond), static_cast<long>(due_ns % kNsPerSecond)};
@@ -202,9 +207,7 @@ GpioStepperSettings parse_gpio_stepper(const ConfigTable& t) {
     GpioLineSpec spec{chip, "", sub->optional<bool>("active_low", false)};
     // An integer is an offset; a string is a line name (or an offset in digits).
     if (const toml::node* node = sub->raw().get("line"); node != nullptr && node->is_integer()) {
-      const auto offset = sub->required<std::int64_t>("line");
-      if (offset < 0) sub->fail("line", fmt::format("an offset must be >= 0, got {}", offset));
-      spec.line = std::to_string(offset);
+      spec.line = std::to_string(sub->required<std::int64_t>("line", {0, 65535}));
     } else {
       spec.line = sub->required<std::string>("line");
       if (spec.line.empty()) sub->fail("line", "must not be empty");
@@ -224,18 +227,20 @@ GpioStepperSettings parse_gpio_stepper(const ConfigTable& t) {
   s.home = line("home");
   s.estop = line("estop");
 
-  auto duration = [&](std::string_view key, double scale_ns, std::chrono::nanoseconds fallback) {
-    const auto value = t.maybe<double>(key);
+  // Converted to nanoseconds only once in range.
+  auto duration = [&](std::string_view key, double scale_ns, std::chrono::nanoseconds fallback,
+                      ConfigTable::Range<double> range) {
+    const auto value = t.maybe<double>(key, range);
     if (!value) return fallback;
-    if (!std::isfinite(*value) || *value < 0) t.fail(key, fmt::format("must be >= 0, got {}", *value));
     return std::chrono::nanoseconds(std::llround(*value * scale_ns));
   };
-  s.step_pulse = duration("step_pulse_us", 1e3, s.step_pulse);
-  s.dir_setup = duration("dir_setup_us", 1e3, s.dir_setup);
-  s.enable_settle = duration("enable_settle_ms", 1e6, s.enable_settle);
-  s.debounce = duration("debounce_ms", 1e6, s.debounce);
-  s.max_step_rate = t.optional<double>("max_step_rate", s.max_step_rate);
-  s.rt_priority = t.optional<int>("rt_priority", s.rt_priority);
+  s.step_pulse = duration("step_pulse_us", 1e3, s.step_pulse, {0.001, 100000, "us"});
+  s.dir_setup = duration("dir_setup_us", 1e3, s.dir_setup, {0, 100000, "us"});
+  s.enable_settle = duration("enable_settle_ms", 1e6, s.enable_settle, {0, 10000, "ms"});
+  s.debounce = duration("debounce_ms", 1e6, s.debounce, {0, 1000, "ms"});
+  // Beyond kGpioStepperMaxStepRate settings_problem explains what to use instead.
+  s.max_step_rate = t.optional<double>("max_step_rate", s.max_step_rate, {1, 1e9, "steps/s"});
+  s.rt_priority = t.optional<int>("rt_priority", s.rt_priority);  // its range and meaning: settings_problem
   s.consumer = t.optional<std::string>("consumer", s.consumer);
   if (auto problem = settings_problem(s, RateCap::enforce)) {
     if (t.contains(problem->first)) t.fail(problem->first, problem->second);
@@ -480,8 +485,11 @@ void GpioStepperDrive::start_homing(const HomingSteps& homing) {
     throw DriveError(fmt::format("{}: homing on {} must search towards it (direction {})", name_, input_key(target),
                                  target == limit_min ? -1 : +1));
   }
-  if (!(homing.accel_steps_per_s2 > 0) || homing.backoff_steps < 0 || !(homing.timeout_s > 0)) {
-    throw DriveError(fmt::format("{}: homing needs an acceleration > 0, a backoff >= 0 and a timeout > 0", name_));
+  // A day bounds the step count the timeout allows (and its nanoseconds).
+  if (!(homing.accel_steps_per_s2 > 0) || homing.backoff_steps < 0 ||
+      !(homing.timeout_s > 0 && homing.timeout_s <= 86400)) {
+    throw DriveError(fmt::format("{}: homing needs an acceleration > 0, a backoff >= 0 and a timeout from 0 to a day",
+                                 name_));
   }
   check_can_move(0, homing.search_steps_per_s, "homing search");
   check_can_move(0, homing.latch_steps_per_s, "homing latch");

@@ -36,7 +36,7 @@ ModbusBusSettings parse_modbus_bus(const ConfigTable& t) {
     t.allow_only({"type", "device", "baud", "parity", "data_bits", "stop_bits", "response_timeout_ms",
                   "byte_timeout_ms", "retries", "poll_ms"});
     s.device = t.required<std::string>("device");
-    s.baud = t.optional<int>("baud", s.baud);
+    s.baud = static_cast<int>(t.optional<std::int64_t>("baud", s.baud, {1200, 921600, "baud"}));
     // libmodbus quietly falls back to 9600 baud for a rate termios lacks.
     constexpr std::array kBauds{1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600};
     if (std::find(kBauds.begin(), kBauds.end(), s.baud) == kBauds.end()) {
@@ -47,29 +47,26 @@ ModbusBusSettings parse_modbus_bus(const ConfigTable& t) {
     else if (parity == "even") s.parity = 'E';
     else if (parity == "odd") s.parity = 'O';
     else t.fail("parity", fmt::format("must be \"none\", \"even\" or \"odd\", got \"{}\"", parity));
-    s.data_bits = t.optional<int>("data_bits", s.data_bits);
-    if (s.data_bits < 7 || s.data_bits > 8) t.fail("data_bits", fmt::format("must be 7 or 8, got {}", s.data_bits));
-    s.stop_bits = t.optional<int>("stop_bits", s.stop_bits);
+    s.data_bits = static_cast<int>(t.optional<std::int64_t>("data_bits", s.data_bits, {7, 8}));
+    s.stop_bits = static_cast<int>(t.optional<std::int64_t>("stop_bits", s.stop_bits, {1, 2}));
     if (s.stop_bits != 1 && s.stop_bits != 2) t.fail("stop_bits", fmt::format("must be 1 or 2, got {}", s.stop_bits));
   } else if (type == "tcp") {
     s.transport = ModbusTransport::tcp;
     t.allow_only({"type", "host", "port", "response_timeout_ms", "byte_timeout_ms", "retries", "poll_ms"});
     s.host = t.required<std::string>("host");
-    s.port = t.optional<int>("port", s.port);
-    if (s.port < 1 || s.port > 65535) t.fail("port", fmt::format("must be 1 to 65535, got {}", s.port));
+    s.port = static_cast<int>(t.optional<std::int64_t>("port", s.port, {1, 65535}));
   } else {
     t.fail("type", fmt::format("must be \"rtu\" or \"tcp\", got \"{}\"", type));
   }
-  const auto ms = [&](std::string_view key, std::chrono::milliseconds fallback, int min) {
-    const int v = t.optional<int>(key, static_cast<int>(fallback.count()));
-    if (v < min || v > 60000) t.fail(key, fmt::format("must be {} to 60000 ms, got {}", min, v));
-    return std::chrono::milliseconds(v);
+  // Every request waits at most (retries + 1) response timeouts: these bound
+  // how long a command or a stop can wait for a drive that does not answer.
+  const auto ms = [&](std::string_view key, std::chrono::milliseconds fallback, std::int64_t min, std::int64_t max) {
+    return std::chrono::milliseconds(t.optional<std::int64_t>(key, fallback.count(), {min, max, "ms"}));
   };
-  s.response_timeout = ms("response_timeout_ms", s.response_timeout, 1);
-  s.byte_timeout = ms("byte_timeout_ms", s.byte_timeout, 0);
-  s.poll_period = ms("poll_ms", s.poll_period, 1);
-  s.retries = t.optional<int>("retries", s.retries);
-  if (s.retries < 0 || s.retries > 10) t.fail("retries", fmt::format("must be 0 to 10, got {}", s.retries));
+  s.response_timeout = ms("response_timeout_ms", s.response_timeout, 1, 10000);
+  s.byte_timeout = ms("byte_timeout_ms", s.byte_timeout, 0, 10000);
+  s.poll_period = ms("poll_ms", s.poll_period, 1, 10000);
+  s.retries = static_cast<int>(t.optional<std::int64_t>("retries", s.retries, {0, 10}));
   return s;
 }
 

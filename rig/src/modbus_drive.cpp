@@ -8,25 +8,40 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/base/read_file.hpp"
 #include "markerd/rig/motion_profile.hpp"
 
 namespace markerd::rig {
+
+namespace {
+
+// A planned duration or timeout as a clock duration, saturated at a day: a
+// crawl over the whole travel must not overflow the nanosecond count into a
+// deadline in the past.
+std::chrono::steady_clock::duration bounded_seconds(double seconds) {
+  constexpr double kMaxSeconds = 86400;
+  const double s = std::isnan(seconds) ? kMaxSeconds : std::clamp(seconds, 0.0, kMaxSeconds);
+  return std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(s));
+}
+
+}  // namespace
 
 ModbusDriveSettings parse_modbus_drive(const ConfigTable& t, const std::filesystem::path& config_dir) {
   t.allow_only({"bus", "unit_id", "map", "completion_margin_ms"});
   ModbusDriveSettings s;
   s.bus = t.required<std::string>("bus");
-  s.unit_id = t.required<int>("unit_id");
   // 0 is the RTU broadcast address (no replies) and 248..255 are reserved.
-  if (s.unit_id < 1 || s.unit_id > 247) t.fail("unit_id", fmt::format("must be 1 to 247, got {}", s.unit_id));
+  s.unit_id = static_cast<int>(t.required<std::int64_t>("unit_id", {1, 247}));
   const std::filesystem::path map = t.required<std::string>("map");
   s.map = map.is_absolute() ? map : config_dir / map;
   if (!std::filesystem::exists(s.map)) t.fail("map", fmt::format("no such file: {}", s.map.string()));
-  const int margin = t.optional<int>("completion_margin_ms", static_cast<int>(s.completion_margin.count()));
-  if (margin < 0 || margin > 600000) {
-    t.fail("completion_margin_ms", fmt::format("must be 0 to 600000 ms, got {}", margin));
+  try {
+    (void)check_regular_file(s.map, ConfigTable::kMaxFileBytes, "the register map");
+  } catch (const FileError& e) {
+    t.fail("map", e.what());
   }
-  s.completion_margin = std::chrono::milliseconds(margin);
+  s.completion_margin = std::chrono::milliseconds(
+      t.optional<std::int64_t>("completion_margin_ms", s.completion_margin.count(), {0, 600000, "ms"}));
   return s;
 }
 
@@ -411,9 +426,7 @@ void ModbusDrive::start_move(std::int64_t target_steps, double max_steps_per_s, 
       motion_seen_busy_ = false;
       motion_planned_s_ = planned;
       motion_started_ = std::chrono::steady_clock::now();
-      motion_deadline_ = motion_started_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                               std::chrono::duration<double>(planned * 1.5)) +
-                         completion_margin_;
+      motion_deadline_ = motion_started_ + bounded_seconds(planned * 1.5) + completion_margin_;
       status_.busy = true;
     });
   } catch (const DriveError& e) {
@@ -437,8 +450,7 @@ void ModbusDrive::start_homing(const HomingSteps& homing) {
       homed_before_homing_ = status_.homed;
       homed_latched_ = false;
       motion_started_ = std::chrono::steady_clock::now();
-      motion_deadline_ = motion_started_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                               std::chrono::duration<double>(homing.timeout_s));
+      motion_deadline_ = motion_started_ + bounded_seconds(homing.timeout_s);
       status_.busy = true;
     });
   } catch (const DriveError& e) {

@@ -156,9 +156,7 @@ RegisterTable parse_table(const ConfigTable& t, std::initializer_list<RegisterTa
 }
 
 std::uint16_t parse_address(const ConfigTable& t) {
-  const auto address = t.required<std::int64_t>("address");
-  if (address < 0 || address > 0xFFFF) t.fail("address", fmt::format("must be 0 to 0xFFFF, got {}", address));
-  return static_cast<std::uint16_t>(address);
+  return static_cast<std::uint16_t>(t.required<std::int64_t>("address", {0, 0xFFFF}));
 }
 
 WordOrder parse_word_order(const ConfigTable& t, WordOrder fallback) {
@@ -170,9 +168,7 @@ WordOrder parse_word_order(const ConfigTable& t, WordOrder fallback) {
 }
 
 int parse_words(const ConfigTable& t, int fallback) {
-  const int words = t.optional<int>("words", fallback);
-  if (words != 1 && words != 2) t.fail("words", fmt::format("must be 1 or 2, got {}", words));
-  return words;
+  return t.optional<int>("words", fallback, {1, 2});
 }
 
 struct ValueDefaults {
@@ -190,8 +186,10 @@ RegisterValue parse_value(const ConfigTable& t, WordOrder order, const ValueDefa
   v.words = parse_words(t, d.words);
   v.word_order = parse_word_order(t, order);
   v.is_signed = t.optional<bool>("signed", d.is_signed);
-  v.scale = t.optional<double>("scale", 1.0);
-  if (!(v.scale > 0) || !std::isfinite(v.scale)) t.fail("scale", fmt::format("must be > 0, got {}", v.scale));
+  // Register units per step (or, reciprocal, register units times steps):
+  // wide enough for any drive's rpm or time units, narrow enough that no
+  // conversion overflows a double.
+  v.scale = t.optional<double>("scale", 1.0, {1e-12, 1e12});
   v.reciprocal = t.optional<bool>("reciprocal", false);
   if (v.reciprocal && v.is_signed) t.fail("reciprocal", "a reciprocal value cannot be signed");
   return v;

@@ -26,51 +26,70 @@ HomingSteps::Switch parse_switch(const ConfigTable& homing) {
   homing.fail("switch", fmt::format("unknown switch '{}' (known: home, limit_min, limit_max)", name));
 }
 
-double finite(const ConfigTable& t, std::string_view key, double value) {
-  if (!std::isfinite(value)) t.fail(key, "must be a finite number");
-  return value;
-}
+// The ranges a rig's numbers mean something in. User units are mm or
+// degrees: a kilometre of rail or a thousand turns is beyond any rig, and
+// within these a position is at most 2^50 steps from 0 (exact in a double,
+// far from overflowing the int64 step counts).
+using Range = ConfigTable::Range<double>;
+constexpr double kMaxPosition = 1e6;
+
+// The ranges of one axis's numbers, in its own unit ("mm", "deg").
+struct AxisRanges {
+  explicit AxisRanges(std::string_view unit)
+      : unit_(unit), per_s_(fmt::format("{}/s", unit)), per_s2_(fmt::format("{}/s^2", unit)) {}
+  AxisRanges(const AxisRanges&) = delete;  // the ranges point into the strings
+  AxisRanges& operator=(const AxisRanges&) = delete;
+
+  [[nodiscard]] Range position() const { return {-kMaxPosition, kMaxPosition, unit_}; }
+  [[nodiscard]] Range length() const { return {0, 2 * kMaxPosition, unit_}; }
+  [[nodiscard]] Range units_per_step() const { return {1e-9, 1e3, unit_}; }
+  [[nodiscard]] Range velocity() const { return {1e-6, 1e6, per_s_}; }
+  [[nodiscard]] Range homing_velocity() const { return {0, 1e6, per_s_}; }  // 0: the default
+  [[nodiscard]] Range acceleration() const { return {1e-6, 1e8, per_s2_}; }
+
+ private:
+  std::string unit_, per_s_, per_s2_;
+};
+
+constexpr Range kGeometryMm{-1e5, 1e5, "mm"};  // 100 m
 
 RigGeometry parse_geometry(const ConfigTable& t) {
   t.allow_only({"d0_mm", "yaw0_deg", "rail_sign", "camera_offset_x_mm", "camera_offset_y_mm", "marker_offset_normal_mm",
                 "marker_offset_lateral_mm"});
   RigGeometry g;
-  g.d0_mm = finite(t, "d0_mm", t.required<double>("d0_mm"));
-  g.yaw0_deg = finite(t, "yaw0_deg", t.optional<double>("yaw0_deg", 0.0));
+  g.d0_mm = t.required<double>("d0_mm", kGeometryMm);
+  g.yaw0_deg = t.optional<double>("yaw0_deg", 0.0, {-360, 360, "deg"});
   g.rail_sign = t.optional<int>("rail_sign", 1);
   if (g.rail_sign != 1 && g.rail_sign != -1) t.fail("rail_sign", fmt::format("must be 1 or -1, got {}", g.rail_sign));
-  g.camera_offset_x_mm = finite(t, "camera_offset_x_mm", t.optional<double>("camera_offset_x_mm", 0.0));
-  g.camera_offset_y_mm = finite(t, "camera_offset_y_mm", t.optional<double>("camera_offset_y_mm", 0.0));
-  g.marker_offset_normal_mm = finite(t, "marker_offset_normal_mm", t.optional<double>("marker_offset_normal_mm", 0.0));
-  g.marker_offset_lateral_mm =
-      finite(t, "marker_offset_lateral_mm", t.optional<double>("marker_offset_lateral_mm", 0.0));
+  g.camera_offset_x_mm = t.optional<double>("camera_offset_x_mm", 0.0, kGeometryMm);
+  g.camera_offset_y_mm = t.optional<double>("camera_offset_y_mm", 0.0, kGeometryMm);
+  g.marker_offset_normal_mm = t.optional<double>("marker_offset_normal_mm", 0.0, kGeometryMm);
+  g.marker_offset_lateral_mm = t.optional<double>("marker_offset_lateral_mm", 0.0, kGeometryMm);
   return g;
 }
 
 SimSettings parse_sim(const ConfigTable& t) {
   t.allow_only({"time_scale"});
   SimSettings s;
-  s.time_scale = t.optional<double>("time_scale", 1.0);
   // Slower than real time would make the axes' timeouts (real time) fire on
-  // moves that are merely slow.
-  if (!std::isfinite(s.time_scale) || s.time_scale < 1) {
-    t.fail("time_scale", fmt::format("must be a finite number >= 1 (the axes' timeouts run in real time), got {}",
-                                     s.time_scale));
-  }
+  // moves that are merely slow; faster than SimClock::kMaxTimeScale and the
+  // simulation can no longer tell its events apart.
+  s.time_scale = t.optional<double>("time_scale", 1.0, {1, SimClock::kMaxTimeScale, "simulated seconds per second"});
   return s;
 }
 
-HomingSettings parse_homing(const ConfigTable& h) {
+HomingSettings parse_homing(const ConfigTable& h, const AxisRanges& r) {
   h.allow_only({"direction", "switch", "search_velocity", "latch_velocity", "backoff", "home_offset", "timeout_s"});
   HomingSettings s;
   s.direction = h.required<int>("direction");
   s.target = parse_switch(h);
-  s.search_velocity = h.optional<double>("search_velocity", 0.0);
-  s.latch_velocity = h.optional<double>("latch_velocity", 0.0);
-  s.backoff = h.optional<double>("backoff", 0.0);
-  s.home_offset = h.optional<double>("home_offset", 0.0);
-  const double timeout_s = h.optional<double>("timeout_s", 60.0);
-  if (!std::isfinite(timeout_s) || !(timeout_s > 0)) h.fail("timeout_s", fmt::format("must be > 0, got {}", timeout_s));
+  s.search_velocity = h.optional<double>("search_velocity", 0.0, r.homing_velocity());
+  s.latch_velocity = h.optional<double>("latch_velocity", 0.0, r.homing_velocity());
+  s.backoff = h.optional<double>("backoff", 0.0, r.length());
+  s.home_offset = h.optional<double>("home_offset", 0.0, r.position());
+  // Converted only once in range: a huge double does not fit milliseconds.
+  const double max_s = std::chrono::duration<double>(kMaxHomingTimeout).count();
+  const double timeout_s = h.optional<double>("timeout_s", 60.0, {0.1, max_s, "s"});
   s.timeout = std::chrono::milliseconds(std::llround(timeout_s * 1000));
   return s;
 }
@@ -112,18 +131,20 @@ AxisConfig parse_axis(const ConfigTable& rig, std::string_view name, const AxisC
   AxisSettings& a = config.axis;
   a.name = std::string(name);
   a.unit = t.required<std::string>("unit");
-  a.units_per_step = t.required<double>("units_per_step");
-  a.min_position = t.required<double>("min_position");
-  a.max_position = t.required<double>("max_position");
-  a.max_velocity = t.required<double>("max_velocity");
-  a.acceleration = t.required<double>("acceleration");
-  a.backlash = t.optional<double>("backlash", 0.0);
+  const AxisRanges r(a.unit);
+  a.units_per_step = t.required<double>("units_per_step", r.units_per_step());
+  a.min_position = t.required<double>("min_position", r.position());
+  a.max_position = t.required<double>("max_position", r.position());
+  a.max_velocity = t.required<double>("max_velocity", r.velocity());
+  a.acceleration = t.required<double>("acceleration", r.acceleration());
+  a.backlash = t.optional<double>("backlash", 0.0, r.length());
   a.approach_direction = t.optional<int>("approach_direction", 1);
-  a.retry_deadband = t.optional<double>("retry_deadband", 0.0);
-  a.max_retries = t.optional<int>("max_retries", 2);
-  a.settle_time = std::chrono::milliseconds(t.optional<std::int64_t>("settle_ms", 200));
+  a.retry_deadband = t.optional<double>("retry_deadband", 0.0, r.length());
+  a.max_retries = static_cast<int>(t.optional<std::int64_t>("max_retries", 2, {0, 100}));
+  a.settle_time = std::chrono::milliseconds(
+      t.optional<std::int64_t>("settle_ms", 200, {0, std::int64_t{kMaxSettleTime.count()}, "ms"}));
   const ConfigTable homing = t.table("homing");
-  a.homing = parse_homing(homing);
+  a.homing = parse_homing(homing, r);
   if (auto problem = check_axis_settings(a)) {
     constexpr std::string_view kHoming = "homing.";
     if (problem->key.starts_with(kHoming)) homing.fail(problem->key.substr(kHoming.size()), problem->message);
@@ -228,14 +249,18 @@ void check_axes_together(const ConfigTable& rig, const RigConfig& config) {
 SimDriveSettings parse_sim_drive(const ConfigTable& t, const AxisSettings& axis) {
   t.allow_only({"start_position", "limit_min_at", "limit_max_at", "home_switch_at", "home_switch_active", "encoder"});
   const double ups = axis.units_per_step;
+  // In range (positions, and units_per_step checked with the axis): the step
+  // count fits.
   auto steps = [&](std::string_view key, double value) {
-    finite(t, key, value);
-    return std::llround(value / ups);
+    const double count = value / ups;
+    if (!(std::abs(count) < 9007199254740992.0)) t.fail(key, "is more than 2^53 steps away from 0");
+    return std::llround(count);
   };
+  const AxisRanges r(axis.unit);
   SimDriveSettings s;
   s.name = fmt::format("{} (sim)", axis.name);
-  const double limit_min = t.required<double>("limit_min_at");
-  const double limit_max = t.required<double>("limit_max_at");
+  const double limit_min = t.required<double>("limit_min_at", r.position());
+  const double limit_max = t.required<double>("limit_max_at", r.position());
   // Tripping a switch is an alarm: the whole soft range must lie between them.
   if (!(limit_min < axis.min_position)) {
     t.fail("limit_min_at", fmt::format("must be below min_position ({} {}), got {}", axis.min_position, axis.unit, limit_min));
@@ -243,7 +268,7 @@ SimDriveSettings parse_sim_drive(const ConfigTable& t, const AxisSettings& axis)
   if (!(limit_max > axis.max_position)) {
     t.fail("limit_max_at", fmt::format("must be above max_position ({} {}), got {}", axis.max_position, axis.unit, limit_max));
   }
-  const double start = t.optional<double>("start_position", (axis.min_position + axis.max_position) / 2);
+  const double start = t.optional<double>("start_position", (axis.min_position + axis.max_position) / 2, r.position());
   if (!(start > limit_min && start < limit_max)) {
     t.fail("start_position", fmt::format("must lie between the limit switches ({} .. {} {}), got {}", limit_min, limit_max,
                                          axis.unit, start));
@@ -251,7 +276,7 @@ SimDriveSettings parse_sim_drive(const ConfigTable& t, const AxisSettings& axis)
   s.limit_min_steps = steps("limit_min_at", limit_min);
   s.limit_max_steps = steps("limit_max_at", limit_max);
   s.start_position_steps = steps("start_position", start);
-  if (auto home = t.maybe<double>("home_switch_at")) s.home_switch_steps = steps("home_switch_at", *home);
+  if (auto home = t.maybe<double>("home_switch_at", r.position())) s.home_switch_steps = steps("home_switch_at", *home);
   const auto active = t.optional<std::string>("home_switch_active", "below");
   if (active != "below" && active != "above") {
     t.fail("home_switch_active", fmt::format("must be \"below\" or \"above\", got \"{}\"", active));

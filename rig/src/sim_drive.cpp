@@ -3,6 +3,8 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <mutex>
@@ -57,10 +59,15 @@ constexpr double kOpenEnded = 1e12;
 enum class EventKind { alarm, homing_timeout, stall, switch_reached, segment_end };
 
 struct Event {
-  double time = std::numeric_limits<double>::infinity();
+  double time = 0;
   EventKind kind = EventKind::segment_end;
   SimSwitch which = SimSwitch::home;
 };
+
+// The longest chain of events without a command in between: a pending alarm,
+// then a homing's search, its switch, brake, backoff, latch, switch, brake;
+// with room to spare.
+constexpr int kMaxChainedEvents = 32;
 
 }  // namespace
 
@@ -78,18 +85,30 @@ class SimDrive::Model {
     t_ = clock_.now();
   }
 
-  std::mutex mutex;
+  std::timed_mutex mutex;
+  // Set by emergency_stop() from any thread without the mutex, taken over by
+  // the next update(): an e-stop never waits behind another caller.
+  std::atomic<bool> estop_requested{false};
 
-  // Brings the state up to the clock's present, event by event.
+  // Brings the state up to the clock's present, event by event. Every event
+  // ends a motion or moves a homing to its next phase, and without a new
+  // command there are at most kMaxChainedEvents of them before the motor is
+  // idle; the loop is bounded by that count whatever the clock says, and a
+  // count beyond it is a simulation bug that fails safe (alarm, output off).
   void update() {
     const double now = std::max(clock_.now(), t_);
-    for (;;) {
-      const Event e = next_event();
-      if (!(e.time <= now)) break;
-      advance_to(e.time);
-      handle(e);
+    for (int handled = 0;; ++handled) {
+      const std::optional<Event> e = next_event();
+      if (!e || !(e->time <= now)) break;
+      if (handled == kMaxChainedEvents) {
+        raise_alarm(fmt::format("simulation: more than {} events at once (at {} s); stopped", kMaxChainedEvents, t_));
+        break;
+      }
+      advance_to(e->time);
+      handle(*e);
     }
     advance_to(now);
+    if (estop_requested.exchange(false)) output_off();
   }
 
   void require_reply() const {
@@ -172,8 +191,6 @@ class SimDrive::Model {
     alarm_ = false;
     alarm_cause_.clear();
   }
-
-  void emergency_stop() { output_off(); }
 
   [[nodiscard]] DriveStatus status() const {
     if (comm_lost_) return frozen_;
@@ -320,13 +337,16 @@ class SimDrive::Model {
     return std::max(t_, seg_t0_ + seg_profile_.time_at(need));
   }
 
-  void consider(Event& best, double time, EventKind kind, SimSwitch which = SimSwitch::home) const {
-    // Ties go to the event listed first: a switch at the target trips before the move ends.
-    if (time < best.time) best = Event{time, kind, which};
+  static void consider(std::optional<Event>& best, double time, EventKind kind, SimSwitch which = SimSwitch::home) {
+    // Ties go to the event listed first: a switch at the target trips before
+    // the move ends. A time that is not finite is no event.
+    if (std::isfinite(time) && (!best || time < best->time)) best = Event{time, kind, which};
   }
 
-  [[nodiscard]] Event next_event() const {
-    Event best;
+  // The earliest thing that will happen, or nothing when the motor stands
+  // and no alarm is pending.
+  [[nodiscard]] std::optional<Event> next_event() const {
+    std::optional<Event> best;
     if (pending_alarm_) consider(best, std::max(t_, pending_alarm_->first), EventKind::alarm);
     if (phase_ == Phase::idle) return best;
     if (is_homing(phase_)) consider(best, homing_started_ + homing_.timeout_s, EventKind::homing_timeout);
@@ -460,7 +480,7 @@ SimDrive::~SimDrive() = default;
 namespace {
 template <class Model, class F>
 decltype(auto) locked(Model& model, F&& f) {
-  const std::lock_guard<std::mutex> lock(model.mutex);
+  const std::lock_guard<std::timed_mutex> lock(model.mutex);
   model.update();
   return std::forward<F>(f)(model);
 }
@@ -487,10 +507,14 @@ void SimDrive::reset_alarm() {
 }
 
 void SimDrive::emergency_stop() noexcept {
+  // The flag first: whoever holds the model applies it at its next update,
+  // so the e-stop acts even when the lock cannot be had at once.
+  model_->estop_requested.store(true);
   try {
-    locked(*model_, [](Model& m) { m.emergency_stop(); });
+    std::unique_lock<std::timed_mutex> lock(model_->mutex, std::defer_lock);
+    if (lock.try_lock_for(std::chrono::milliseconds(100))) model_->update();
   } catch (...) {
-    // Only the mutex can throw here (std::system_error); nothing else to do.
+    // Only the mutex can throw here (std::system_error); the flag stays set.
   }
 }
 

@@ -16,6 +16,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 #include <thread>
 
 #include "markerd/rig/drive.hpp"
@@ -28,6 +29,12 @@ class AxisError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+// The longest settle time and homing timeout an axis takes: longer ones mean
+// nothing physically, and every duration stays far from overflowing the
+// clocks' nanosecond counts.
+inline constexpr std::chrono::milliseconds kMaxSettleTime{60'000};
+inline constexpr std::chrono::milliseconds kMaxHomingTimeout{3'600'000};
 
 struct HomingSettings {
   int direction = -1;  // search direction: -1 towards min, +1 towards max
@@ -100,7 +107,10 @@ class Axis {
   void disable();
   void home();                    // async
   void move_to(double position);  // async; AxisError when refused
-  void stop();                    // controlled; the axis stays enabled and homed
+  // Controlled; the axis stays enabled and homed. When the axis cannot be
+  // had within a bound (its drive does not answer), an emergency stop
+  // instead, and AxisError saying so.
+  void stop();
   void emergency_stop() noexcept; // disables at once; an open-loop axis loses its home
   void clear_fault();             // resets the drive's alarm; the axis must be homed again if it lost its reference
 
@@ -138,6 +148,9 @@ class Axis {
   enum class FaultAction { none, stop, disable };
   void enter_fault(std::string cause, FaultAction action);
   [[nodiscard]] DriveStatus read_drive_for_command();
+  // Impl::command_mutex for a command, or AxisError when it cannot be had in
+  // bounded time.
+  [[nodiscard]] std::unique_lock<std::timed_mutex> lock_command(std::string_view command);
   [[noreturn]] void refuse(std::string_view command, std::string_view reason) const;
   [[noreturn]] void drive_failed(std::string_view command, const DriveError& error);
 };

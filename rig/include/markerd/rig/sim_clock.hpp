@@ -19,7 +19,11 @@ class SimClock {
   using steady = std::chrono::steady_clock;
 
   // A running clock: simulated seconds = real elapsed seconds * time_scale.
-  // time_scale must be finite and > 0 (std::invalid_argument).
+  // time_scale must be > 0 and at most kMaxTimeScale (std::invalid_argument):
+  // beyond it a poll period of the axes spans so much simulated time that
+  // a drive's events (a switch, a timeout) can no longer be told apart in a
+  // double, and the simulation would give false reasons or none.
+  static constexpr double kMaxTimeScale = 1000;
   explicit SimClock(double time_scale = 1.0);
 
   // A clock that stands still until advance() is called:
@@ -41,7 +45,9 @@ class SimClock {
   [[nodiscard]] double to_sim(steady::time_point t) const;
 
   // Manual clocks only (std::logic_error otherwise): moves time forward by
-  // `seconds` >= 0.
+  // `seconds`, from 0 to kMaxAdvance (std::invalid_argument otherwise, and
+  // when the clock would pass kMaxAdvance in total).
+  static constexpr double kMaxAdvance = 1e9;  // about 31 years, in nanoseconds well within int64
   void advance(double seconds);
 
   SimClock(const SimClock&) = delete;
