@@ -163,6 +163,18 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": rig: no such rig file: " + (dir_ / "nowhere.toml").string());
   }
   {
+    // A directory where a file belongs is named at the key that names it.
+    fs::create_directories(dir_ / "rig.d");
+    const auto [error, where] = error_with("rig = \"rig.toml\"", "rig = \"rig.d\"");
+    EXPECT_EQ(error, where + ": rig: " + (dir_ / "rig.d").string() + ": the rig file is a directory, not a file");
+  }
+  {
+    const auto [error, where] =
+        error_with(fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"", MARKERD_SOURCE_DIR),
+                   fmt::format("model = \"{}\"", dir_.string()));
+    EXPECT_EQ(error, where + ": camera.model: " + dir_.string() + ": the camera model is a directory, not a file");
+  }
+  {
     const auto [error, where] = error_with(
         fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"", MARKERD_SOURCE_DIR), "");
     EXPECT_NE(error.find("camera.model: is required by the simulated camera"), std::string::npos) << error;

@@ -270,6 +270,8 @@ TEST(V4l2Settings, ErrorsNameFileLineAndKey) {
   EXPECT_TRUE(contains(parse_error(head + "buffers = 1\n"), "markerd.toml:5: camera.v4l2.buffers: must be 2 to 32"));
   EXPECT_TRUE(contains(parse_error(head + "fps = 0\n"), "camera.v4l2.fps: must be > 0"));
   EXPECT_TRUE(contains(parse_error(head + "input = -1\n"), "camera.v4l2.input: must be an input's index"));
+  EXPECT_TRUE(contains(parse_error(head + "input = 9223372036854775807\n"),
+                       "camera.v4l2.input: must be an input's index, 0 to 255, got 9223372036854775807"));
   EXPECT_TRUE(contains(parse_error("[camera.v4l2]\ndevice = \"x\"\nwidth = 641\nheight = 480\n"),
                        "markerd.toml:3: camera.v4l2.width: must be even for YUYV"));
   EXPECT_TRUE(

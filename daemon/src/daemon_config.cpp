@@ -2,6 +2,8 @@
 
 #include <fmt/format.h>
 
+#include "markerd/base/read_file.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -24,10 +26,16 @@ std::filesystem::path from_environment(const char* name, const char* fallback) {
   return std::filesystem::path(std::string(v.substr(0, v.find(':'))));
 }
 
+// Integers are read as int64 and cast once in range, so that a huge value is
+// reported with its range rather than as "not an int".
+int int_in(const ConfigTable& t, std::string_view key, int fallback, std::int64_t min, std::int64_t max,
+           std::string_view unit = {}) {
+  return static_cast<int>(t.optional<std::int64_t>(key, fallback, {min, max, unit}));
+}
+
 std::chrono::milliseconds positive_ms(const ConfigTable& t, std::string_view key, std::chrono::milliseconds fallback) {
-  const auto ms = t.optional<std::int64_t>(key, fallback.count());
-  if (ms <= 0 || ms > 24LL * 3600 * 1000) t.fail(key, fmt::format("must be > 0 and at most a day (ms), got {}", ms));
-  return std::chrono::milliseconds(ms);
+  // Up to a day: the clocks' nanosecond counts are far from overflowing.
+  return std::chrono::milliseconds(t.optional<std::int64_t>(key, fallback.count(), {1, 24LL * 3600 * 1000, "ms"}));
 }
 
 MarkerSettings parse_marker(const ConfigTable& t) {
@@ -38,12 +46,14 @@ MarkerSettings parse_marker(const ConfigTable& t) {
   if (!family) t.fail("family", fmt::format("unknown marker family \"{}\"", family_name));
   m.family = *family;
   const FamilyInfo& info = family_info(m.family);
-  m.id = t.optional<int>("id", m.id);
-  if (m.id < 0 || m.id >= info.id_count) {
-    t.fail("id", fmt::format("must be 0 .. {} for {}, got {}", info.id_count - 1, info.name, m.id));
+  const auto id = t.optional<std::int64_t>("id", m.id);
+  if (id < 0 || id >= info.id_count) {
+    t.fail("id", fmt::format("must be 0 .. {} for {}, got {}", info.id_count - 1, info.name, id));
   }
-  m.size_m = t.optional<double>("size_m", m.size_m);
-  if (!(m.size_m > 0 && m.size_m < 10)) t.fail("size_m", fmt::format("must be > 0 and < 10 (metres), got {}", m.size_m));
+  m.id = static_cast<int>(id);
+  // From a printed thumbnail to a poster: beyond these the detector's pixel
+  // sizes and the poses mean nothing.
+  m.size_m = t.optional<double>("size_m", m.size_m, {0.001, 10, "m"});
   m.cut_hole = t.optional<bool>("cut_hole", m.cut_hole);
   return m;
 }
@@ -55,6 +65,9 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
   if (auto model = t.maybe<std::string>("model")) {
     c.model_path = resolve(dir, *model);
     try {
+      // A camera file is a few KiB; OpenCV's reader would take a directory
+      // or a FIFO for an empty or endless file.
+      (void)check_regular_file(c.model_path, ConfigTable::kMaxFileBytes, "the camera model");
       c.model = CameraModel::load(c.model_path);
     } catch (const std::exception& e) {
       t.fail("model", e.what());
@@ -107,31 +120,19 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
 DetectorSettings parse_detector(const ConfigTable& t) {
   t.allow_only({"workers", "frame8"});
   DetectorSettings d;
-  const auto workers = t.optional<int>("workers", 1);
-  if (workers < 1 || workers > 16) t.fail("workers", fmt::format("must be 1 .. 16, got {}", workers));
-  d.workers = static_cast<std::size_t>(workers);
+  d.workers = static_cast<std::size_t>(int_in(t, "workers", 1, 1, 16));
   if (auto f = t.maybe_table("frame8")) {
     f->allow_only({"decimate", "threshold_offset", "min_hole_side_px", "min_margin", "uniform_ids", "model_small_cells",
                    "blur_sigma_px"});
     Frame8Options& o = d.frame8;
-    o.decimate = f->optional<int>("decimate", o.decimate);
-    if (o.decimate < 0 || o.decimate > 8) f->fail("decimate", fmt::format("must be 0 (automatic) .. 8, got {}", o.decimate));
-    o.threshold_offset = f->optional<int>("threshold_offset", o.threshold_offset);
-    if (o.threshold_offset < 0 || o.threshold_offset > 128) {
-      f->fail("threshold_offset", fmt::format("must be 0 .. 128 grey levels, got {}", o.threshold_offset));
-    }
-    o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px);
-    if (!(o.min_hole_side_px >= 2 && o.min_hole_side_px < 1000)) {
-      f->fail("min_hole_side_px", fmt::format("must be 2 .. 1000 px, got {}", o.min_hole_side_px));
-    }
+    o.decimate = int_in(*f, "decimate", o.decimate, 0, 8, "(0: automatic)");
+    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, 0, 128, "grey levels");
+    o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px, {2, 1000, "px"});
     o.min_margin = f->optional<double>("min_margin", o.min_margin);
     if (!(o.min_margin >= 0 && o.min_margin < 1)) f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
     o.uniform_ids = f->optional<bool>("uniform_ids", o.uniform_ids);
     o.model_small_cells = f->optional<bool>("model_small_cells", o.model_small_cells);
-    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px);
-    if (!(o.blur_sigma_px >= 0 && o.blur_sigma_px <= 10)) {
-      f->fail("blur_sigma_px", fmt::format("must be 0 .. 10 px, got {}", o.blur_sigma_px));
-    }
+    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, 10, "px"});
   }
   return d;
 }
@@ -147,9 +148,7 @@ PipelineConfig parse_pipeline(const ConfigTable& t) {
   } else {
     t.fail("policy", fmt::format("must be \"live\" or \"lossless\", got \"{}\"", policy));
   }
-  const auto slots = t.optional<int>("slots", 8);
-  if (slots < 2 || slots > 256) t.fail("slots", fmt::format("must be 2 .. 256, got {}", slots));
-  p.pool.slots = static_cast<std::size_t>(slots);
+  p.pool.slots = static_cast<std::size_t>(int_in(t, "slots", 8, 2, 256));
   return p;
 }
 
@@ -165,8 +164,7 @@ LogSettings parse_log(const ConfigTable& t, const std::filesystem::path& dir) {
   if (l.prefix.empty() || l.prefix.find_first_of("/\n") != std::string::npos || l.prefix.front() == '.') {
     t.fail("prefix", fmt::format("must be a file name prefix without '/', not starting with '.', got \"{}\"", l.prefix));
   }
-  const auto mb = t.optional<std::int64_t>("max_file_mb", 256);
-  if (mb < 0 || mb > 1'000'000) t.fail("max_file_mb", fmt::format("must be 0 (no limit) .. 1000000, got {}", mb));
+  const auto mb = t.optional<std::int64_t>("max_file_mb", 256, {0, 1'000'000, "MiB (0: no limit)"});
   l.max_file_bytes = static_cast<std::uint64_t>(mb) << 20;
   const auto fsync = t.optional<std::string>("fsync", "interval");
   const auto policy = fsync_policy_from_name(fsync);
@@ -236,6 +234,12 @@ DaemonConfig parse_daemon_config(const ConfigTable& root) {
   if (rig != nullptr && rig->is_string()) {
     const std::filesystem::path file = resolve(dir, root.required<std::string>("rig"));
     if (!std::filesystem::exists(file)) root.fail("rig", fmt::format("no such rig file: {}", file.string()));
+    // A directory or a FIFO is reported here, at the key that names it.
+    try {
+      (void)check_regular_file(file, ConfigTable::kMaxFileBytes, "the rig file");
+    } catch (const FileError& e) {
+      root.fail("rig", e.what());
+    }
     config.rig = rig::load_rig_config(file);
   } else if (rig != nullptr) {
     config.rig = rig::parse_rig_config(root);

@@ -805,16 +805,22 @@ LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
                fmt::format("unknown pixel format '{}' (known: YUYV, NV12, R8, GREY, MJPEG, MJPG)", format));
   }
 
+  constexpr int kMaxSide = 16384;
   settings.width = table.required<int>("width");
   settings.height = table.required<int>("height");
-  if (settings.width <= 0) table.fail("width", fmt::format("must be > 0, got {}", settings.width));
-  if (settings.height <= 0) table.fail("height", fmt::format("must be > 0, got {}", settings.height));
+  if (settings.width <= 0 || settings.width > kMaxSide) {
+    table.fail("width", fmt::format("must be > 0 and at most {}, got {}", kMaxSide, settings.width));
+  }
+  if (settings.height <= 0 || settings.height > kMaxSide) {
+    table.fail("height", fmt::format("must be > 0 and at most {}, got {}", kMaxSide, settings.height));
+  }
   if (settings.format == LibcameraPixelFormat::yuyv && settings.width % 2 != 0) {
     table.fail("width", fmt::format("must be even for YUYV (two pixels share their colour), got {}", settings.width));
   }
   settings.fps = table.optional<double>("fps", 0.0);
-  if (!std::isfinite(settings.fps) || settings.fps < 0) {
-    table.fail("fps", fmt::format("must be >= 0 (0: the camera's own frame rate), got {}", settings.fps));
+  // The frame duration (1e6 / fps microseconds) must be a whole, non-zero count.
+  if (!std::isfinite(settings.fps) || settings.fps < 0 || settings.fps > 1000) {
+    table.fail("fps", fmt::format("must be >= 0 (0: the camera's own frame rate) and at most 1000, got {}", settings.fps));
   }
   settings.buffers = table.optional<int>("buffers", 4);
   if (settings.buffers < 1 || settings.buffers > 32) {

@@ -49,10 +49,9 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   const auto seed = t.optional<std::int64_t>("seed", 1);
   if (seed < 0) t.fail("seed", fmt::format("must be >= 0, got {}", seed));
   s.seed = static_cast<std::uint64_t>(seed);
-  s.rail_mm = t.optional<double>("rail_mm", s.rail_mm);
-  s.turntable_deg = t.optional<double>("turntable_deg", s.turntable_deg);
-  if (!std::isfinite(s.rail_mm)) t.fail("rail_mm", "must be a finite number");
-  if (!std::isfinite(s.turntable_deg)) t.fail("turntable_deg", "must be a finite number");
+  // The rig's own ranges: a kilometre of rail, a turn either way.
+  s.rail_mm = t.optional<double>("rail_mm", s.rail_mm, {-1e6, 1e6, "mm"});
+  s.turntable_deg = t.optional<double>("turntable_deg", s.turntable_deg, {-360, 360, "deg"});
   return s;
 }
 

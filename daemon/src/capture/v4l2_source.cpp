@@ -1053,9 +1053,12 @@ V4l2Settings parse_v4l2_settings(const ConfigTable& table) {
   if (s.buffers < 2 || s.buffers > 32) {
     table.fail("buffers", fmt::format("must be 2 to 32, got {} (one is always with the driver)", s.buffers));
   }
-  if (const auto input = table.maybe<int>("input")) {
-    if (*input < 0) table.fail("input", fmt::format("must be an input's index, 0 or more, got {}", *input));
-    s.input = *input;
+  if (const auto input = table.maybe<std::int64_t>("input")) {
+    // VIDIOC_S_INPUT takes any index; a driver has a handful of inputs.
+    if (*input < 0 || *input > 255) {
+      table.fail("input", fmt::format("must be an input's index, 0 to 255, got {}", *input));
+    }
+    s.input = static_cast<int>(*input);
   }
 
   if (const auto controls = table.maybe_table("controls")) {
