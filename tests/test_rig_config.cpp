@@ -190,6 +190,11 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": rig.rail.homing.direction: must be 1 or -1, got 0");
   }
   {
+    // Caught here rather than by an alarm at the other end of the rail.
+    const auto [error, where] = error_with("direction = -1\nswitch = \"limit_min\"", "direction = 1\nswitch = \"limit_min\"");
+    EXPECT_EQ(error, where + ": rig.rail.homing.direction: homing on limit_min searches towards it: direction must be -1, got 1");
+  }
+  {
     const auto [error, where] = error_with("switch = \"limit_min\"", "switch = \"home\"");
     EXPECT_EQ(error, where + ": rig.rail.homing.switch: the simulated rail has no home switch (set home_switch_at in [rig.rail.sim])");
   }

@@ -150,6 +150,14 @@ AxisConfig parse_axis(const ConfigTable& rig, std::string_view name, const AxisC
     if (problem->key.starts_with(kHoming)) homing.fail(problem->key.substr(kHoming.size()), problem->message);
     t.fail(problem->key, problem->message);
   }
+  // A limit switch sits at its end of the travel: a search the other way can
+  // only end at the other limit, with an alarm, at run time.
+  if ((a.homing.target == HomingSteps::Switch::limit_min && a.homing.direction != -1) ||
+      (a.homing.target == HomingSteps::Switch::limit_max && a.homing.direction != 1)) {
+    const bool min = a.homing.target == HomingSteps::Switch::limit_min;
+    homing.fail("direction", fmt::format("homing on {} searches towards it: direction must be {}, got {}",
+                                         min ? "limit_min" : "limit_max", min ? -1 : 1, a.homing.direction));
+  }
 
   if (backend == "sim") {
     SimDriveSettings sim = parse_sim_drive(t.table("sim"), a);
