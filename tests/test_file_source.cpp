@@ -512,7 +512,9 @@ TEST(FileSourceSettingsTest, ReadsTheTableAndResolvesRelativePaths) {
 
 TEST(FileSourceSettingsTest, ErrorsNameTheFileLineAndKey) {
   EXPECT_EQ(parse_error("path = \"x\"\nfps = -5\n"),
-            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames), got -5");
+            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, got -5");
+  EXPECT_EQ(parse_error("path = \"x\"\nfps = 1e308\n"),
+            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, got 1e+308");
   const std::string unknown = parse_error("path = \"x\"\nrate = 5\n");
   EXPECT_NE(unknown.find("markerd.toml:3: camera.file.rate: unknown key"), std::string::npos) << unknown;
   const std::string missing = parse_error("fps = 5\n");

@@ -391,8 +391,10 @@ FileSourceSettings parse_file_source_settings(const ConfigTable& table, const st
   if (settings.path.is_relative()) settings.path = config_dir / settings.path;
   settings.path = settings.path.lexically_normal();
   settings.fps = table.optional<double>("fps", 0.0);
-  if (!std::isfinite(settings.fps) || settings.fps < 0) {
-    table.fail("fps", fmt::format("must be >= 0 (0: as fast as the pipeline takes frames), got {}", settings.fps));
+  // A camera's rates: a thousand frames per second is far beyond any replay.
+  if (!std::isfinite(settings.fps) || settings.fps < 0 || settings.fps > 1000) {
+    table.fail("fps", fmt::format("must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, got {}",
+                                  settings.fps));
   }
   settings.loop = table.optional<bool>("loop", false);
   return settings;
