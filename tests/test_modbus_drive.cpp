@@ -8,6 +8,7 @@
 
 #include <atomic>
 #include <filesystem>
+#include <future>
 #include <memory>
 #include <string>
 #include <thread>
@@ -363,6 +364,37 @@ TEST(ModbusBus, ADeviceThatCannotBeOpenedIsAClearError) {
   EXPECT_EQ(error_of([&] { ModbusBus bus(s); }),
             "modbus bus rtu0 (/nonexistent/ttyRS485, 115200 8E1): cannot open /nonexistent/ttyRS485: No such file or "
             "directory");
+}
+
+// A request queued behind a bus thread that does not come back fails within
+// a bound, instead of holding its caller (an axis command, a stop) for ever.
+TEST(ModbusBus, ARequestQueuedBehindAStuckBusFailsWithinABound) {
+  ModbusDriveSim sim({sim_unit(1)}, ModbusSimTcp{});
+  sim.start();
+  auto settings = tcp_settings(sim.port());
+  settings.retries = 0;
+  settings.response_timeout = milliseconds(10);
+  ModbusBus bus(settings);
+  std::atomic<bool> release{false};
+  std::atomic<bool> inside{false};
+  std::thread stuck([&] {
+    bus.execute([&](ModbusLink&) {
+      inside = true;
+      while (!release) std::this_thread::sleep_for(milliseconds(1));
+    });
+  });
+  ASSERT_TRUE(wait_for([&] { return inside.load(); }));
+  auto queued = std::async(std::launch::async, [&] { return error_of([&] { bus.execute([](ModbusLink&) {}); }); });
+  const bool returned = queued.wait_for(std::chrono::seconds(30)) == std::future_status::ready;
+  release = true;
+  stuck.join();
+  ASSERT_TRUE(returned) << "the queued request still waits";
+  EXPECT_EQ(queued.get(), "modbus bus tcp0 (127.0.0.1:" + std::to_string(sim.port()) +
+                              "): the request waited 900 ms for the bus without being sent (the bus thread is stuck)");
+  // The bus goes on: the next request is served.
+  bool served = false;
+  bus.execute([&](ModbusLink&) { served = true; });
+  EXPECT_TRUE(served);
 }
 
 TEST(ModbusDriveRtu, TwoDrivesShareOneLineByUnitId) {

@@ -95,6 +95,7 @@ struct ModbusBus::Impl final : ModbusLink {
   struct Job {
     const Work* work = nullptr;
     std::exception_ptr error;
+    bool started = false;  // taken from the queue by the bus thread
     bool done = false;
   };
   struct Slot {
@@ -156,6 +157,17 @@ struct ModbusBus::Impl final : ModbusLink {
   }
 
   [[nodiscard]] const std::string& description() const override { return description_; }
+
+  // The longest a request may wait in the queue (mutex held): the bus busy
+  // with every job ahead and a poll of every client, several requests each,
+  // every request with all its attempts timing out. Far beyond what a
+  // working bus needs; a request still queued after it means the bus thread
+  // is stuck, and the caller gets an error instead of a wait without end.
+  [[nodiscard]] std::chrono::milliseconds queue_wait_limit() const {
+    const auto per_request = (settings.retries + 1) * (2 * settings.response_timeout + std::chrono::milliseconds(200));
+    const auto requests = 4 * static_cast<std::int64_t>(queue.size() + clients.size()) + 4;
+    return std::chrono::duration_cast<std::chrono::milliseconds>(per_request * requests) + settings.poll_period;
+  }
 
   bool connect(std::string& cause) {
     if (modbus_connect(ctx) == 0) {
@@ -349,6 +361,7 @@ struct ModbusBus::Impl final : ModbusLink {
       if (!queue.empty()) {
         Job* job = queue.front();
         queue.pop_front();
+        job->started = true;
         lock.unlock();
         try {
           (*job->work)(*this);
@@ -394,12 +407,20 @@ void ModbusBus::execute(const Work& work) {
     work(*impl_);
     return;
   }
-  Impl::Job job{&work, nullptr, false};
+  Impl::Job job{&work, nullptr, false, false};
   {
     std::unique_lock lock(impl_->mutex);
     if (impl_->stopping) throw DriveError(fmt::format("modbus bus {}: shut down", impl_->description_));
+    const auto limit = impl_->queue_wait_limit();
     impl_->queue.push_back(&job);
     impl_->wake.notify_all();
+    if (!impl_->finished.wait_for(lock, limit, [&] { return job.started || job.done; })) {
+      std::erase(impl_->queue, &job);
+      throw DriveError(fmt::format("modbus bus {}: the request waited {} ms for the bus without being sent (the bus "
+                                   "thread is stuck)",
+                                   impl_->description_, limit.count()));
+    }
+    // Started: its requests end within the bus's timeouts and retries.
     impl_->finished.wait(lock, [&] { return job.done; });
   }
   if (job.error) std::rethrow_exception(job.error);
