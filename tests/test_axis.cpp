@@ -487,7 +487,7 @@ TEST(Axis, StopReturnsWithinABoundWhileTheDrivesUpdateIsStuck) {
   t.log->block_status = false;
   ASSERT_TRUE(returned) << "stop() still waits for the axis";
   EXPECT_EQ(stopped.get(),
-            "rail: stop: the axis has been busy with its drive for more than 2 s; emergency stop instead (the axis is "
+            "rail: stop: the axis has been busy with its drive for more than 5 s; emergency stop instead (the axis is "
             "disabled)");
   EXPECT_GT(t.log->emergency_stops.load(), stops_before);
   EXPECT_FALSE(t.sim->status().enabled);
@@ -501,6 +501,6 @@ TEST(Axis, StopReturnsWithinABoundWhileTheDrivesUpdateIsStuck) {
   t.log->block_status = false;
   ASSERT_TRUE(cleared_returned);
   EXPECT_EQ(cleared.get(),
-            "rail: clear_fault refused: the axis has been busy with its drive for more than 2 s (a drive that does not "
+            "rail: clear_fault refused: the axis has been busy with its drive for more than 5 s (a drive that does not "
             "answer?)");
 }

@@ -34,7 +34,7 @@ constexpr auto kPollPeriod = std::chrono::milliseconds(2);
 // The longest a command waits for the axis while another command or a poll
 // step holds it. Normal holds are a drive command's round trip; beyond this
 // the drive is not answering, and a stop becomes an emergency stop.
-constexpr auto kCommandWait = std::chrono::seconds(2);
+constexpr auto kCommandWait = std::chrono::seconds(5);
 // A move's timeout is twice its planned duration plus this: room for a drive
 // that starts late or runs a gentler ramp than planned.
 constexpr auto kTimeoutMargin = std::chrono::seconds(2);
