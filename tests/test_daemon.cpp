@@ -163,6 +163,20 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": rig: no such rig file: " + (dir_ / "nowhere.toml").string());
   }
   {
+    // Numbers have ranges: no overflow into a short timeout, no "not an int".
+    const auto [error, where] = error_with("frame_timeout_ms = 2000", "frame_timeout_ms = 9223372036854775807");
+    EXPECT_EQ(error, where + ": camera.frame_timeout_ms: must be from 1 to 86400000 ms, got 9223372036854775807");
+  }
+  {
+    const auto [error, where] = error_with("size_m = 0.08", "size_m = 1e300");
+    EXPECT_EQ(error, where + ": marker.size_m: must be from 0.001 to 10 m, got 1e+300");
+  }
+  {
+    const auto [error, where] = error_with("policy = \"lossless\"", "policy = \"lossless\"\nslots = 4294967298");
+    EXPECT_EQ(error, where.substr(0, where.rfind(':')) + ":" + std::to_string(std::stoi(where.substr(where.rfind(':') + 1)) + 1) +
+                         ": pipeline.slots: must be from 2 to 256, got 4294967298");
+  }
+  {
     // A directory where a file belongs is named at the key that names it.
     fs::create_directories(dir_ / "rig.d");
     const auto [error, where] = error_with("rig = \"rig.toml\"", "rig = \"rig.d\"");

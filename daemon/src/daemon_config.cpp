@@ -2,12 +2,12 @@
 
 #include <fmt/format.h>
 
-#include "markerd/base/read_file.hpp"
-
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdlib>
+
+#include "markerd/base/read_file.hpp"
 
 namespace markerd::daemon {
 
