@@ -194,6 +194,11 @@ TEST(ModbusConfig, BusAndDriveErrorsNameFileLineAndKey) {
   EXPECT_EQ(bus("type = \"tcp\"\nhost = \"10.0.0.2\"\ndevice = \"/dev/ttyS0\"\n").rfind(
                 "rig.toml:4: rig.buses.rtu0.device: unknown key", 0),
             0u);
+  // Refused when markerd starts otherwise: --check-config must say so.
+  EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"\"\n"),
+            "rig.toml:3: rig.buses.rtu0.device: must name the serial device (a path such as /dev/ttyUSB0)");
+  EXPECT_EQ(bus("type = \"tcp\"\nhost = \"\"\n"),
+            "rig.toml:3: rig.buses.rtu0.host: must name the server (a host name or an address)");
   EXPECT_EQ(bus("type = \"can\"\n"), "rig.toml:2: rig.buses.rtu0.type: must be \"rtu\" or \"tcp\", got \"can\"");
   EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"/dev/ttyS0\"\nretries = 11\n"),
             "rig.toml:4: rig.buses.rtu0.retries: must be from 0 to 10, got 11");

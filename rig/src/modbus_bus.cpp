@@ -36,6 +36,8 @@ ModbusBusSettings parse_modbus_bus(const ConfigTable& t) {
     t.allow_only({"type", "device", "baud", "parity", "data_bits", "stop_bits", "response_timeout_ms",
                   "byte_timeout_ms", "retries", "poll_ms"});
     s.device = t.required<std::string>("device");
+    // libmodbus refuses an empty one only when markerd starts.
+    if (s.device.empty()) t.fail("device", "must name the serial device (a path such as /dev/ttyUSB0)");
     s.baud = static_cast<int>(t.optional<std::int64_t>("baud", s.baud, {1200, 921600, "baud"}));
     // libmodbus quietly falls back to 9600 baud for a rate termios lacks.
     constexpr std::array kBauds{1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600};
@@ -54,6 +56,7 @@ ModbusBusSettings parse_modbus_bus(const ConfigTable& t) {
     s.transport = ModbusTransport::tcp;
     t.allow_only({"type", "host", "port", "response_timeout_ms", "byte_timeout_ms", "retries", "poll_ms"});
     s.host = t.required<std::string>("host");
+    if (s.host.empty()) t.fail("host", "must name the server (a host name or an address)");
     s.port = static_cast<int>(t.optional<std::int64_t>("port", s.port, {1, 65535}));
   } else {
     t.fail("type", fmt::format("must be \"rtu\" or \"tcp\", got \"{}\"", type));
