@@ -1,0 +1,53 @@
+// Camera files (camera_model.cpp): OpenCV's calibration YAML, XML or JSON,
+// as a markerd config's camera.model names them. CameraModel reads only
+// from a path, so each input is written to a file in memory (/dev/shm)
+// first. CameraModelError is the one error it may raise. A model it
+// accepts must survive save and load unchanged, and its distortion
+// functions must run on it.
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include <fmt/format.h>
+
+#include "fuzz_support.hpp"
+#include "markerd/detector/camera_model.hpp"
+
+namespace {
+
+bool same(const markerd::CameraModel& a, const markerd::CameraModel& b) {
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
+         a.cy == b.cy && a.dist == b.dist;
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  static const std::filesystem::path input = markerd::fuzz::scratch_dir() / "camera.yaml";
+  static const std::filesystem::path saved = markerd::fuzz::scratch_dir() / "camera-saved.yaml";
+  markerd::fuzz::write_file(input, markerd::fuzz::as_text(data, size));
+  markerd::CameraModel model;
+  try {
+    model = markerd::CameraModel::load(input);
+  } catch (const markerd::CameraModelError& e) {
+    markerd::fuzz::expected_error(e);
+    return 0;
+  }
+  for (const double v : {model.fx, model.fy, model.cx, model.cy}) {
+    if (!std::isfinite(v)) markerd::fuzz::finding(fmt::format("a camera_matrix holding {} is accepted", v));
+  }
+  model.save(saved);
+  const markerd::CameraModel again = markerd::CameraModel::load(saved);
+  if (!same(model, again)) markerd::fuzz::finding("a camera model changes when saved and loaded again");
+
+  const markerd::CameraModel half = model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));
+  for (const auto& m : {model, half}) {
+    for (const markerd::Point2 pixel : {markerd::Point2{0, 0}, markerd::Point2{m.cx, m.cy},
+                                        markerd::Point2{static_cast<double>(m.width - 1), static_cast<double>(m.height - 1)}}) {
+      const markerd::Point2 normalized = m.pixel_to_normalized(pixel);
+      (void)m.normalized_to_pixel(normalized);
+    }
+  }
+  return 0;
+}
