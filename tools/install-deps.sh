@@ -38,6 +38,9 @@ packages=(
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd
+  # the fuzz build (tools/run-fuzz.sh): clang and its runtime libraries,
+  # libFuzzer among them
+  clang libclang-rt-14-dev
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
   # renders SVG from the scripts the report writes; -nox leaves out X and Qt
   gnuplot-nox
