@@ -2,7 +2,8 @@
 // parsed as if it lay in the repository's config/, so that `rig =
 // "rig-sim.toml"` and `model = "cameras/thesis-640x480.yaml"` reach the
 // shipped rig and camera files and their parsers too. ConfigError is the
-// one error it may raise.
+// one error it may raise. A config it accepts must give markerd its
+// detectors: what --check-config passes must not fail when markerd starts.
 
 #include <string>
 
@@ -15,7 +16,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   try {
     const auto root = markerd::ConfigTable::parse(markerd::fuzz::as_text(data, size), source);
     const markerd::daemon::DaemonConfig config = markerd::daemon::parse_daemon_config(root);
-    (void)markerd::daemon::detector_config(config);
+    (void)markerd::make_detector(markerd::daemon::detector_config(config));
   } catch (const markerd::ConfigError& e) {
     markerd::fuzz::expected_error(e);
   }

@@ -5,9 +5,10 @@
 //   4    bit 0: with the camera model and a marker size (the pose path)
 //        bit 1: uniform_ids   bit 2: model_small_cells   bit 3: rows padded
 //        bits 4-7: decimate (modulo 9: 0 automatic .. 8)
-//   5    threshold_offset (modulo 129)   6  min_hole_side_px - 2
-//   7    min_margin * 255                8  blur_sigma_px * 25.5
-// The options span the ranges markerd's config accepts. The pixels repeat
+//   5    threshold_offset - 1 (modulo 100)   6  min_hole_side_px - 2
+//   7    min_margin * 255                    8  blur_sigma_px * 51
+// The options span the ranges the detector accepts (markerd's config
+// accepts more: docs/fuzzing.md, findings). The pixels repeat
 // to fill the image (none: a black one). The image lies in a buffer of
 // exactly its size, so that a read past its last pixel is a sanitizer
 // report. Every option set must give a detector, and what it reports must
@@ -65,10 +66,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   config.frame8.uniform_ids = (flags & 2u) != 0;
   config.frame8.model_small_cells = (flags & 4u) != 0;
   config.frame8.decimate = (flags >> 4) % 9;
-  config.frame8.threshold_offset = data[5] % 129;
+  config.frame8.threshold_offset = 1 + data[5] % 100;
   config.frame8.min_hole_side_px = 2.0 + data[6];
   config.frame8.min_margin = data[7] / 255.0 * 0.99;
-  config.frame8.blur_sigma_px = data[8] / 25.5;
+  config.frame8.blur_sigma_px = data[8] / 51.0;
   if (with_pose) {
     config.camera = markerd::CameraModel::thesis_640x480().scaled_to(width, height);
     config.marker_size_m = 0.08;
