@@ -80,6 +80,9 @@ asan_extra() {
   esac
 }
 
+# The first line of a report, wherever libFuzzer's output put it.
+finding_pattern='(runtime error: |ERROR: (Address|Leak|UndefinedBehavior)Sanitizer|ERROR: libFuzzer: (timeout|out-of-memory|deadly signal)|what\(\): |fuzz: finding: ).*'
+
 summary=()
 failed=0
 for t in "${targets[@]}"; do
@@ -115,7 +118,7 @@ for t in "${targets[@]}"; do
   new=$(echo -n "$new_files" | grep -c . || true)
   if [[ $rc -ne 0 || $new -gt 0 ]]; then
     failed=1
-    echo "run-fuzz: $t: FINDING (exit $rc): $(grep -m1 -E 'ERROR: |runtime error|terminate called|fuzz: finding' "$log" || echo 'see the log')"
+    echo "run-fuzz: $t: FINDING (exit $rc): $(grep -m1 -oE "$finding_pattern" "$log" | cut -c1-300 || echo 'see the log')"
     [[ -n $new_files ]] && sed 's/^/run-fuzz:   input: /' <<<"$new_files"
   fi
   if [[ $merge -eq 1 ]]; then
