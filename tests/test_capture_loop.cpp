@@ -2,7 +2,8 @@
 // delivers with the source id and rig snapshot, reports and outlives a
 // camera that is missing at start, vanishes, fails a frame or stalls,
 // reopening with backoff, and ends with a finite source. And the simulated
-// camera: what it renders, when it renders, its noise and its pace.
+// camera: what it renders, when it renders, its noise and its pace, and its
+// scheduled outages.
 
 #include <gtest/gtest.h>
 
@@ -333,6 +334,63 @@ TEST(SimCamera, KeepsItsFrameRate) {
   EXPECT_GE(elapsed, 95ms);  // ten periods of 10 ms; never early
   // A timeout shorter than the period is a wait without a frame.
   EXPECT_FALSE(sim.wait_frame(1ms));
+}
+
+
+// What a capture loop sees of a camera with scheduled outages: frames, then
+// the camera vanishes at a frame, refuses to open while the outage lasts,
+// opens again after it and streams; and again at the next outage.
+TEST(SimCamera, DropsOutOnItsScheduleAndComesBack) {
+  SimCameraSettings settings = quiet_settings();
+  settings.outage_every = 300ms;
+  settings.outage_for = 100ms;
+  SimCamera sim(settings, CameraModel::thesis_640x480(), {});
+  FramePool pool({1, 640 * 480, 4});
+  sim.open();
+  // What happened, with repeats collapsed: "frame", "vanished: ...",
+  // "opened". The refusals to open while an outage lasts are checked where
+  // they happen, not counted: a test thread held up past an outage sees none.
+  std::vector<std::string> seen;
+  const auto note = [&](const std::string& what) {
+    if (seen.empty() || seen.back() != what) seen.push_back(what);
+  };
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  std::string last_vanish;
+  while (sim.outages() < 2 || seen.back() != "frame") {
+    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "events so far: " << testing::PrintToString(seen);
+    if (!sim.is_open()) {
+      try {
+        sim.open();
+        note("opened");
+      } catch (const CaptureError& e) {
+        EXPECT_EQ(e.kind(), CaptureError::Kind::not_found);
+        EXPECT_EQ(e.what(), last_vanish) << "open() refuses for the outage's own reason";
+        std::this_thread::sleep_for(5ms);
+      }
+      continue;
+    }
+    try {
+      if (!sim.wait_frame(1s)) continue;
+    } catch (const CaptureError& e) {
+      EXPECT_EQ(e.kind(), CaptureError::Kind::vanished);
+      EXPECT_FALSE(sim.is_open());
+      last_vanish = e.what();
+      note("vanished: " + last_vanish);
+      continue;
+    }
+    Frame* frame = pool.try_acquire();
+    ASSERT_NE(frame, nullptr);
+    sim.fill(*frame);
+    EXPECT_EQ(frame->status, FrameStatus::ok);
+    pool.release(*frame);
+    note("frame");
+  }
+  const std::vector<std::string> expected{
+      "frame", "vanished: sim 640x480@1000: dropped out (simulated outage 1: 0.1 s every 0.3 s)", "opened",
+      "frame", "vanished: sim 640x480@1000: dropped out (simulated outage 2: 0.1 s every 0.3 s)", "opened",
+      "frame"};
+  EXPECT_EQ(seen, expected);
+  EXPECT_EQ(sim.outages(), 2U);
 }
 
 }  // namespace

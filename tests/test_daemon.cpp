@@ -141,6 +141,15 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": camera.sim.fps: must be > 0 and <= 1000, got -1");
   }
   {
+    // The simulated camera's outages: an outage as long as the period would never end.
+    const auto [error, where] = error_with("fps = 30", "outage_s = 3\noutage_every_s = 2\nfps = 30");
+    EXPECT_EQ(error, where + ": camera.sim.outage_s: must be shorter than outage_every_s (2 s), got 3 s");
+  }
+  {
+    const auto [error, where] = error_with("fps = 30", "outage_every_s = -1");
+    EXPECT_EQ(error, where + ": camera.sim.outage_every_s: must be from 0 to 86400 s, got -1");
+  }
+  {
     const auto [error, where] = error_with("id = 165", "id = 300");
     EXPECT_EQ(error, where + ": marker.id: must be 0 .. 255 for frame8, got 300");
   }

@@ -28,7 +28,7 @@ std::uint64_t splitmix(std::uint64_t& state) {
 
 SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   t.allow_only({"fps", "exposure", "blur_sigma_px", "noise_sigma", "supersample", "clutter", "distort", "seed",
-                "rail_mm", "turntable_deg"});
+                "rail_mm", "turntable_deg", "outage_every_s", "outage_s"});
   SimCameraSettings s;
   s.fps = t.optional<double>("fps", s.fps);
   if (!(s.fps > 0 && s.fps <= 1000)) t.fail("fps", fmt::format("must be > 0 and <= 1000, got {}", s.fps));
@@ -52,6 +52,16 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   // The rig's own ranges: a kilometre of rail, a turn either way.
   s.rail_mm = t.optional<double>("rail_mm", s.rail_mm, {-1e6, 1e6, "mm"});
   s.turntable_deg = t.optional<double>("turntable_deg", s.turntable_deg, {-360, 360, "deg"});
+  // A day is far beyond any soak; a tenth of a second is a few frames.
+  const double every_s = t.optional<double>("outage_every_s", 0.0, {0, 86400, "s"});
+  const double for_s = t.optional<double>("outage_s", 5.0, {0.1, 3600, "s"});
+  if (every_s > 0) {
+    if (for_s >= every_s) {
+      t.fail("outage_s", fmt::format("must be shorter than outage_every_s ({} s), got {} s", every_s, for_s));
+    }
+    s.outage_every = std::chrono::milliseconds(std::llround(every_s * 1000));
+    s.outage_for = std::chrono::milliseconds(std::llround(for_s * 1000));
+  }
   return s;
 }
 
@@ -78,19 +88,32 @@ CaptureGeometry SimCamera::geometry() const {
           settings_.fps};
 }
 
-void SimCamera::open() {
-  if (unplugged_.load(std::memory_order_relaxed)) {
-    throw CaptureError(CaptureError::Kind::not_found, name_ + ": unplugged (simulated)");
+std::optional<std::string> SimCamera::absent() {
+  if (unplugged_.load(std::memory_order_relaxed)) return "unplugged (simulated)";
+  if (settings_.outage_every.count() <= 0) return std::nullopt;
+  const auto age = std::chrono::steady_clock::now() - created_;
+  const auto n = static_cast<std::uint64_t>(age / settings_.outage_every);  // outages begun by now
+  if (n == 0 || age - settings_.outage_every * n >= settings_.outage_for) return std::nullopt;
+  if (n != outage_seen_) {
+    outage_seen_ = n;
+    outages_.fetch_add(1, std::memory_order_relaxed);
   }
+  return fmt::format("dropped out (simulated outage {}: {} s every {} s)", n,
+                     std::chrono::duration<double>(settings_.outage_for).count(),
+                     std::chrono::duration<double>(settings_.outage_every).count());
+}
+
+void SimCamera::open() {
+  if (auto why = absent()) throw CaptureError(CaptureError::Kind::not_found, name_ + ": " + *why);
   open_ = true;
   next_frame_ = std::chrono::steady_clock::now();
 }
 
 bool SimCamera::wait_frame(std::chrono::milliseconds timeout) {
   if (!open_) throw CaptureError(CaptureError::Kind::io, name_ + ": not open");
-  if (unplugged_.load(std::memory_order_relaxed)) {
+  if (auto why = absent()) {
     open_ = false;
-    throw CaptureError(CaptureError::Kind::vanished, name_ + ": unplugged (simulated)");
+    throw CaptureError(CaptureError::Kind::vanished, name_ + ": " + *why);
   }
   const auto now = std::chrono::steady_clock::now();
   if (next_frame_ > now + timeout) {

@@ -49,6 +49,11 @@ struct SimCameraSettings {
   // Without a rig: the fixed rail and turntable positions to render.
   double rail_mm = 650.0;
   double turntable_deg = 0.0;
+  // Fault injection on a schedule (for soak tests; zero: never): every
+  // `outage_every` of the camera's life it vanishes for `outage_for`, as
+  // set_unplugged() does, then comes back.
+  std::chrono::milliseconds outage_every{0};
+  std::chrono::milliseconds outage_for{0};
 };
 
 // [camera.sim]: the imaging and the frame rate; the marker comes from the
@@ -75,13 +80,19 @@ class SimCamera final : public CaptureSource {
   // Fault injection, from any thread: an unplugged camera vanishes at its
   // next frame (CaptureError vanished) and cannot be opened (not_found)
   // until it is plugged in again, as a USB camera pulled from its socket.
+  // The settings' outage schedule unplugs it the same way.
   void set_unplugged(bool unplugged) noexcept { unplugged_.store(unplugged, std::memory_order_relaxed); }
+
+  // Scheduled outages begun so far.
+  [[nodiscard]] std::uint64_t outages() const noexcept { return outages_.load(std::memory_order_relaxed); }
 
   // Renders so far (one per distinct pair of positions shown).
   [[nodiscard]] std::uint64_t renders() const noexcept { return renders_; }
 
  private:
   void render_if_moved(double rail_mm, double turntable_deg);
+  // Why the camera is away now (unplugged, or in a scheduled outage); nothing while it is there.
+  [[nodiscard]] std::optional<std::string> absent();
 
   SimCameraSettings settings_;
   CameraModel camera_;
@@ -91,6 +102,9 @@ class SimCamera final : public CaptureSource {
 
   bool open_ = false;
   std::atomic<bool> unplugged_{false};
+  std::chrono::steady_clock::time_point created_ = std::chrono::steady_clock::now();  // the outage schedule's origin
+  std::uint64_t outage_seen_ = 0;  // the last scheduled outage counted (1: the first)
+  std::atomic<std::uint64_t> outages_{0};
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 
