@@ -12,22 +12,15 @@
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 
-#include <fcntl.h>
 #include <signal.h>
-#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <array>
-#include <cerrno>
 #include <chrono>
-#include <cstdio>
 #include <filesystem>
-#include <fstream>
 #include <memory>
 #include <optional>
 #include <random>
-#include <sstream>
 #include <string>
 #include <string_view>
 #include <thread>
@@ -37,6 +30,7 @@
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/summary.hpp"
+#include "support/child_process.hpp"
 
 namespace markerd {
 namespace {
@@ -47,17 +41,9 @@ using daemon::ControlClient;
 using nlohmann::json;
 using Clock = std::chrono::steady_clock;
 
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-void write_file(const fs::path& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-}
+using test_support::describe_wait_status;
+using test_support::read_file;
+using test_support::write_file;
 
 // Five points (three distances facing the camera, two angles at 0.5 m), two
 // measurements of four frames each: ten steps.
@@ -85,81 +71,28 @@ distance_m = [0.5]
 angle_deg = [20.0, 40.0]
 )";
 
-// A markerd child process. Whatever happens to the test, it does not outlive
-// the guard (nor the test process: PR_SET_PDEATHSIG).
+// A markerd child process (it does not outlive the guard, nor the test
+// process); a failure when it cannot be started or stopped.
 class MarkerdProcess {
  public:
-  MarkerdProcess() = default;
-  MarkerdProcess(const MarkerdProcess&) = delete;
-  MarkerdProcess& operator=(const MarkerdProcess&) = delete;
-  ~MarkerdProcess() {
-    if (pid_ > 0) (void)kill9();
-  }
-
   // Starts markerd --config `config`; its stdout and stderr are appended to `output`.
   void start(const fs::path& config, const fs::path& output) {
-    ASSERT_LE(pid_, 0) << "markerd is running already";
-    const pid_t parent = ::getpid();
-    const pid_t pid = ::fork();
-    ASSERT_GE(pid, 0) << "fork failed";
-    if (pid == 0) {
-      ::prctl(PR_SET_PDEATHSIG, SIGKILL);
-      if (::getppid() != parent) _exit(125);
-      const int out = ::open(output.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-      if (out < 0 || ::dup2(out, 1) < 0 || ::dup2(out, 2) < 0) _exit(126);
-      std::string program = MARKERD_PATH;
-      std::string option = "--config";
-      std::string path = config.string();
-      std::array<char*, 4> argv{program.data(), option.data(), path.data(), nullptr};
-      ::execv(program.c_str(), argv.data());
-      _exit(127);
-    }
-    pid_ = pid;
+    ASSERT_NO_THROW(process_.start({MARKERD_PATH, "--config", config.string()}, output));
   }
-
-  [[nodiscard]] bool running() const { return pid_ > 0; }
-
-  // Has it ended by itself? Reaps it then.
-  [[nodiscard]] std::optional<int> exited() {
-    if (pid_ <= 0) return std::nullopt;
-    int status = 0;
-    if (::waitpid(pid_, &status, WNOHANG) != pid_) return std::nullopt;
-    pid_ = -1;
-    return status;
-  }
-
-  // SIGKILL and reap; the wait status.
-  int kill9() {
-    ::kill(pid_, SIGKILL);
-    return reap();
-  }
+  [[nodiscard]] bool running() const { return process_.running(); }
+  [[nodiscard]] std::optional<int> exited() { return process_.exited(); }
+  test_support::ChildProcess& process() { return process_; }
+  int kill9() { return process_.kill9(); }
 
   // SIGTERM and reap, with a SIGKILL after `timeout`; the wait status.
   int terminate(std::chrono::milliseconds timeout) {
-    ::kill(pid_, SIGTERM);
-    const auto deadline = Clock::now() + timeout;
-    while (Clock::now() < deadline) {
-      int status = 0;
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return status;
-      }
-      std::this_thread::sleep_for(10ms);
-    }
+    if (const auto status = process_.terminate(timeout)) return *status;
     ADD_FAILURE() << "markerd did not stop within " << timeout.count() << " ms of SIGTERM";
-    return kill9();
+    return process_.kill9();
   }
 
  private:
-  int reap() {
-    int status = 0;
-    while (::waitpid(pid_, &status, 0) < 0 && errno == EINTR) {
-    }
-    pid_ = -1;
-    return status;
-  }
-
-  pid_t pid_ = -1;
+  test_support::ChildProcess process_;
 };
 
 // One markerd setup in a directory of its own: rig, config, logs/, state/.
@@ -216,34 +149,17 @@ directory = "state"
   [[nodiscard]] fs::path journal() const { return dir / "state/sweep-journal.json"; }
 };
 
-std::string describe(int status) {
-  if (WIFEXITED(status)) return fmt::format("exit status {}", WEXITSTATUS(status));
-  if (WIFSIGNALED(status)) return fmt::format("killed by signal {}", WTERMSIG(status));
-  return fmt::format("wait status {}", status);
-}
+std::string describe(int status) { return describe_wait_status(status); }
 
 // markerd's control socket, once it accepts; fails (and returns nothing)
 // when markerd ends first or `timeout` passes.
 std::unique_ptr<ControlClient> connect_control(MarkerdProcess& markerd, const Workspace& setup,
-                                       std::chrono::milliseconds timeout = 30s) {
-  const auto deadline = Clock::now() + timeout;
-  std::string last_error;
-  for (;;) {
-    if (const auto status = markerd.exited()) {
-      ADD_FAILURE() << "markerd ended (" << describe(*status) << ") before its control socket accepted:\n"
-                    << read_file(setup.output());
-      return nullptr;
-    }
-    try {
-      return std::make_unique<ControlClient>(setup.socket());
-    } catch (const daemon::ControlClientError& e) {
-      last_error = e.what();
-    }
-    if (Clock::now() > deadline) {
-      ADD_FAILURE() << "markerd's control socket did not accept within " << timeout.count() << " ms: " << last_error;
-      return nullptr;
-    }
-    std::this_thread::sleep_for(20ms);
+                                               std::chrono::milliseconds timeout = 30s) {
+  try {
+    return test_support::connect_control(markerd.process(), setup.socket(), setup.output(), timeout);
+  } catch (const std::runtime_error& e) {
+    ADD_FAILURE() << e.what();
+    return nullptr;
   }
 }
 
@@ -275,31 +191,14 @@ std::optional<json> wait_status(ControlClient& client, Predicate done, std::chro
   }
 }
 
-std::vector<std::string> split_lines(const std::string& text) {
-  std::vector<std::string> lines;
-  std::istringstream in(text);
-  for (std::string line; std::getline(in, line);) lines.push_back(line);
-  return lines;
-}
-
 // Every line of `file` whole: the file ends with '\n' (or is empty) and every
 // line is a JSON document.
 void expect_whole_json_lines(const fs::path& file) {
   SCOPED_TRACE(file.string());
-  const std::string text = read_file(file);
-  if (text.empty()) return;
-  EXPECT_EQ(text.back(), '\n') << "the last line is torn: ..."
-                               << text.substr(text.size() - std::min<std::size_t>(text.size(), 200));
-  std::size_t number = 0;
-  for (const std::string& line : split_lines(text)) {
-    ++number;
-    try {
-      const json document = json::parse(line);
-      EXPECT_TRUE(document.is_object()) << "line " << number << ": " << line.substr(0, 200);
-    } catch (const json::exception& e) {
-      ADD_FAILURE() << "line " << number << " is not whole JSON (" << e.what() << "): " << line.substr(0, 200);
-    }
-  }
+  const test_support::JsonLines lines = test_support::check_json_lines_file(file);
+  EXPECT_TRUE(lines.ends_whole) << "the last line is torn: ..." << lines.tail.substr(0, 200);
+  EXPECT_EQ(lines.objects, lines.lines);
+  for (const std::string& problem : lines.problems) ADD_FAILURE() << problem;
 }
 
 std::size_t count_events(const sweep::RunRecords& records, std::string_view kind) {
