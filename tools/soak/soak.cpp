@@ -118,6 +118,8 @@ class Soak {
   void archive(const std::filesystem::path& run);
   // The end.
   void finish();
+  void wait_for_the_run_to_end();
+  std::vector<std::filesystem::path> stop_markerd();
   void report();
 
   std::optional<json> call(const json& request);
@@ -142,7 +144,8 @@ class Soak {
 
   test_support::ChildProcess markerd_;
   std::unique_ptr<daemon::ControlClient> client_;
-  int instance_ = 0;
+  int instance_ = 0;  // the markerd running now (1: the first)
+  int started_ = 0;   // markerds started
   Clock::time_point instance_started_{};
   std::optional<Clock::time_point> restart_at_;
 
@@ -227,6 +230,7 @@ directory = "disk/state"
 
 void Soak::start_markerd() {
   ++instance_;
+  ++started_;
   client_.reset();
   markerd_.start({o_.markerd, "--config", (dir_ / "markerd.toml").string()}, output_);
   instance_started_ = Clock::now();
@@ -241,7 +245,11 @@ void Soak::start_markerd() {
 }
 
 void Soak::kill_markerd() {
+  // The run's state just before: one that had already ended (failed on a
+  // full disk, say) is not cut off by the kill, and must not be resumed.
+  if (client_) poll_status();
   client_.reset();
+  if (!markerd_.running()) return;  // it ended by itself meanwhile (reported)
   (void)markerd_.kill9();
   ++kills_;
   if (disk_->full()) ++kills_while_full_;
@@ -251,9 +259,9 @@ void Soak::kill_markerd() {
     const fs::path journal = state_ / "sweep-journal.json";
     if (fs::exists(journal)) {
       const fs::path run = json::parse(read_file(journal)).value("run_directory", "");
-      if (fs::exists(run / "start.json") && !fs::exists(run / "stop.json")) {
-        const sweep::RunRecords records = sweep::read_run(run);
-        runs_[run.filename().string()].cut_at.push_back(records.points.size());
+      RunObservation& observed = runs_[run.filename().string()];
+      if (fs::exists(run / "start.json") && !fs::exists(run / "stop.json") && observed.ended_as.empty()) {
+        observed.cut_at.push_back(sweep::read_run(run).points.size());
       }
     }
   } catch (const std::exception& e) {
@@ -477,6 +485,44 @@ void Soak::tick() {
   }
 }
 
+// Polls until no run is going (idle or ended), for up to 10 minutes.
+void Soak::wait_for_the_run_to_end() {
+  const auto deadline = Clock::now() + 10min;
+  for (;;) {
+    if (!markerd_.running()) {
+      if (restart_at_) start_markerd();
+      if (!markerd_.running()) return;
+    } else if (const auto status = markerd_.exited()) {
+      markerd_ended_by_itself(*status);
+      continue;
+    }
+    poll_status();
+    if (state_now_ == "idle" || state_now_ == "done" || state_now_ == "failed" || state_now_ == "aborted") return;
+    if (Clock::now() > deadline) {
+      problem(fmt::format("the last run ({}) did not end within 10 min; it is {}", run_now_, state_now_));
+      return;
+    }
+    std::this_thread::sleep_for(500ms);
+  }
+}
+
+// SIGTERM, and exit status 0 within a minute; the files it had open.
+std::vector<fs::path> Soak::stop_markerd() {
+  std::vector<fs::path> open;
+  if (markerd_.running()) open = open_files(markerd_.pid());
+  client_.reset();
+  if (markerd_.running()) {
+    const auto status = markerd_.terminate(60s);
+    if (!status) {
+      problem("markerd did not stop within 60 s of SIGTERM");
+      (void)markerd_.kill9();
+    } else if (!WIFEXITED(*status) || WEXITSTATUS(*status) != 0) {
+      problem("markerd ended SIGTERM with " + test_support::describe_wait_status(*status));
+    }
+  }
+  return open;
+}
+
 // No more faults; the last run goes to its end; markerd, idle again, is
 // measured against the first one, then stopped with SIGTERM; every record
 // is checked.
@@ -487,22 +533,22 @@ void Soak::finish() {
   full_until_.reset();
   followers_->detach_all(problems_);
   if (!markerd_.running()) start_markerd();
-  const auto deadline = Clock::now() + 10min;
-  for (;;) {
-    if (!markerd_.running()) {
-      if (restart_at_) start_markerd();
-      if (!markerd_.running()) break;
-    } else if (const auto status = markerd_.exited()) {
-      markerd_ended_by_itself(*status);
-      continue;
+  wait_for_the_run_to_end();
+  // The end is measured after a run done, as the start was before any: a run
+  // that failed may hold its records open until the next one replaces it.
+  if (state_now_ != "done") {
+    std::cout << fmt::format("soak: the last run ended {}; one more, which must end done\n",
+                             state_now_.empty() ? "nowhere" : state_now_);
+    const std::string before = run_now_;
+    const auto until = Clock::now() + 30s;
+    while (run_now_ == before && markerd_.running() && Clock::now() < until) {
+      start_run();  // a refusal (say, an end still to be written) is tried again
+      if (run_now_ == before) std::this_thread::sleep_for(2s);
     }
-    poll_status();
-    if (state_now_ == "idle" || state_now_ == "done" || state_now_ == "failed" || state_now_ == "aborted") break;
-    if (Clock::now() > deadline) {
-      problem(fmt::format("the last run ({}) did not end within 10 min; it is {}", run_now_, state_now_));
-      break;
+    wait_for_the_run_to_end();
+    if (state_now_ != "done") {
+      problem(fmt::format("with the faults over, a run did not end done but {} ({})", state_now_, run_now_));
     }
-    std::this_thread::sleep_for(500ms);
   }
   look_at_files();
 
@@ -516,26 +562,30 @@ void Soak::finish() {
     } while (at_end_ && baseline_ && (at_end_->fds > baseline_->fds || at_end_->threads > baseline_->threads) &&
              Clock::now() < until);
   }
-  std::vector<fs::path> open;
-  if (markerd_.running()) open = open_files(markerd_.pid());
-  client_.reset();
-  if (markerd_.running()) {
-    const auto status = markerd_.terminate(60s);
-    if (!status) {
-      problem("markerd did not stop within 60 s of SIGTERM");
-      (void)markerd_.kill9();
-    } else if (!WIFEXITED(*status) || WEXITSTATUS(*status) != 0) {
-      problem("markerd ended SIGTERM with " + test_support::describe_wait_status(*status));
-    }
+  const int measured = instance_;
+  std::vector<fs::path> open = stop_markerd();
+  // A run that ended on a full disk may have its end only in the journal:
+  // the next markerd writes its stop record (docs/sweep.md), as a restart
+  // of the service would.
+  if (fs::exists(state_ / "sweep-journal.json")) {
+    std::cout << "soak: a sweep journal is left after SIGTERM; starting markerd once more, which settles it\n";
+    start_markerd();
+    wait_for_the_run_to_end();
+    const std::vector<fs::path> more = stop_markerd();
+    open.insert(open.end(), more.begin(), more.end());
   }
+  instance_ = measured;  // the memory judged is the long-lived one's
   // The last markerd stopped cleanly: its files end whole. Earlier ones were
   // killed, and may have been cut in the middle of a line.
+  for (const auto& entry : fs::directory_iterator(logs_)) logs_watch_.look(entry.path(), problems_);
   for (const fs::path& file : logs_watch_.watched()) {
     logs_watch_.retire(file, std::find(open.begin(), open.end(), file) != open.end(), problems_);
   }
   for (const fs::path& file : records_watch_.watched()) records_watch_.retire(file, true, problems_);
   if (fs::exists(state_ / "sweep-journal.json")) {
-    problem("a sweep journal is left: " + read_file(state_ / "sweep-journal.json"));
+    std::string journal = read_file(state_ / "sweep-journal.json");
+    while (!journal.empty() && journal.back() == '\n') journal.pop_back();
+    problem("a sweep journal is left: " + journal);
     fs::copy(state_ / "sweep-journal.json", dir_ / "sweep-journal.json");
   }
   for (const auto& entry : fs::directory_iterator(state_ / "runs")) archive(entry.path());
@@ -623,7 +673,7 @@ void Soak::report() {
       "  RSS at the start (first sample after the warm-up): {}; at the end: {}\n"
       "  descriptors: {} at the start, {} at the end; threads: {} at the start, {} at the end (idle)\n"
       "  samples: {} in {}\n",
-      o_.seed, o_.time_scale, dir_.string(), since(began_) / 3600.0, since(began_), instance_, kills_, kills_while_full_,
+      o_.seed, o_.time_scale, dir_.string(), since(began_) / 3600.0, since(began_), started_, kills_, kills_while_full_,
       crashes_, hangs_, fills_, o_.disk_mib, o_.disk_full_s, o_.camera_outage_every_s, o_.camera_outage_s,
       camera_lost, camera_back, runs.camera_suspensions, runs.runs, runs.done, runs.failed, runs.aborted, runs.unended, [&] {
         std::uint64_t n = 0;
