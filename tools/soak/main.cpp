@@ -54,7 +54,7 @@ int main(int argc, char** argv) {
   o.markerd = MARKERD_PATH;
   o.markerctl = MARKERCTL_PATH;
   o.source_dir = MARKERD_SOURCE_DIR;
-  o.work_dir = "soak";
+  o.work_dir = MARKERD_SOAK_WORK_DIR;  // the build directory's soak/
   std::string duration = "1h";
 
   CLI::App app(

@@ -206,8 +206,7 @@ reopen_max_delay_ms = 1000
 fps = 30
 noise_sigma = 2.0
 supersample = 2
-outage_every_s = {}
-outage_s = {}
+{}
 
 [pipeline]
 policy = "live"
@@ -223,7 +222,11 @@ socket = "control.sock"
 [sweep]
 directory = "disk/state"
 )",
-                                                o_.source_dir, o_.camera_outage_every_s, o_.camera_outage_s));
+                                                o_.source_dir,
+                                                o_.camera_outage_every_s > 0
+                                                    ? fmt::format("outage_every_s = {}\noutage_s = {}",
+                                                                  o_.camera_outage_every_s, o_.camera_outage_s)
+                                                    : "# the camera does not drop out (--camera-outage-every-s 0)"));
   write_file(dir_ / "soak.toml", kPlan);
   plan_text_ = kPlan;
 }
@@ -659,7 +662,7 @@ void Soak::report() {
       "  duration: {:.2f} h ({:.0f} s)\n"
       "  markerd: {} started, {} kill -9 ({} while the disk was full), {} ended by itself, {} did not answer\n"
       "  disk: {} fills of the {} MiB tmpfs, {} s each\n"
-      "  camera: outages every {} s for {} s: lost {} times, streaming again {} times; {} runs suspended by it\n"
+      "  camera: {}: lost {} times, streaming again {} times; {} runs suspended by it\n"
       "  runs: {} ({} done, {} failed, {} aborted, {} without a stop record); {} starts refused{}\n"
       "  failed runs' causes:{}\n"
       "  measurements: {} planned, {} recorded, {} duplicates, {} missing; {} planned by done runs, all recorded; "
@@ -674,7 +677,9 @@ void Soak::report() {
       "  descriptors: {} at the start, {} at the end; threads: {} at the start, {} at the end (idle)\n"
       "  samples: {} in {}\n",
       o_.seed, o_.time_scale, dir_.string(), since(began_) / 3600.0, since(began_), started_, kills_, kills_while_full_,
-      crashes_, hangs_, fills_, o_.disk_mib, o_.disk_full_s, o_.camera_outage_every_s, o_.camera_outage_s,
+      crashes_, hangs_, fills_, o_.disk_mib, o_.disk_full_s, o_.camera_outage_every_s > 0
+          ? fmt::format("outages every {} s for {} s", o_.camera_outage_every_s, o_.camera_outage_s)
+          : std::string("no outages"),
       camera_lost, camera_back, runs.camera_suspensions, runs.runs, runs.done, runs.failed, runs.aborted, runs.unended, [&] {
         std::uint64_t n = 0;
         for (const auto& [why, count] : start_refusals_) n += count;
