@@ -474,7 +474,7 @@ void Soak::tick() {
     next_follower_ = next_after(rng_, o_.follower_changes_per_minute * 60);
   }
   if (now >= next_stall_) {
-    followers_->stall(rng_, std::chrono::milliseconds(std::uniform_int_distribution<int>(2000, 10000)(rng_)));
+    followers_->stall(rng_, std::chrono::milliseconds(std::uniform_int_distribution<int>(5000, 30000)(rng_)));
     next_stall_ = next_after(rng_, o_.stalls_per_hour);
   }
   followers_->tick(problems_);
@@ -531,7 +531,8 @@ std::vector<fs::path> Soak::stop_markerd() {
 // is checked.
 void Soak::finish() {
   std::cout << fmt::format("soak: {:.0f} s: ending: the disk freed, followers detached, the last run finishing\n",
-                           since(began_));
+                           since(began_))
+            << std::flush;
   if (disk_->full()) disk_->free();
   full_until_.reset();
   followers_->detach_all(problems_);
@@ -725,7 +726,8 @@ int Soak::run() {
   began_ = Clock::now();
   end_ = began_ + o_.duration;
   std::cout << fmt::format("soak: {} s, seed {}, time scale {}, in {} (markerd's output: {})\n", o_.duration.count(),
-                           o_.seed, o_.time_scale, dir_.string(), output_.string());
+                           o_.seed, o_.time_scale, dir_.string(), output_.string())
+            << std::flush;
   start_markerd();
   if (!markerd_.running()) throw std::runtime_error("markerd does not start; its output: " + read_file(output_));
   // The baseline: the first markerd idle, a few seconds in (its threads up,
