@@ -34,8 +34,14 @@ void Followers::attach(std::mt19937_64& rng) {
 }
 
 void Followers::detach(std::mt19937_64& rng, std::vector<std::string>& problems) {
-  if (followers_.empty()) return;
-  const std::size_t i = std::uniform_int_distribution<std::size_t>(0, followers_.size() - 1)(rng);
+  // A stalled follower stays until its stall is over: it is there to fall
+  // far enough behind for markerd to drop lines for it.
+  std::vector<std::size_t> candidates;
+  for (std::size_t i = 0; i < followers_.size(); ++i) {
+    if (!followers_[i].stalled) candidates.push_back(i);
+  }
+  if (candidates.empty()) return;
+  const std::size_t i = candidates[std::uniform_int_distribution<std::size_t>(0, candidates.size() - 1)(rng)];
   Follower& f = followers_[i];
   f.process.signal(SIGCONT);  // a stopped process would hold a SIGTERM until it runs again
   if (std::bernoulli_distribution(0.5)(rng)) {

@@ -35,7 +35,7 @@ class Followers {
 
   // Starts a follower of a random kind.
   void attach(std::mt19937_64& rng);
-  // Ends a random follower (SIGTERM or SIGKILL).
+  // Ends a random follower that is not stalled (SIGTERM or SIGKILL).
   void detach(std::mt19937_64& rng, std::vector<std::string>& problems);
   // Stops a random detections follower for `for_time` (it reads nothing meanwhile).
   void stall(std::mt19937_64& rng, std::chrono::milliseconds for_time);

@@ -81,7 +81,7 @@ int main(int argc, char** argv) {
   app.add_option("--max-followers", o.max_followers, "Followers attached at most")->check(CLI::Range(0, 12))->capture_default_str();
   app.add_option("--follower-changes-per-minute", o.follower_changes_per_minute, "Attach or detach one, this often")
       ->check(CLI::Range(0.0, 600.0))->capture_default_str();
-  app.add_option("--stalls-per-hour", o.stalls_per_hour, "A detections follower stopped (SIGSTOP) for 5 to 30 s, this often")
+  app.add_option("--stalls-per-hour", o.stalls_per_hour, "A detections follower stopped (SIGSTOP) for 30 to 90 s, this often")
       ->check(CLI::Range(0.0, 3600.0))->capture_default_str();
   app.add_option("--sample-every-s", o.sample_every_s, "markerd's RSS, threads and descriptors, this often")
       ->check(CLI::Range(0.5, 600.0))->capture_default_str();

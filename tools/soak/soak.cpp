@@ -474,7 +474,7 @@ void Soak::tick() {
     next_follower_ = next_after(rng_, o_.follower_changes_per_minute * 60);
   }
   if (now >= next_stall_) {
-    followers_->stall(rng_, std::chrono::milliseconds(std::uniform_int_distribution<int>(5000, 30000)(rng_)));
+    followers_->stall(rng_, std::chrono::milliseconds(std::uniform_int_distribution<int>(30000, 90000)(rng_)));
     next_stall_ = next_after(rng_, o_.stalls_per_hour);
   }
   followers_->tick(problems_);
