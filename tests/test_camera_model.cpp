@@ -161,6 +161,24 @@ TEST(CameraModel, ParseErrorsNameTheFileAndTheLine) {
   expect_load_error(dir.write("notes.yaml", "these are notes, not a calibration\n"), "the camera file");
 }
 
+// OpenCV 4.6's XML parser crashes (a null pointer) on some corrupt files,
+// so an XML file, good or corrupt, is refused before OpenCV sees it.
+TEST(CameraModel, XmlAndJsonFilesAreRefusedByName) {
+  const TempDir dir;
+  const std::string xml =
+      "<?xml version=\"1.0\"?>\n<opencv_storage>\n<image_width>640</image_width>\n"
+      "<image_height>480</image_height>\n</opencv_storage>\n";
+  expect_load_error(dir.write("good.xml", xml), "XML camera files are not read");
+  expect_load_error(dir.write("corrupt.xml", "<?xml version=" + std::string(200, '\0') + "\"1.0\"?>\n<opencv_storage>\n<a"),
+                    "XML camera files are not read");
+  expect_load_error(dir.write("camera.json", "{ \"image_width\": 640, \"image_height\": 480 }\n"),
+                    "JSON camera files are not read");
+  expect_load_error(dir.write("no-header.yaml", "image_width: 640\n"), "must begin with %YAML:1.0");
+  // A byte order mark before %YAML is still YAML.
+  const CameraModel c = CameraModel::load(dir.write("bom.yaml", "\xEF\xBB\xBF" + kHeader + kGoodMatrix + kGoodDistortion));
+  EXPECT_EQ(c.width, 640);
+}
+
 TEST(CameraModel, SaveLoadRoundTrip) {
   const TempDir dir;
   for (int n : {5, 8, 12}) {

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <fmt/format.h>
 #include <regex>
+#include <string_view>
 
 #include "markerd/base/read_file.hpp"
 
@@ -31,6 +32,28 @@ std::string parse_error_words(const cv::Exception& e) {
 
 [[noreturn]] void fail(const std::filesystem::path& path, const std::string& what) {
   throw CameraModelError(fmt::format("{}: {}", path.string(), what));
+}
+
+// The only format read is OpenCV's YAML. OpenCV picks its parser from the
+// first bytes alone (after a UTF-8 byte order mark): "%YAML", "{" for JSON,
+// "<?xml". Its XML parser dereferences a null pointer on some corrupt files
+// (a segmentation fault in FileStorage::open, OpenCV 4.6), which no
+// try/catch survives, so a file that is not YAML never reaches OpenCV.
+// JSON goes too: one parser to trust, the one OpenCV's and ROS's
+// calibration tools write.
+void check_yaml(const std::filesystem::path& path, std::string_view text) {
+  constexpr std::string_view bom = "\xEF\xBB\xBF";
+  if (text.substr(0, bom.size()) == bom) text.remove_prefix(bom.size());
+  if (text.substr(0, 5) == "%YAML") return;
+  const std::size_t first = text.find_first_not_of(" \t\r\n");
+  const std::string_view start = first == std::string_view::npos ? std::string_view{} : text.substr(first);
+  if (start.substr(0, 1) == "<") {
+    fail(path, "XML camera files are not read: convert it to OpenCV's YAML (a file that begins with %YAML:1.0)");
+  }
+  if (start.substr(0, 1) == "{") {
+    fail(path, "JSON camera files are not read: convert it to OpenCV's YAML (a file that begins with %YAML:1.0)");
+  }
+  fail(path, "the camera file is not OpenCV's YAML: it must begin with %YAML:1.0");
 }
 
 cv::Mat read_matrix(const cv::FileStorage& fs, const std::filesystem::path& path, const char* key) {
@@ -71,10 +94,11 @@ CameraModel CameraModel::load(const std::filesystem::path& path) {
     throw CameraModelError(e.what());
   }
   if (text.find_first_not_of(" \t\r\n") == std::string::npos) fail(path, "the camera file is empty");
+  check_yaml(path, text);
   cv::FileStorage fs;
   try {
     if (!fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) {
-      fail(path, "the camera file is not OpenCV's YAML, XML or JSON");
+      fail(path, "the camera file is not OpenCV's YAML");
     }
   } catch (const cv::Exception& e) {
     fail(path, fmt::format("the camera file cannot be parsed: {}", parse_error_words(e)));

@@ -25,8 +25,8 @@ struct CameraModel {
   // k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4; unused ones are zero.
   std::array<double, 12> dist{};
 
-  // Reads OpenCV's calibration YAML/XML/JSON; throws CameraModelError naming
-  // the file and the key that is missing or wrong.
+  // Reads OpenCV's calibration YAML (XML and JSON are refused); throws
+  // CameraModelError naming the file and the key that is missing or wrong.
   static CameraModel load(const std::filesystem::path& path);
   void save(const std::filesystem::path& path) const;
 
