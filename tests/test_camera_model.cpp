@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -12,6 +13,7 @@
 #include <string>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <utility>
 #include <vector>
 
 #include <opencv2/calib3d.hpp>
@@ -177,6 +179,96 @@ TEST(CameraModel, XmlAndJsonFilesAreRefusedByName) {
   // A byte order mark before %YAML is still YAML.
   const CameraModel c = CameraModel::load(dir.write("bom.yaml", "\xEF\xBB\xBF" + kHeader + kGoodMatrix + kGoodDistortion));
   EXPECT_EQ(c.width, 640);
+}
+
+TEST(CameraModel, ImageSizeOutOfRangeIsRefused) {
+  const TempDir dir;
+  for (const std::string width : {"1e309", ".Nan", "-.Inf", "1e34", "0", "-640", "65536", "640.5"}) {
+    const std::string text =
+        "%YAML:1.0\n---\nimage_width: " + width + "\nimage_height: 480\n" + kGoodMatrix + kGoodDistortion;
+    expect_load_error(dir.write("width.yaml", text), "key 'image_width' must be a whole number of pixels from 1 to 65535");
+  }
+  const std::string text = "%YAML:1.0\n---\nimage_width: 65535\nimage_height: 480\n" + kGoodMatrix + kGoodDistortion;
+  EXPECT_EQ(CameraModel::load(dir.write("widest.yaml", text)).width, 65535);
+}
+
+std::string with_camera_matrix(const std::string& data) {
+  return kHeader + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ " + data + " ]\n" +
+         kGoodDistortion;
+}
+
+TEST(CameraModel, CameraMatrixOutOfRangeIsRefused) {
+  const TempDir dir;
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"516., 0., 319., 0., .Inf, 238., 0., 0., 1.", "not finite"},
+      {"516., 0., .Inf, 0., 515., 238., 0., 0., 1.", "not finite"},
+      {".Nan, 0., 319., 0., 515., 238., 0., 0., 1.", "not finite"},
+      {"516., 0., 319., 0., 515., 238., 0., 0., -.Inf", "not finite"},
+      {"1e300, 0., 319., 0., 515., 238., 0., 0., 1.", "fx must be positive and at most 640000 pixels"},
+      {"516., 0., 319., 0., 0., 238., 0., 0., 1.", "fy must be positive and at most 480000 pixels"},
+      {"516., 0., 1e12, 0., 515., 238., 0., 0., 1.", "cx must be from -6400 to 7040 pixels"},
+      {"516., 0., 319., 0., 515., -1e6, 0., 0., 1.", "cy must be from -4800 to 5280 pixels"},
+      {"516., 0., 319., 0., 515., 238., 0., 0., 2.", "must be fx, 0, cx / 0, fy, cy / 0, 0, 1"},
+  };
+  for (const auto& [data, words] : cases) expect_load_error(dir.write("matrix.yaml", with_camera_matrix(data)), words);
+  const std::string d =
+      "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0.1, .Nan, 0., 0., 0. ]\n";
+  expect_load_error(dir.write("nan-k2.yaml", kHeader + kGoodMatrix + d), "'distortion_coefficients' holds a value that is not finite");
+}
+
+// OpenCV asserts that the top level is a map when asked for a key: its
+// cv::Exception must not escape load().
+TEST(CameraModel, TopLevelListIsACameraModelError) {
+  const TempDir dir;
+  expect_load_error(dir.write("list.yaml", "%YAML:1.0\n- 1\n- 2\n"), "not a map of keys");
+}
+
+// OpenCV reserves rows x cols before it finds the data short: the declared
+// size is checked first.
+TEST(CameraModel, DeclaredMatrixSizeIsCheckedBeforeReading) {
+  const TempDir dir;
+  const std::string huge =
+      "camera_matrix: !!opencv-matrix\n   rows: 100000000\n   cols: 3\n   dt: d\n   data: [ 1., 2., 3. ]\n";
+  expect_load_error(dir.write("huge.yaml", kHeader + huge + kGoodDistortion), "must be 3x3, got 100000000x3");
+  const std::string long_distortion =
+      "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 2000000000\n   dt: d\n   data: [ 0. ]\n";
+  expect_load_error(dir.write("long.yaml", kHeader + kGoodMatrix + long_distortion), "got 1x2000000000");
+  const std::string short_data =
+      "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 516., 0., 319. ]\n";
+  expect_load_error(dir.write("short.yaml", kHeader + short_data + kGoodDistortion), "declares 3x3 but holds 3 values");
+  // Three channels per element: 27 values where a 3x3 matrix has 9.
+  std::string data = "1";
+  for (int i = 2; i <= 27; ++i) data += ", " + std::to_string(i);
+  const std::string three_channels =
+      "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: \"3d\"\n   data: [ " + data + " ]\n";
+  expect_load_error(dir.write("channels.yaml", kHeader + three_channels + kGoodDistortion),
+                    "declares 3x3 but holds 27 values");
+  // A column of coefficients, as some tools write it, is read.
+  const std::string column =
+      "distortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n   dt: d\n   data: [ 0.1, 0.2, 0., 0., 0.3 ]\n";
+  EXPECT_EQ(CameraModel::load(dir.write("column.yaml", kHeader + kGoodMatrix + column)).dist[4], 0.3);
+}
+
+// OpenCV's cv::error prints its errors on stderr only when
+// OPENCV_DUMP_ERRORS is set; markerctl and markerd print their own error
+// (the CameraModelError) and nothing of OpenCV's.
+TEST(CameraModel, WrongFilesPrintNothingOfOpenCvs) {
+  if (std::getenv("OPENCV_DUMP_ERRORS") != nullptr) GTEST_SKIP() << "OPENCV_DUMP_ERRORS asks OpenCV to print";
+  const TempDir dir;
+  const std::vector<std::string> wrong = {
+      kHeader + "camera_matrix: [ 1, 2\n",
+      "%YAML:1.0\n\t image_width: 640\n",
+      "%YAML:1.0\n- 1\n",
+      kHeader + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: q\n   data: [ 1, 2, 3, 4, 5, 6, 7, 8, 9 ]\n",
+      kHeader + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ a, b, c, d, e, f, g, h, i ]\n",
+      kHeader + "camera_matrix: !!binary |\n  AAAA\n",
+  };
+  for (const std::string& text : wrong) {
+    const fs::path file = dir.write("wrong.yaml", text);
+    testing::internal::CaptureStderr();
+    EXPECT_THROW((void)CameraModel::load(file), CameraModelError) << text;
+    EXPECT_EQ(testing::internal::GetCapturedStderr(), "") << text;
+  }
 }
 
 TEST(CameraModel, SaveLoadRoundTrip) {

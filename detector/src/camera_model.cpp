@@ -7,6 +7,7 @@
 #include <fmt/format.h>
 #include <regex>
 #include <string_view>
+#include <tuple>
 
 #include "markerd/base/read_file.hpp"
 
@@ -56,30 +57,124 @@ void check_yaml(const std::filesystem::path& path, std::string_view text) {
   fail(path, "the camera file is not OpenCV's YAML: it must begin with %YAML:1.0");
 }
 
-cv::Mat read_matrix(const cv::FileStorage& fs, const std::filesystem::path& path, const char* key) {
-  const cv::FileNode node = fs[key];
+// The declared size of a matrix, checked before OpenCV reads it: OpenCV
+// allocates rows x cols first and compares the data with it afterwards, so
+// "rows: 100000000" in a small file would reserve gigabytes.
+void check_matrix_header(const cv::FileNode& node, const std::filesystem::path& path, const char* key,
+                         bool (*size_ok)(int rows, int cols), const char* expected) {
+  if (!node.isMap()) fail(path, fmt::format("key '{}' is not a matrix", key));
+  const cv::FileNode rows = node["rows"];
+  const cv::FileNode cols = node["cols"];
+  const cv::FileNode data = node["data"];
+  if (!rows.isInt() || !cols.isInt() || !data.isSeq()) {
+    fail(path, fmt::format("key '{}' is not a matrix (rows, cols and data)", key));
+  }
+  const int r = static_cast<int>(rows);
+  const int c = static_cast<int>(cols);
+  if (!size_ok(r, c)) fail(path, fmt::format("key '{}' must be {}, got {}x{}", key, expected, r, c));
+  if (data.size() != static_cast<std::size_t>(r) * static_cast<std::size_t>(c)) {
+    fail(path, fmt::format("key '{}' declares {}x{} but holds {} values", key, r, c, data.size()));
+  }
+}
+
+cv::Mat read_matrix(const cv::FileNode& root, const std::filesystem::path& path, const char* key,
+                    bool (*size_ok)(int rows, int cols), const char* expected) {
+  const cv::FileNode node = root[key];
   if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
+  check_matrix_header(node, path, key, size_ok, expected);
   cv::Mat m;
   try {
     node >> m;
   } catch (const cv::Exception&) {
     fail(path, fmt::format("key '{}' is not a matrix", key));
   }
-  if (m.empty()) fail(path, fmt::format("key '{}' is not a matrix", key));
+  if (m.empty() || m.channels() != 1) fail(path, fmt::format("key '{}' is not a matrix of numbers", key));
   m.convertTo(m, CV_64F);
+  for (auto it = m.begin<double>(); it != m.end<double>(); ++it) {
+    if (!std::isfinite(*it)) fail(path, fmt::format("key '{}' holds a value that is not finite", key));
+  }
   return m;
 }
 
-int read_int(const cv::FileStorage& fs, const std::filesystem::path& path, const char* key) {
-  const cv::FileNode node = fs[key];
+bool is_3x3(int rows, int cols) { return rows == 3 && cols == 3; }
+
+bool is_distortion_size(int rows, int cols) {
+  const int n = rows == 1 ? cols : (cols == 1 ? rows : 0);
+  return n == 4 || n == 5 || n == 8 || n == 12 || n == 14;
+}
+
+// Larger than any sensor's side, and small enough that width * height and
+// the detector's buffers fit their types.
+constexpr int kMaxImageSide = 65535;
+
+int read_image_side(const cv::FileNode& root, const std::filesystem::path& path, const char* key) {
+  const cv::FileNode node = root[key];
   if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
   if (!node.isInt() && !node.isReal()) fail(path, fmt::format("key '{}' is not a number", key));
   const double value = node.real();
-  // Checked before the conversion: 1e300 does not fit an int.
-  if (!(std::abs(value) <= 1e9) || value != std::floor(value)) {
-    fail(path, fmt::format("key '{}' must be a whole number of pixels, got {}", key, value));
+  // Checked before the conversion: 1e309 (inf), NaN or 1e34 do not fit an int.
+  if (!(value >= 1 && value <= kMaxImageSide) || value != std::floor(value)) {
+    fail(path, fmt::format("key '{}' must be a whole number of pixels from 1 to {}, got {}", key, kMaxImageSide,
+                           value));
   }
   return static_cast<int>(value);
+}
+
+// A focal length beyond this many image widths would be a lens of several
+// metres before a phone's sensor: a typo or garbage, not a calibration.
+constexpr double kMaxFocalPerSide = 1000;
+// The principal point of a shifted or cropped lens may lie off the image,
+// but not more than this many image sizes away.
+constexpr double kMaxPrincipalOffsetPerSide = 10;
+
+void check_intrinsics(const CameraModel& cam, const cv::Mat& k, const std::filesystem::path& path) {
+  for (const auto& [f, side, name] : {std::tuple{cam.fx, cam.width, "fx"}, std::tuple{cam.fy, cam.height, "fy"}}) {
+    if (!(f > 0 && f <= kMaxFocalPerSide * side)) {
+      fail(path, fmt::format("key 'camera_matrix': {} must be positive and at most {} pixels (1000 image sizes), "
+                             "got {}",
+                             name, kMaxFocalPerSide * side, f));
+    }
+  }
+  for (const auto& [c, side, name] : {std::tuple{cam.cx, cam.width, "cx"}, std::tuple{cam.cy, cam.height, "cy"}}) {
+    const double reach = kMaxPrincipalOffsetPerSide * side;
+    if (!(c >= -reach && c <= side + reach)) {
+      fail(path, fmt::format("key 'camera_matrix': {} must be from {} to {} pixels (within 10 image sizes of the "
+                             "image), got {}",
+                             name, -reach, side + reach, c));
+    }
+  }
+  if (std::abs(k.at<double>(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
+  // The last row and the zeros are what any calibration writes; anything
+  // else is not a pinhole camera's matrix and would be silently ignored.
+  const bool pinhole = k.at<double>(1, 0) == 0 && k.at<double>(2, 0) == 0 && k.at<double>(2, 1) == 0 &&
+                       k.at<double>(2, 2) == 1;
+  if (!pinhole) fail(path, "key 'camera_matrix' must be fx, 0, cx / 0, fy, cy / 0, 0, 1");
+}
+
+CameraModel parse(const cv::FileStorage& fs, const std::filesystem::path& path) {
+  // fs[key] asserts a map at the top: a list there is a wrong file, not a crash.
+  const cv::FileNode root = fs.root();
+  if (!root.isMap()) fail(path, "the camera file is not a map of keys (image_width, camera_matrix, ...)");
+  CameraModel cam;
+  cam.width = read_image_side(root, path, "image_width");
+  cam.height = read_image_side(root, path, "image_height");
+
+  const cv::Mat k = read_matrix(root, path, "camera_matrix", is_3x3, "3x3");
+  cam.fx = k.at<double>(0, 0);
+  cam.fy = k.at<double>(1, 1);
+  cam.cx = k.at<double>(0, 2);
+  cam.cy = k.at<double>(1, 2);
+  check_intrinsics(cam, k, path);
+
+  const cv::Mat d = read_matrix(root, path, "distortion_coefficients", is_distortion_size,
+                                "1xN or Nx1 with N 4, 5, 8, 12 or 14 (OpenCV's model)");
+  const int n = static_cast<int>(d.total());
+  const auto* v = d.ptr<double>();
+  for (int i = 0; i < std::min(n, 12); ++i) cam.dist[static_cast<std::size_t>(i)] = v[i];
+  if (n == 14 && (v[12] != 0.0 || v[13] != 0.0)) {
+    fail(path, "key 'distortion_coefficients': the tilted-sensor terms (tauX, tauY) are not supported");
+  }
+  return cam;
 }
 
 }  // namespace
@@ -103,34 +198,13 @@ CameraModel CameraModel::load(const std::filesystem::path& path) {
   } catch (const cv::Exception& e) {
     fail(path, fmt::format("the camera file cannot be parsed: {}", parse_error_words(e)));
   }
-  CameraModel cam;
-  cam.width = read_int(fs, path, "image_width");
-  cam.height = read_int(fs, path, "image_height");
-  if (cam.width <= 0 || cam.height <= 0) fail(path, "image_width and image_height must be positive");
-
-  const cv::Mat k = read_matrix(fs, path, "camera_matrix");
-  if (k.rows != 3 || k.cols != 3) fail(path, "key 'camera_matrix' must be 3x3");
-  cam.fx = k.at<double>(0, 0);
-  cam.fy = k.at<double>(1, 1);
-  cam.cx = k.at<double>(0, 2);
-  cam.cy = k.at<double>(1, 2);
-  if (!(cam.fx > 0) || !(cam.fy > 0)) fail(path, "key 'camera_matrix' needs positive focal lengths");
-  if (std::abs(k.at<double>(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
-
-  const cv::Mat d = read_matrix(fs, path, "distortion_coefficients");
-  const int n = static_cast<int>(d.total());
-  if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14) {
-    fail(path, fmt::format("key 'distortion_coefficients' has {} values; OpenCV's model has 4, 5, 8, 12 or 14", n));
+  // OpenCV asserts on what it does not expect in a node it is asked about;
+  // any of those is a wrong camera file, never an escaping cv::Exception.
+  try {
+    return parse(fs, path);
+  } catch (const cv::Exception& e) {
+    fail(path, fmt::format("the camera file is not a camera model: {}", e.err));
   }
-  const auto* v = d.ptr<double>();
-  for (int i = 0; i < std::min(n, 12); ++i) cam.dist[static_cast<std::size_t>(i)] = v[i];
-  if (n == 14 && (v[12] != 0.0 || v[13] != 0.0)) {
-    fail(path, "key 'distortion_coefficients': the tilted-sensor terms (tauX, tauY) are not supported");
-  }
-  for (int i = 0; i < n; ++i) {
-    if (!std::isfinite(v[i])) fail(path, "key 'distortion_coefficients' holds a value that is not finite");
-  }
-  return cam;
 }
 
 void CameraModel::save(const std::filesystem::path& path) const {
