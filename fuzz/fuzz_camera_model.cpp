@@ -1,4 +1,4 @@
-// Camera files (camera_model.cpp): OpenCV's calibration YAML, XML or JSON,
+// A camera model file (OpenCV YAML; XML and JSON are refused before OpenCV parses them).
 // as a markerd config's camera.model names them. CameraModel reads only
 // from a path, so each input is written to a file in memory (/dev/shm)
 // first. CameraModelError is the one error it may raise. A model it

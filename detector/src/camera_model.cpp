@@ -5,7 +5,6 @@
 
 #include <cmath>
 #include <fmt/format.h>
-#include <regex>
 #include <string_view>
 #include <tuple>
 
@@ -23,10 +22,16 @@ constexpr std::size_t kMaxCameraFileBytes = std::size_t{1} << 20;
 // function's name as its message (FileStorage::Impl::parseError swaps them),
 // so both are looked at.
 std::string parse_error_words(const cv::Exception& e) {
-  static const std::regex with_line(R"(^[^\n]*\((\d+)\): ([^\n]*)\n?$)");
-  std::smatch match;
   for (const std::string* text : {&e.err, &e.func}) {
-    if (std::regex_match(*text, match, with_line)) return fmt::format("line {}: {}", match[1].str(), match[2].str());
+    std::string_view line(*text);
+    if (!line.empty() && line.back() == '\n') line.remove_suffix(1);
+    if (line.find('\n') != std::string_view::npos) continue;
+    const auto close = line.find("): ");
+    const auto open = line.substr(0, close).rfind('(');
+    if (close == std::string_view::npos || open == std::string_view::npos) continue;
+    const std::string_view number = line.substr(open + 1, close - open - 1);
+    const bool digits = !number.empty() && number.find_first_not_of("0123456789") == std::string_view::npos;
+    if (digits) return fmt::format("line {}: {}", number, line.substr(close + 3));
   }
   return e.err;
 }
