@@ -114,6 +114,46 @@ std::string json_error_text(const json::exception& e) {
   return std::string(text);
 }
 
+// Where a request stops being JSON, and the token there: parsing again with
+// a SAX reader that keeps nothing, since nlohmann's out_of_range (a number
+// beyond a double's range) carries neither.
+struct FirstJsonError final {
+  std::size_t position = 0;  // bytes read, the token included
+  std::string token;
+  bool null() { return true; }
+  bool boolean(bool /*value*/) { return true; }
+  bool number_integer(json::number_integer_t /*value*/) { return true; }
+  bool number_unsigned(json::number_unsigned_t /*value*/) { return true; }
+  bool number_float(json::number_float_t /*value*/, const std::string& /*text*/) { return true; }
+  bool string(std::string& /*value*/) { return true; }
+  bool binary(json::binary_t& /*value*/) { return true; }
+  bool start_object(std::size_t /*size*/) { return true; }
+  bool key(std::string& /*value*/) { return true; }
+  bool end_object() { return true; }
+  bool start_array(std::size_t /*size*/) { return true; }
+  bool end_array() { return true; }
+  bool parse_error(std::size_t at, const std::string& last_token, const nlohmann::detail::exception& /*error*/) {
+    position = at;
+    token = last_token;
+    return false;
+  }
+};
+
+// A request that nlohmann refuses other than for its syntax (a number out of
+// range), in markerd's words: which token, and where it starts (1-based, as
+// the syntax errors' columns).
+std::string malformed_json_text(std::string_view line, const json::exception& e) {
+  FirstJsonError located;
+  if (json::sax_parse(line, &located) || located.token.empty() || located.position < located.token.size()) {
+    return fmt::format("malformed JSON: {}", json_error_text(e));
+  }
+  const std::size_t byte = located.position - located.token.size() + 1;
+  if (e.id == 406) {
+    return fmt::format("malformed JSON: number {} is out of range (beyond a double's) at byte {}", located.token, byte);
+  }
+  return fmt::format("malformed JSON: {} at byte {}", json_error_text(e), byte);
+}
+
 bool blank(std::string_view line) {
   return std::all_of(line.begin(), line.end(), [](char c) { return c == ' ' || c == '\t' || c == '\r'; });
 }
@@ -735,7 +775,7 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
   } catch (const ControlError& e) {
     return refuse(e.what());
   } catch (const json::exception& e) {
-    return refuse(fmt::format("malformed JSON: {}", e.what()));
+    return refuse(malformed_json_text(line, e));
   }
   if (!request.is_object()) {
     return refuse(fmt::format(R"(a request must be a JSON object such as {{"cmd":"help"}}, got {})",
