@@ -663,6 +663,94 @@ TEST_F(SweepRunTest, AJournalNamingAnEndedRunWhoseRecordsAreGoneDoesNotBlockANew
   EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
 }
 
+// A journal whose fields are not what markerd writes (edited, damaged) is
+// refused naming the journal and the field, never with nlohmann's message;
+// and it does not keep a new run from starting.
+TEST_F(SweepRunTest, AJournalFieldOfTheWrongTypeIsNamed) {
+  const fs::path journal = dir_ / "state/sweep-journal.json";
+  write_file(journal, R"({"run_directory": 5, "state": "running", "paused": false})");
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  EXPECT_EQ(r.progress().state, RunState::idle);
+  try {
+    (void)r.resume_from_journal();
+    ADD_FAILURE() << "the journal was read";
+  } catch (const std::exception& e) {
+    const std::string error = e.what();
+    EXPECT_NE(error.find(journal.string()), std::string::npos) << error;
+    EXPECT_NE(error.find(R"("run_directory" must be a string, got 5)"), std::string::npos) << error;
+    EXPECT_EQ(error.find("json.exception"), std::string::npos) << error;
+  }
+  write_file(journal, R"({"run_directory": "x", "paused": "no"})");
+  try {
+    (void)r.resume_from_journal();
+    ADD_FAILURE() << "the journal was read";
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find(R"("paused" must be true or false, got "no")"), std::string::npos) << e.what();
+  }
+  // An ended run's journal with a stop record, its directory a number: as
+  // unreadable, it does not block a new run.
+  write_file(journal, R"({"run_directory": 5, "state": "failed", "stop": {"exit_status": "failed"}})");
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  EXPECT_TRUE(fs::exists(run / "start.json"));
+  r.abort();
+  EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
+}
+
+// The records' times: a year outside what system_clock's nanoseconds hold
+// overflowed into a wrong time (found by the fuzzer); now an error naming
+// the file (and line) and the year. Fields of the wrong type name the field.
+TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 1; }));
+    r.abort();
+    EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
+  }
+  const auto error_reading = [&] {
+    try {
+      (void)sweep::read_run(run);
+    } catch (const std::exception& e) {
+      return std::string(e.what());
+    }
+    return std::string("(no error)");
+  };
+  const auto replace_in = [](const fs::path& path, const std::string& from, const std::string& to) {
+    std::string text = read_file(path);
+    const auto at = text.find(from);
+    ASSERT_NE(at, std::string::npos) << from << " in " << text;
+    text.replace(at, from.size(), to);
+    write_file(path, text);
+  };
+  ASSERT_EQ(error_reading(), "(no error)");
+  const std::string start = read_file(run / "start.json");
+  const auto time_at = start.find("\"time\": \"");
+  ASSERT_NE(time_at, std::string::npos) << start;
+  const std::string time = start.substr(time_at + 9, 24);
+
+  replace_in(run / "start.json", "\"time\": \"" + time.substr(0, 4), "\"time\": \"1013");
+  EXPECT_EQ(error_reading(), fmt::format("{}: year 1013 is outside 1678 to 2261, the years markerd's clock holds: \"1013{}\"",
+                                         (run / "start.json").string(), time.substr(4)));
+  replace_in(run / "start.json", "\"time\": \"1013", "\"time\": \"2262");
+  EXPECT_NE(error_reading().find("year 2262 is outside 1678 to 2261"), std::string::npos) << error_reading();
+  replace_in(run / "start.json", "\"time\": \"2262", "\"time\": \"1678");
+  EXPECT_EQ(error_reading(), "(no error)");
+  replace_in(run / "start.json", "\"run_id\": \"", "\"run_id\": 7, \"was\": \"");
+  EXPECT_EQ(error_reading(), (run / "start.json").string() + ": \"run_id\" must be a string, got 7");
+  write_file(run / "start.json", start);
+
+  const std::string points = read_file(run / "points.jsonl");
+  replace_in(run / "points.jsonl", "\"started\":\"", "\"started\":\"9999");
+  EXPECT_NE(error_reading().find((run / "points.jsonl").string() + ":1: not a record: year 9999"), std::string::npos)
+      << error_reading();
+  write_file(run / "points.jsonl", points);
+  replace_in(run / "points.jsonl", "\"repeat\":", "\"repeat\":\"one\",\"was\":");
+  EXPECT_EQ(error_reading(), (run / "points.jsonl").string() + ":1: not a record: \"repeat\" must be a whole number, got \"one\"");
+}
+
 TEST_F(SweepRunTest, TheControlSocketsSweepCommands) {
   auto d = make_daemon();
   daemon::ControlClient client(dir_ / "control.sock");

@@ -14,6 +14,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <system_error>
+#include <type_traits>
 #include <utility>
 
 namespace markerd::sweep {
@@ -46,6 +47,9 @@ std::string to_iso(std::chrono::system_clock::time_point t) {
                      time.minutes().count(), time.seconds().count(), time.subseconds().count());
 }
 
+constexpr int kFirstRecordYear = 1678;
+constexpr int kLastRecordYear = 2261;
+
 std::chrono::system_clock::time_point from_iso(const std::string& text) {
   using namespace std::chrono;
   int y = 0;
@@ -54,24 +58,92 @@ std::chrono::system_clock::time_point from_iso(const std::string& text) {
   if (std::sscanf(text.c_str(), "%d-%u-%uT%u:%u:%u.%3u%c", &y, &mo, &d, &h, &mi, &s, &ms, &z) != 8 || z != 'Z') {
     throw std::runtime_error(fmt::format("not a UTC time of the form 2026-12-01T06:15:00.123Z: \"{}\"", text));
   }
+  // system_clock counts nanoseconds in 64 bits: from 1677-09-21 to
+  // 2262-04-11. Whole years inside that, so that no time overflows it.
+  if (y < kFirstRecordYear || y > kLastRecordYear) {
+    throw std::runtime_error(fmt::format("year {} is outside {} to {}, the years markerd's clock holds: \"{}\"", y,
+                                         kFirstRecordYear, kLastRecordYear, text));
+  }
   const year_month_day date{year{y}, month{mo}, day{d}};
   if (!date.ok()) throw std::runtime_error(fmt::format("not a date: \"{}\"", text));
   return sys_days{date} + hours{h} + minutes{mi} + seconds{s} + milliseconds{ms};
 }
 
-// Non-finite numbers are written as null (JSON has no NaN) and read back as NaN.
-double number(const nlohmann::json& json, const char* key) {
+// A field of a record, of the type markerd writes there; anything else is
+// an error naming the field (the callers add the file and the line), never
+// nlohmann's own message.
+template <class T>
+bool holds(const nlohmann::json& value) {
+  if constexpr (std::is_same_v<T, std::string>) {
+    return value.is_string();
+  } else if constexpr (std::is_same_v<T, bool>) {
+    return value.is_boolean();
+  } else if constexpr (std::is_same_v<T, nlohmann::json>) {
+    return value.is_object();
+  } else {
+    static_assert(std::is_integral_v<T>);
+    if (value.is_number_unsigned()) return value.get<std::uint64_t>() <= std::uint64_t{std::numeric_limits<T>::max()};
+    if constexpr (std::is_signed_v<T>) {
+      return value.is_number_integer() && value.get<std::int64_t>() >= std::numeric_limits<T>::min();
+    }
+    return false;
+  }
+}
+
+template <class T>
+const char* wanted() {
+  if constexpr (std::is_same_v<T, std::string>) return "a string";
+  if constexpr (std::is_same_v<T, bool>) return "true or false";
+  if constexpr (std::is_same_v<T, nlohmann::json>) return "a JSON object";
+  if constexpr (std::is_unsigned_v<T>) return "a whole number from 0";
+  return "a whole number";
+}
+
+const nlohmann::json* find_field(const nlohmann::json& json, const char* key) {
+  if (!json.is_object()) throw std::runtime_error(fmt::format("not a JSON object where \"{}\" belongs", key));
   const auto it = json.find(key);
-  if (it == json.end()) throw std::runtime_error(fmt::format("missing \"{}\"", key));
-  if (it->is_null()) return std::numeric_limits<double>::quiet_NaN();
-  return it->get<double>();
+  return it == json.end() ? nullptr : &*it;
+}
+
+template <class T>
+T checked(const nlohmann::json& value, const char* key) {
+  if (!holds<T>(value)) throw std::runtime_error(fmt::format("\"{}\" must be {}, got {}", key, wanted<T>(), value.dump()));
+  return value.get<T>();
+}
+
+template <class T>
+T field(const nlohmann::json& json, const char* key) {
+  const nlohmann::json* value = find_field(json, key);
+  if (value == nullptr) throw std::runtime_error(fmt::format("missing \"{}\"", key));
+  return checked<T>(*value, key);
+}
+
+template <class T>
+T optional_field(const nlohmann::json& json, const char* key, T fallback) {
+  const nlohmann::json* value = find_field(json, key);
+  return value == nullptr ? fallback : checked<T>(*value, key);
+}
+
+// Non-finite numbers are written as null (JSON has no NaN) and read back as NaN.
+double number_or_nan(const nlohmann::json& value, const char* key) {
+  if (value.is_null()) return std::numeric_limits<double>::quiet_NaN();
+  if (!value.is_number()) throw std::runtime_error(fmt::format("\"{}\" must be a number, got {}", key, value.dump()));
+  return value.get<double>();
+}
+
+double number(const nlohmann::json& json, const char* key) {
+  const nlohmann::json* value = find_field(json, key);
+  if (value == nullptr) throw std::runtime_error(fmt::format("missing \"{}\"", key));
+  return number_or_nan(*value, key);
 }
 
 std::array<double, 3> vec3(const nlohmann::json& json, const char* key) {
-  const auto& a = json.at(key);
-  if (!a.is_array() || a.size() != 3) throw std::runtime_error(fmt::format("\"{}\" is not three numbers", key));
+  const nlohmann::json* a = find_field(json, key);
+  if (a == nullptr || !a->is_array() || a->size() != 3) {
+    throw std::runtime_error(fmt::format("\"{}\" is not three numbers", key));
+  }
   std::array<double, 3> v{};
-  for (std::size_t i = 0; i < 3; ++i) v[i] = a[i].is_null() ? std::numeric_limits<double>::quiet_NaN() : a[i].get<double>();
+  for (std::size_t i = 0; i < 3; ++i) v[i] = number_or_nan((*a)[i], key);
   return v;
 }
 
@@ -155,7 +227,7 @@ std::size_t read_lines(const fs::path& path, Take&& take) {
 }
 
 void check_schema(const nlohmann::json& json) {
-  const int schema = json.value("schema", 0);
+  const int schema = optional_field<int>(json, "schema", 0);
   if (schema != kRunRecordSchema) {
     throw std::runtime_error(fmt::format("record schema {} (this markerd reads {})", schema, kRunRecordSchema));
   }
@@ -230,26 +302,28 @@ nlohmann::json to_json(const PointRecord& r) {
 PointRecord point_from_json(const nlohmann::json& j) {
   check_schema(j);
   PointRecord r;
-  r.step = j.at("step").get<std::size_t>();
-  r.grid = j.at("grid").get<std::size_t>();
-  r.point = j.at("point").get<std::size_t>();
-  r.repeat = j.at("repeat").get<int>();
+  r.step = field<std::size_t>(j, "step");
+  r.grid = field<std::size_t>(j, "grid");
+  r.point = field<std::size_t>(j, "point");
+  r.repeat = field<int>(j, "repeat");
   r.distance_m = number(j, "distance_m");
   r.angle_deg = number(j, "angle_deg");
   r.rail = number(j, "rail");
   r.turntable = number(j, "turntable");
-  const auto& truth = j.at("truth");
+  const auto truth = field<nlohmann::json>(j, "truth");
   r.truth_tvec_m = vec3(truth, "tvec_m");
   r.truth_distance_m = number(truth, "distance_m");
   r.truth_yaw_deg = number(truth, "yaw_deg");
-  r.frames_corrupt = j.at("frames_corrupt").get<int>();
-  r.started = from_iso(j.at("started").get<std::string>());
-  r.finished = from_iso(j.at("finished").get<std::string>());
-  for (const auto& f : j.at("frames")) {
+  r.frames_corrupt = field<int>(j, "frames_corrupt");
+  r.started = from_iso(field<std::string>(j, "started"));
+  r.finished = from_iso(field<std::string>(j, "finished"));
+  const nlohmann::json* frames = find_field(j, "frames");
+  if (frames == nullptr || !frames->is_array()) throw std::runtime_error("\"frames\" must be an array");
+  for (const auto& f : *frames) {
     FrameSample s;
-    s.sequence = f.at("seq").get<std::uint64_t>();
-    s.detected = f.at("detected").get<bool>();
-    s.other_markers = f.at("others").get<int>();
+    s.sequence = field<std::uint64_t>(f, "seq");
+    s.detected = field<bool>(f, "detected");
+    s.other_markers = field<int>(f, "others");
     if (f.contains("tvec_m")) {
       s.has_pose = true;
       s.tvec_m = vec3(f, "tvec_m");
@@ -284,19 +358,19 @@ nlohmann::json to_json(const RunStart& s) {
 RunStart start_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunStart s;
-  s.run_id = j.at("run_id").get<std::string>();
-  s.time = from_iso(j.at("time").get<std::string>());
-  s.software_version = j.value("software_version", "");
-  s.hostname = j.value("hostname", "");
-  const auto& plan = j.at("plan");
+  s.run_id = field<std::string>(j, "run_id");
+  s.time = from_iso(field<std::string>(j, "time"));
+  s.software_version = optional_field<std::string>(j, "software_version", "");
+  s.hostname = optional_field<std::string>(j, "hostname", "");
+  const auto plan = field<nlohmann::json>(j, "plan");
   // The plan as it ran, from its own text: the record holds what was read,
   // not this markerd's idea of it.
-  s.plan = parse_plan(plan.at("text").get<std::string>(), plan.value("source", "<run record>"));
-  s.steps = j.at("steps").get<std::size_t>();
+  s.plan = parse_plan(field<std::string>(plan, "text"), optional_field<std::string>(plan, "source", "<run record>"));
+  s.steps = field<std::size_t>(j, "steps");
   s.config = j.value("config", nlohmann::json::object());
   s.camera = j.value("camera", nlohmann::json::object());
   s.rig = j.value("rig", nlohmann::json::object());
-  s.detection_log = j.value("detection_log", "");
+  s.detection_log = optional_field<std::string>(j, "detection_log", "");
   return s;
 }
 
@@ -307,10 +381,10 @@ nlohmann::json to_json(const RunEvent& e) {
 RunEvent event_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunEvent e;
-  e.time = from_iso(j.at("time").get<std::string>());
-  e.kind = j.at("event").get<std::string>();
-  e.reason = j.value("reason", "");
-  e.step = j.value("step", std::size_t{0});
+  e.time = from_iso(field<std::string>(j, "time"));
+  e.kind = field<std::string>(j, "event");
+  e.reason = optional_field<std::string>(j, "reason", "");
+  e.step = optional_field<std::size_t>(j, "step", 0);
   return e;
 }
 
@@ -325,14 +399,14 @@ nlohmann::json to_json(const RunStop& s) {
 RunStop stop_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunStop s;
-  s.time = from_iso(j.at("time").get<std::string>());
-  const std::string status = j.at("exit_status").get<std::string>();
+  s.time = from_iso(field<std::string>(j, "time"));
+  const std::string status = field<std::string>(j, "exit_status");
   if (status == "done") s.status = ExitStatus::done;
   else if (status == "aborted") s.status = ExitStatus::aborted;
   else if (status == "failed") s.status = ExitStatus::failed;
   else throw std::runtime_error(fmt::format("unknown exit_status \"{}\"", status));
-  s.reason = j.value("reason", "");
-  s.steps_done = j.value("steps_done", std::size_t{0});
+  s.reason = optional_field<std::string>(j, "reason", "");
+  s.steps_done = optional_field<std::size_t>(j, "steps_done", 0);
   return s;
 }
 

@@ -11,6 +11,7 @@
 #include "markerd/sweep/report.hpp"
 
 #include <algorithm>
+#include <array>
 #include <exception>
 #include <cmath>
 #include <numbers>
@@ -196,6 +197,38 @@ double position_tolerance(const rig::AxisSettings& axis) {
   return std::abs(axis.units_per_step) * 1.01 + axis.retry_deadband;
 }
 
+// The journal's fields have the types markerd writes there; a journal
+// edited or damaged otherwise is refused naming the field, never with
+// nlohmann's own message (nor half-read).
+void check_journal_fields(const nlohmann::json& journal) {
+  if (!journal.is_object()) throw std::runtime_error("not a JSON object");
+  struct Field {
+    const char* key;
+    bool (*fits)(const nlohmann::json&);
+    const char* wanted;
+  };
+  static constexpr std::array<Field, 6> kFields{{
+      {"run_directory", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
+      {"state", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
+      {"reason", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
+      {"paused", [](const nlohmann::json& v) { return v.is_boolean(); }, "true or false"},
+      {"step", [](const nlohmann::json& v) { return v.is_number_unsigned(); }, "a whole number from 0"},
+      {"stop", [](const nlohmann::json& v) { return v.is_object(); }, "a JSON object (a stop record)"},
+  }};
+  for (const Field& f : kFields) {
+    const auto it = journal.find(f.key);
+    if (it != journal.end() && !f.fits(*it)) {
+      throw std::runtime_error(fmt::format("\"{}\" must be {}, got {}", f.key, f.wanted, it->dump()));
+    }
+  }
+}
+
+// For a message only: the stop record's status, whatever the record holds.
+std::string exit_status_in(const nlohmann::json& stop) {
+  const auto it = stop.find("exit_status");
+  return it != stop.end() && it->is_string() ? it->get<std::string>() : std::string("?");
+}
+
 }  // namespace
 
 struct SweepRunner::Run {
@@ -246,6 +279,7 @@ fs::path SweepRunner::start(SweepPlan plan) {
     nlohmann::json previous;
     try {
       previous = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
+      check_journal_fields(previous);
     } catch (const std::exception&) {
       previous = nlohmann::json::object();  // unreadable: reported at markerd's start; the operator starts anew
     }
@@ -313,7 +347,7 @@ bool SweepRunner::resume_from_journal() {
   nlohmann::json journal;
   try {
     journal = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
-    if (!journal.is_object()) throw std::runtime_error("not a JSON object");
+    check_journal_fields(journal);
   } catch (const std::exception& e) {
     throw std::runtime_error(fmt::format("sweep journal {}: cannot be read: {}", settings_.journal.string(), e.what()));
   }
@@ -332,7 +366,7 @@ bool SweepRunner::resume_from_journal() {
       finish_ended_run(journal);
     } catch (const std::exception& e) {
       spdlog::error("sweep journal {}: run {} ended ({}), and its stop record still cannot be written: {}",
-                    settings_.journal.string(), directory.string(), journal["stop"].value("exit_status", "?"),
+                    settings_.journal.string(), directory.string(), exit_status_in(journal["stop"]),
                     e.what());
     }
     return false;
@@ -404,7 +438,16 @@ void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
     return;
   }
   const RunRecords records = read_run(directory);
-  RunStop stop = records.stop ? *records.stop : stop_from_json(journal.at("stop"));
+  RunStop stop;
+  if (records.stop) {
+    stop = *records.stop;
+  } else {
+    try {
+      stop = stop_from_json(journal.at("stop"));
+    } catch (const std::exception& e) {
+      throw std::runtime_error(fmt::format("sweep journal {}: \"stop\": {}", settings_.journal.string(), e.what()));
+    }
+  }
   std::string shown = stop.reason;
   std::exception_ptr failure;
   if (!records.stop) {
