@@ -147,6 +147,7 @@ int main(int argc, char** argv) {
     try {
       const auto config = markerd::daemon::load_daemon_config(config_path);
       markerd::daemon::check_control_setup(config.control);
+      markerd::daemon::check_detector_setup(config);
       std::cout << fmt::format("{}: ok (camera: {}, marker: {} id {} {} m, rig: {}, detection log: {}, control: {})\n",
                                config_path, config.camera.source_kind,
                                markerd::family_info(config.marker.family).name, config.marker.id, config.marker.size_m,

@@ -217,6 +217,81 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
   }
 }
 
+// The detector's ranges are the config's: what the config accepts, markerd
+// can start with (the fuzzer found threshold_offset = 0 and blur_sigma_px =
+// 7.5 accepted here and refused by the detector at start).
+TEST_F(DaemonTest, TheDetectorOptionsRangesAreTheDetectors) {
+  const auto line_after = [](const std::string& where) {
+    return where.substr(0, where.rfind(':')) + ":" + std::to_string(std::stoi(where.substr(where.rfind(':') + 1)) + 1);
+  };
+  {
+    const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nthreshold_offset = 0\n[pipeline]");
+    EXPECT_EQ(error, line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 0");
+  }
+  {
+    const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nthreshold_offset = 101\n[pipeline]");
+    EXPECT_EQ(error, line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 101");
+  }
+  {
+    const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nblur_sigma_px = 7.5\n[pipeline]");
+    EXPECT_EQ(error, line_after(where) + ": detector.frame8.blur_sigma_px: must be from 0 to 5 px, got 7.5");
+  }
+  // The limits themselves are accepted, by the config and by the detector.
+  std::string text = base_config();
+  text.replace(text.find("[pipeline]"), 10, "[detector.frame8]\nthreshold_offset = 100\nblur_sigma_px = 5\n[pipeline]");
+  const DaemonConfig config = parse_daemon_config(ConfigTable::parse(text, (dir_ / "markerd.toml").string()));
+  EXPECT_NO_THROW(check_detector_setup(config));
+  EXPECT_NE(make_detector(detector_config(config)), nullptr);
+}
+
+// docs/daemon.md: camera.model is optional for a real camera; without it the
+// detections carry no pose. markerd could not start so ("a pose needs both a
+// camera model and a marker size") while --check-config passed it.
+TEST_F(DaemonTest, AConfigWithoutACameraModelMakesDetectorsWithoutPoses) {
+  const std::string text = R"([marker]
+family = "tag36h11"
+id = 3
+size_m = 0.1
+
+[camera]
+source = "libcamera"
+
+[camera.libcamera]
+camera = "/base/soc/i2c0mux/i2c@1/imx219@10"
+width = 1280
+height = 720
+fps = 60
+)";
+  const DaemonConfig config = parse_daemon_config(ConfigTable::parse(text, (dir_ / "markerd.toml").string()));
+  ASSERT_FALSE(config.camera.model.has_value());
+  const DetectorConfig detector = detector_config(config);
+  EXPECT_FALSE(detector.camera.has_value());
+  EXPECT_EQ(detector.marker_size_m, 0.0);
+  EXPECT_NO_THROW(check_detector_setup(config));
+  EXPECT_NE(make_detector(detector), nullptr);
+
+  // With the model, the marker size goes with it: poses.
+  const DaemonConfig with_model = parse_daemon_config(ConfigTable::parse(base_config(), (dir_ / "markerd.toml").string()));
+  EXPECT_EQ(detector_config(with_model).marker_size_m, 0.08);
+}
+
+// check_detector_setup (what --check-config runs) refuses whatever the
+// detector refuses, in the config's words, so the check and the start agree
+// even where the config's own checks fall short.
+TEST_F(DaemonTest, TheDetectorCheckRefusesWhatMakeDetectorRefuses) {
+  const fs::path path = dir_ / "markerd.toml";
+  DaemonConfig config = parse_daemon_config(ConfigTable::parse(base_config(), path.string()));
+  config.detector.frame8.threshold_offset = 0;
+  try {
+    check_detector_setup(config);
+    ADD_FAILURE() << "no error";
+  } catch (const ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()), path.string() +
+                                         ": the detector cannot be made from [marker], [camera] and [detector]: "
+                                         "frame8: threshold_offset must be 1..100 grey levels");
+  }
+}
+
 // Home, move to a point of the thesis's viewing-angle sweep, and read the
 // log: every line whole, the settled frames show marker 165 where the truth
 // says it is.
@@ -410,6 +485,24 @@ TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
 
   const Outcome usage = run_markerd(dir_, {"--no-such-option"});
   EXPECT_EQ(usage.code, 2);
+}
+
+// A config without a camera model passes --check-config because markerd
+// starts with it: the check makes the detectors as the start does.
+TEST_F(DaemonTest, CheckConfigPassesAConfigWithoutACameraModel) {
+  const fs::path path = dir_ / "markerd.toml";
+  std::string text = base_config();
+  const std::string model = fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"\n", MARKERD_SOURCE_DIR);
+  text.replace(text.find(model), model.size(), "");
+  const std::string sim = "source = \"sim\"";
+  text.replace(text.find(sim), sim.size(), "source = \"file\"");
+  const std::string sim_table = "[camera.sim]\nfps = 30\nnoise_sigma = 2.0\nsupersample = 2\n";
+  text.replace(text.find(sim_table), sim_table.size(),
+               fmt::format("[camera.file]\npath = \"{}/tests\"\n", MARKERD_SOURCE_DIR));
+  write_file(path, text);
+  const Outcome outcome = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  EXPECT_EQ(outcome.code, 0) << outcome.err;
+  EXPECT_EQ(outcome.out.rfind(path.string() + ": ok (camera: file", 0), 0U) << outcome.out << outcome.err;
 }
 
 // What would keep the control socket from being set up is found by

@@ -126,13 +126,14 @@ DetectorSettings parse_detector(const ConfigTable& t) {
                    "blur_sigma_px"});
     Frame8Options& o = d.frame8;
     o.decimate = int_in(*f, "decimate", o.decimate, 0, 8, "(0: automatic)");
-    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, 0, 128, "grey levels");
+    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, Frame8Options::kMinThresholdOffset,
+                                Frame8Options::kMaxThresholdOffset, "grey levels");
     o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px, {2, 1000, "px"});
     o.min_margin = f->optional<double>("min_margin", o.min_margin);
     if (!(o.min_margin >= 0 && o.min_margin < 1)) f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
     o.uniform_ids = f->optional<bool>("uniform_ids", o.uniform_ids);
     o.model_small_cells = f->optional<bool>("model_small_cells", o.model_small_cells);
-    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, 10, "px"});
+    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, Frame8Options::kMaxBlurSigmaPx, "px"});
   }
   return d;
 }
@@ -287,8 +288,19 @@ DetectorConfig detector_config(const DaemonConfig& config) {
   d.family = config.marker.family;
   d.frame8 = config.detector.frame8;
   d.camera = config.camera.model;
-  d.marker_size_m = config.marker.size_m;
+  // Without a camera model there is no pose (docs/daemon.md): the detector
+  // takes a marker size only together with a model.
+  if (d.camera) d.marker_size_m = config.marker.size_m;
   return d;
+}
+
+void check_detector_setup(const DaemonConfig& config) {
+  try {
+    (void)make_detector(detector_config(config));
+  } catch (const DetectorError& e) {
+    throw ConfigError(fmt::format("{}: the detector cannot be made from [marker], [camera] and [detector]: {}",
+                                  config.source, e.what()));
+  }
 }
 
 }  // namespace markerd::daemon

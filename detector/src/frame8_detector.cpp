@@ -31,6 +31,8 @@
 
 #include "frame8_detector.hpp"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <array>
 #include <cmath>
@@ -254,11 +256,13 @@ class Frame8Detector final : public MarkerDetector {
     if (config_.frame8.decimate < 0 || config_.frame8.decimate > 8) {
       throw DetectorError("frame8: decimate must be 0 (auto) to 8");
     }
-    if (config_.frame8.threshold_offset < 1 || config_.frame8.threshold_offset > 100) {
-      throw DetectorError("frame8: threshold_offset must be 1..100 grey levels");
+    if (config_.frame8.threshold_offset < Frame8Options::kMinThresholdOffset ||
+        config_.frame8.threshold_offset > Frame8Options::kMaxThresholdOffset) {
+      throw DetectorError(fmt::format("frame8: threshold_offset must be {}..{} grey levels",
+                                      Frame8Options::kMinThresholdOffset, Frame8Options::kMaxThresholdOffset));
     }
-    if (!(config_.frame8.blur_sigma_px >= 0 && config_.frame8.blur_sigma_px <= 5)) {
-      throw DetectorError("frame8: blur_sigma_px must be 0..5 pixels");
+    if (!(config_.frame8.blur_sigma_px >= 0 && config_.frame8.blur_sigma_px <= Frame8Options::kMaxBlurSigmaPx)) {
+      throw DetectorError(fmt::format("frame8: blur_sigma_px must be 0..{:g} pixels", Frame8Options::kMaxBlurSigmaPx));
     }
     profile_sigma_ = std::sqrt(config_.frame8.blur_sigma_px * config_.frame8.blur_sigma_px + 1.0 / 12 + 1.0 / 8);
   }

@@ -112,5 +112,9 @@ void check_control_setup(const ControlConfig& config);
 
 // The detector configuration the pipeline's workers are made with.
 [[nodiscard]] DetectorConfig detector_config(const DaemonConfig& config);
+// Makes a detector from the config as markerd does at start, so that
+// --check-config refuses whatever the start would: a ConfigError naming the
+// file and the detector's complaint.
+void check_detector_setup(const DaemonConfig& config);
 
 }  // namespace markerd::daemon

@@ -22,6 +22,11 @@ class DetectorError : public std::runtime_error {
 };
 
 struct Frame8Options {
+  // The ranges the detector accepts, which markerd's config enforces too.
+  static constexpr int kMinThresholdOffset = 1;
+  static constexpr int kMaxThresholdOffset = 100;
+  static constexpr double kMaxBlurSigmaPx = 5.0;
+
   // Segmentation runs on the image decimated by this factor; 0 picks one from
   // the image size (1 up to about 1 MP, then 2). Refinement and decoding
   // always use the full-resolution image.
