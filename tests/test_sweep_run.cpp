@@ -738,6 +738,14 @@ TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
   EXPECT_NE(error_reading().find("year 2262 is outside 1678 to 2261"), std::string::npos) << error_reading();
   replace_in(run / "start.json", "\"time\": \"2262", "\"time\": \"1678");
   EXPECT_EQ(error_reading(), "(no error)");
+  const std::string day = "\"time\": \"1678" + time.substr(4, 7);
+  for (const std::string clock : {"25:00:00.000Z", "06:-15:00.000Z", "06:15:60.000Z", "06:15:00.-12Z"}) {
+    write_file(run / "start.json", start);
+    replace_in(run / "start.json", "\"time\": \"" + time, day + clock);
+    EXPECT_NE(error_reading().find("not a time of day: \"1678" + time.substr(4, 7) + clock + "\""), std::string::npos)
+        << error_reading();
+  }
+  write_file(run / "start.json", start);
   replace_in(run / "start.json", "\"run_id\": \"", "\"run_id\": 7, \"was\": \"");
   EXPECT_EQ(error_reading(), (run / "start.json").string() + ": \"run_id\" must be a string, got 7");
   write_file(run / "start.json", start);

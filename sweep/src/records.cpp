@@ -66,8 +66,9 @@ std::chrono::system_clock::time_point from_iso(const std::string& text) {
   }
   const year_month_day date{year{y}, month{mo}, day{d}};
   if (!date.ok()) throw std::runtime_error(fmt::format("not a date: \"{}\"", text));
-  // Unbounded hours or minutes would overflow the clock as a year would.
-  if (h > 23 || mi > 59 || s > 59) throw std::runtime_error(fmt::format("not a time of day: \"{}\"", text));
+  // sscanf's %u takes a minus sign and wraps it: unbounded hours or minutes
+  // would overflow the clock as a year would.
+  if (h > 23 || mi > 59 || s > 59 || ms > 999) throw std::runtime_error(fmt::format("not a time of day: \"{}\"", text));
   return sys_days{date} + hours{h} + minutes{mi} + seconds{s} + milliseconds{ms};
 }
 
