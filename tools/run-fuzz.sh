@@ -63,20 +63,9 @@ dictionary() {
 # Per target: what it needs beyond the defaults.
 extra_args() {
   case $1 in
-    # OpenCV's FileStorage allocates a matrix of the size a file declares
-    # before it reads the data (rows: 100000000 in a 300-byte file): address
-    # space, never touched, and the reader then fails with "not a matrix".
-    # Until camera_model.cpp bounds rows and cols first (docs/fuzzing.md,
-    # findings), such allocations may fail quietly instead of ending the run.
-    camera_model) echo -malloc_limit_mb=1048576 ;;
     # Room for 256x256 distinct pixels (smaller inputs repeat to fill any
     # size up to 640x480).
     detector) echo -max_len=65545 ;;
-  esac
-}
-asan_extra() {
-  case $1 in
-    camera_model) echo :allocator_may_return_null=1 ;;
   esac
 }
 
@@ -106,7 +95,7 @@ for t in "${targets[@]}"; do
   echo "run-fuzz: $t (${runs:+$runs runs, at most }${time_s} s), log in $log"
   rc=0
   MARKERD_FUZZ_SCRATCH=$scratch \
-    ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:symbolize=1$(asan_extra "$t") \
+    ASAN_OPTIONS=detect_leaks=1:abort_on_error=1:symbolize=1 \
     UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
     LSAN_OPTIONS=suppressions=$PWD/tests/lsan.supp \
     "$build/fuzz/fuzz_$t" "${args[@]}" "$work" >"$log" 2>&1 || rc=$?
