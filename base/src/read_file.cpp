@@ -1,5 +1,8 @@
 #include "markerd/base/read_file.hpp"
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -53,7 +56,7 @@ std::string format_bytes(std::size_t bytes) {
 
 std::size_t check_regular_file(const std::filesystem::path& path, std::size_t max_bytes, std::string_view what) {
   struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) fail(path, what, fmt::format("cannot be read: {}", std::strerror(errno)));
+  if (::stat(path.c_str(), &st) != 0) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
   check_stat(path, st, max_bytes, what);
   return static_cast<std::size_t>(st.st_size);
 }
@@ -61,14 +64,11 @@ std::size_t check_regular_file(const std::filesystem::path& path, std::size_t ma
 std::string read_regular_file(const std::filesystem::path& path, std::size_t max_bytes, std::string_view what) {
   // O_NONBLOCK: opening a FIFO must not wait for a writer before fstat can
   // tell that it is one; on a regular file the flag changes nothing.
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-  if (fd < 0) fail(path, what, fmt::format("cannot be read: {}", std::strerror(errno)));
-  struct FdCloser {
-    int fd;
-    ~FdCloser() { ::close(fd); }
-  } closer{fd};
+  const UniqueFd file(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY));
+  if (!file) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
+  const int fd = file.get();
   struct stat st {};
-  if (::fstat(fd, &st) != 0) fail(path, what, fmt::format("cannot be read: {}", std::strerror(errno)));
+  if (::fstat(fd, &st) != 0) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
   check_stat(path, st, max_bytes, what);
 
   std::string text(static_cast<std::size_t>(st.st_size), '\0');
@@ -83,7 +83,7 @@ std::string read_regular_file(const std::filesystem::path& path, std::size_t max
     const ssize_t n = ::read(fd, text.data() + used, text.size() - used);
     if (n < 0) {
       if (errno == EINTR) continue;
-      fail(path, what, fmt::format("cannot be read: {}", std::strerror(errno)));
+      fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
     }
     if (n == 0) break;
     used += static_cast<std::size_t>(n);

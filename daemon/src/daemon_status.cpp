@@ -3,6 +3,7 @@
 #include <fmt/chrono.h>
 #include <fmt/format.h>
 
+#include "markerd/base/utc_time.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
 #include "markerd/daemon/daemon.hpp"
 
@@ -25,9 +26,6 @@ nlohmann::json to_json(const rig::AxisSnapshot& a) {
           {"settled", a.settled},   {"fault", a.fault},   {"moving", a.moving}};
 }
 
-std::string utc(std::chrono::system_clock::time_point t) {
-  return fmt::format("{:%Y-%m-%dT%H:%M:%S}Z", std::chrono::floor<std::chrono::seconds>(t));
-}
 
 }  // namespace
 
@@ -36,7 +34,7 @@ nlohmann::json to_json(const CaptureStatus& s) {
                       {"dropped", s.dropped},        {"corrupt", s.corrupt},   {"stalls", s.stalls},
                       {"failures", s.failures},      {"reopens", s.reopens}};
   j["last_error"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(s.last_error);
-  j["last_error_utc"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(utc(s.last_error_time));
+  j["last_error_utc"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(format_utc(s.last_error_time, UtcForm::seconds));
   if (s.last_frame_time.time_since_epoch().count() > 0 && s.frames > 0) {
     j["last_frame_age_ms"] = ms(std::chrono::steady_clock::now() - s.last_frame_time);
   } else {

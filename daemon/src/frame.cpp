@@ -13,6 +13,12 @@ void Frame::set_cause(std::string_view cause) noexcept {
   std::copy_n(cause.data(), cause_length_, cause_.data());
 }
 
+void Frame::mark_corrupt(std::string_view cause) noexcept {
+  image = {};
+  status = FrameStatus::corrupt_frame;
+  set_cause(cause);
+}
+
 GreyView Frame::use_pixel_buffer(int width, int height) {
   const auto bytes = static_cast<std::size_t>(std::max(width, 0)) * static_cast<std::size_t>(std::max(height, 0));
   if (width <= 0 || height <= 0 || bytes > pixel_buffer_.size()) {

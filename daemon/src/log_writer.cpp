@@ -13,6 +13,10 @@
 #include <spdlog/spdlog.h>
 #include <utility>
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
+#include "markerd/base/utc_time.hpp"
+
 namespace markerd::daemon {
 
 namespace {
@@ -51,11 +55,10 @@ std::optional<unsigned> file_index(std::string_view name, std::string_view stem)
 // not cover the entry). Where the file system cannot sync a directory, the
 // entry is as durable as that file system makes it: worth a warning, no more.
 void sync_directory(const std::filesystem::path& directory) {
-  const int fd = ::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0 || ::fsync(fd) != 0) {
-    spdlog::warn("detection log directory {}: cannot sync: {}", directory.string(), std::strerror(errno));
+  const UniqueFd fd(::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (!fd || ::fsync(fd.get()) != 0) {
+    spdlog::warn("detection log directory {}: cannot sync: {}", directory.string(), errno_text(errno));
   }
-  if (fd >= 0) ::close(fd);
 }
 
 }  // namespace
@@ -81,16 +84,7 @@ LogWriteError::LogWriteError(std::filesystem::path path, std::string_view action
       path_(std::move(path)),
       error_(error) {}
 
-std::string make_run_id(std::chrono::system_clock::time_point t) {
-  using namespace std::chrono;
-  const auto secs = floor<seconds>(t);
-  const auto day = floor<days>(secs);
-  const year_month_day date{day};
-  const hh_mm_ss time{secs - day};
-  return fmt::format("{:04}{:02}{:02}T{:02}{:02}{:02}Z", static_cast<int>(date.year()),
-                     static_cast<unsigned>(date.month()), static_cast<unsigned>(date.day()), time.hours().count(),
-                     time.minutes().count(), time.seconds().count());
-}
+std::string make_run_id(std::chrono::system_clock::time_point t) { return format_utc(t, UtcForm::compact); }
 
 LogWriter::LogWriter(LogWriterConfig config) : config_(std::move(config)) {
   check_name_part("prefix", config_.prefix);
@@ -154,14 +148,13 @@ void LogWriter::repair_previous_run() {
     }
   }
   if (newest.empty()) return;
-  const int fd = ::open(newest.c_str(), O_RDWR | O_CLOEXEC);
+  UniqueFd fd(::open(newest.c_str(), O_RDWR | O_CLOEXEC));
   struct stat st {};
-  if (fd < 0 || ::fstat(fd, &st) != 0) {
-    spdlog::warn("detection log {}: cannot open it to check its last line: {}", newest.string(), std::strerror(errno));
-    if (fd >= 0) ::close(fd);
+  if (!fd || ::fstat(fd.get(), &st) != 0) {
+    spdlog::warn("detection log {}: cannot open it to check its last line: {}", newest.string(), errno_text(errno));
     return;
   }
-  fd_ = fd;
+  fd_ = std::move(fd);
   path_ = newest;
   file_bytes_ = static_cast<std::uint64_t>(st.st_size);
   try {
@@ -169,7 +162,7 @@ void LogWriter::repair_previous_run() {
   } catch (const LogWriteError& e) {
     spdlog::warn("{} (the lines before it are intact)", e.what());
   }
-  ::close(std::exchange(fd_, -1));
+  fd_.reset();
   path_.clear();
   file_bytes_ = 0;
   oldest_unsynced_.reset();
@@ -181,18 +174,14 @@ void LogWriter::repair_previous_run() {
 bool LogWriter::open_file(unsigned index, bool create_only) {
   std::filesystem::path path = file_path(index);
   const int flags = O_RDWR | O_APPEND | O_CLOEXEC | O_CREAT | (create_only ? O_EXCL : 0);
-  const int fd = ::open(path.c_str(), flags, 0640);
-  if (fd < 0) {
+  UniqueFd fd(::open(path.c_str(), flags, 0640));
+  if (!fd) {
     if (create_only && errno == EEXIST) return false;
     throw LogWriteError(std::move(path), create_only ? "cannot create" : "cannot open", errno_code(errno));
   }
   struct stat st {};
-  if (::fstat(fd, &st) != 0) {
-    const int error = errno;
-    ::close(fd);
-    throw LogWriteError(std::move(path), "cannot stat", errno_code(error));
-  }
-  fd_ = fd;
+  if (::fstat(fd.get(), &st) != 0) throw LogWriteError(std::move(path), "cannot stat", errno_code(errno));
+  fd_ = std::move(fd);
   index_ = index;
   path_ = std::move(path);
   file_bytes_ = static_cast<std::uint64_t>(st.st_size);
@@ -201,7 +190,7 @@ bool LogWriter::open_file(unsigned index, bool create_only) {
   try {
     if (file_bytes_ > 0) cut_partial_last_line();
   } catch (const LogWriteError&) {
-    ::close(std::exchange(fd_, -1));  // not left open on a tail nobody could cut
+    fd_.reset();  // not left open on a tail nobody could cut
     throw;
   }
   sync_directory(config_.directory);
@@ -221,7 +210,7 @@ void LogWriter::cut_partial_last_line() {
     const std::uint64_t offset = end - size;
     std::size_t got = 0;
     while (got < size) {
-      const ssize_t n = ::pread(fd_, chunk.data() + got, size - got, static_cast<off_t>(offset + got));
+      const ssize_t n = ::pread(fd_.get(), chunk.data() + got, size - got, static_cast<off_t>(offset + got));
       if (n < 0 && errno == EINTR) continue;
       if (n <= 0) throw LogWriteError(path_, "cannot read its last line", errno_code(n < 0 ? errno : EIO));
       got += static_cast<std::size_t>(n);
@@ -234,7 +223,7 @@ void LogWriter::cut_partial_last_line() {
   }
   if (keep == file_bytes_) return;
   const std::uint64_t cut = file_bytes_ - keep;
-  if (::ftruncate(fd_, static_cast<off_t>(keep)) != 0) {
+  if (::ftruncate(fd_.get(), static_cast<off_t>(keep)) != 0) {
     throw LogWriteError(path_, "cannot cut off its partial last line", errno_code(errno));
   }
   file_bytes_ = keep;
@@ -258,7 +247,7 @@ void LogWriter::rotate() {
 }
 
 void LogWriter::close_file() {
-  if (fd_ < 0) return;
+  if (!fd_) return;
   std::exception_ptr failure;
   try {
     sync();
@@ -266,8 +255,7 @@ void LogWriter::close_file() {
     failure = std::current_exception();
   }
   // Linux closes the descriptor even when close() reports an error: never retry.
-  const int fd = std::exchange(fd_, -1);
-  if (::close(fd) != 0 && !failure && errno != EINTR) {
+  if (fd_.close() != 0 && !failure && errno != EINTR) {
     failure = std::make_exception_ptr(LogWriteError(path_, "cannot close", errno_code(errno)));
   }
   if (failure) std::rethrow_exception(failure);
@@ -278,7 +266,7 @@ void LogWriter::append(std::string_view line) {
     throw std::invalid_argument("detection log: append() takes one complete line ending in '\\n'");
   }
   try {
-    if (fd_ < 0) open_file(index_, false);  // closed by an earlier failure
+    if (!fd_) open_file(index_, false);  // closed by an earlier failure
     if (config_.max_bytes != 0 && file_bytes_ > 0 && file_bytes_ + line.size() > config_.max_bytes) rotate();
     write_whole(line);
     counters_.lines.fetch_add(1, std::memory_order_relaxed);
@@ -304,7 +292,7 @@ void LogWriter::append(std::string_view line) {
 void LogWriter::write_whole(std::string_view line) {
   std::size_t written = 0;
   while (written < line.size()) {
-    const ssize_t n = ::write(fd_, line.data() + written, line.size() - written);
+    const ssize_t n = ::write(fd_.get(), line.data() + written, line.size() - written);
     if (n > 0) {
       written += static_cast<std::size_t>(n);
       continue;
@@ -314,12 +302,12 @@ void LogWriter::write_whole(std::string_view line) {
     if (written > 0) {
       // O_APPEND put the part at the file's end, wherever that was.
       struct stat st {};
-      if (::fstat(fd_, &st) != 0 ||
-          ::ftruncate(fd_, st.st_size - static_cast<off_t>(written)) != 0) {
+      if (::fstat(fd_.get(), &st) != 0 ||
+          ::ftruncate(fd_.get(), st.st_size - static_cast<off_t>(written)) != 0) {
         // Left for the repair on open: close, and the next append reopens.
         spdlog::error("detection log {}: cannot cut off a partly written line: {}", path_.string(),
-                      std::strerror(errno));
-        ::close(std::exchange(fd_, -1));
+                      errno_text(errno));
+        fd_.reset();
       }
     }
     throw LogWriteError(path_, "cannot write", errno_code(error));
@@ -338,12 +326,12 @@ std::optional<std::chrono::steady_clock::time_point> LogWriter::sync_deadline() 
 }
 
 void LogWriter::sync() {
-  if (fd_ < 0) return;
+  if (!fd_) return;
   // fdatasync: the data and the file size, which is all a reader needs; the
   // timestamps can wait.
   int result = 0;
   do {
-    result = ::fdatasync(fd_);
+    result = ::fdatasync(fd_.get());
   } while (result != 0 && errno == EINTR);
   if (result != 0) throw LogWriteError(path_, "cannot sync", errno_code(errno));
   oldest_unsynced_.reset();

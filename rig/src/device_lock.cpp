@@ -1,5 +1,8 @@
 #include "markerd/rig/device_lock.hpp"
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
+
 #include <fcntl.h>
 #include <sys/file.h>
 #include <sys/stat.h>
@@ -22,11 +25,6 @@ namespace {
 
 constexpr const char* kDefaultDirectory = "/run/lock/markerd";
 constexpr const char* kDirectoryVariable = "MARKERD_LOCK_DIR";
-
-std::string errno_text(int error) {
-  char buffer[256];
-  return strerror_r(error, buffer, sizeof buffer);
-}
 
 // A path with its symbolic links resolved where they exist, so that
 // /dev/serial/by-id/usb-FTDI-... and /dev/ttyUSB0 lock the same file.
@@ -102,10 +100,7 @@ std::string read_head(int fd) {
 // This process, as other processes' refusals name it: its PID and command line.
 std::string holder_record() {
   std::string command;
-  if (const int fd = ::open("/proc/self/cmdline", O_RDONLY | O_CLOEXEC); fd >= 0) {
-    command = read_head(fd);
-    ::close(fd);
-  }
+  if (const UniqueFd fd(::open("/proc/self/cmdline", O_RDONLY | O_CLOEXEC)); fd) command = read_head(fd.get());
   while (!command.empty() && command.back() == '\0') command.pop_back();
   std::replace(command.begin(), command.end(), '\0', ' ');
   std::replace(command.begin(), command.end(), '\n', ' ');
@@ -210,30 +205,29 @@ DeviceLock::DeviceLock(std::vector<DeviceClaim> claims, const std::filesystem::p
   const std::string record = holder_record();
   try {
     for (auto& [path, claim] : by_file) {
-      int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0666);
+      UniqueFd fd(::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0666));
       // Another user's lock file: it can be locked, but not written.
-      if (fd < 0 && errno == EACCES) fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
-      if (fd < 0) {
+      if (!fd && errno == EACCES) fd.reset(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW));
+      if (!fd) {
         const int error = errno;
         throw DeviceLockError(fmt::format("{}: cannot open the lock file {}: {}", claim.what, path.string(),
                                           errno_text(error)));
       }
-      if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+      if (::flock(fd.get(), LOCK_EX | LOCK_NB) != 0) {
         const int error = errno;
-        const std::string holder = error == EWOULDBLOCK ? describe_holder(fd) : std::string();
-        ::close(fd);
+        const std::string holder = error == EWOULDBLOCK ? describe_holder(fd.get()) : std::string();
         if (error == EWOULDBLOCK) {
           throw DeviceLockError(fmt::format("{} is in use by {} (lock file {})", claim.what, holder, path.string()));
         }
         throw DeviceLockError(fmt::format("{}: cannot lock {}: {}", claim.what, path.string(), errno_text(error)));
       }
-      fds_.push_back(fd);
+      // Best effort: a refusal without the holder's name is still a refusal.
+      if (::ftruncate(fd.get(), 0) == 0) {
+        [[maybe_unused]] const auto written = ::pwrite(fd.get(), record.data(), record.size(), 0);
+      }
+      fds_.push_back(std::move(fd));
       files_.push_back(path);
       claims_.push_back(claim);
-      // Best effort: a refusal without the holder's name is still a refusal.
-      if (::ftruncate(fd, 0) == 0) {
-        [[maybe_unused]] const auto written = ::pwrite(fd, record.data(), record.size(), 0);
-      }
     }
   } catch (...) {
     release();
@@ -269,8 +263,8 @@ void DeviceLock::release() noexcept {
   // In reverse order; the files stay (unlinking a lock file races with a
   // process that has just opened it), emptied of this holder's record.
   for (auto fd = fds_.rbegin(); fd != fds_.rend(); ++fd) {
-    [[maybe_unused]] const int truncated = ::ftruncate(*fd, 0);
-    ::close(*fd);
+    [[maybe_unused]] const int truncated = ::ftruncate(fd->get(), 0);
+    fd->reset();
   }
   fds_.clear();
   files_.clear();

@@ -20,15 +20,11 @@
 #include <fmt/format.h>
 
 #include "markerd/rig/drive.hpp"
+#include "markerd/base/errno_text.hpp"
 #include "markerd/rig/gpio_lines.hpp"
 
 namespace markerd::rig {
 namespace {
-
-std::string errno_text(int error) {
-  char buffer[256];
-  return strerror_r(error, buffer, sizeof buffer);  // GNU strerror_r: returns the text
-}
 
 struct ChipCloser {
   void operator()(gpiod_chip* chip) const noexcept { gpiod_chip_close(chip); }

@@ -22,6 +22,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/rig/motion_profile.hpp"
 
 namespace markerd::rig {
@@ -56,11 +57,6 @@ void sleep_until_ns(std::int64_t due_ns) {
   const timespec due{static_cast<time_t>(due_ns / kNsPerSecond), static_cast<long>(due_ns % kNsPerSecond)};
   while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &due, nullptr) == EINTR) {
   }
-}
-
-std::string errno_text(int error) {
-  char buffer[256];
-  return strerror_r(error, buffer, sizeof buffer);
 }
 
 // CAP_IPC_LOCK lifts RLIMIT_MEMLOCK; read it from the effective capability set

@@ -17,6 +17,9 @@
 #include <type_traits>
 #include <utility>
 
+#include "markerd/base/unique_fd.hpp"
+#include "markerd/base/utc_time.hpp"
+
 namespace markerd::sweep {
 
 namespace fs = std::filesystem;
@@ -36,41 +39,7 @@ constexpr const char* kStopFile = "stop.json";
 
 // UTC with milliseconds, "2026-12-01T06:15:00.123Z": sortable, and what
 // every tool reads.
-std::string to_iso(std::chrono::system_clock::time_point t) {
-  using namespace std::chrono;
-  const auto ms = floor<milliseconds>(t);
-  const auto day = floor<days>(ms);
-  const year_month_day date{day};
-  const hh_mm_ss time{ms - day};
-  return fmt::format("{:04}-{:02}-{:02}T{:02}:{:02}:{:02}.{:03}Z", static_cast<int>(date.year()),
-                     static_cast<unsigned>(date.month()), static_cast<unsigned>(date.day()), time.hours().count(),
-                     time.minutes().count(), time.seconds().count(), time.subseconds().count());
-}
-
-constexpr int kFirstRecordYear = 1678;
-constexpr int kLastRecordYear = 2261;
-
-std::chrono::system_clock::time_point from_iso(const std::string& text) {
-  using namespace std::chrono;
-  int y = 0;
-  unsigned mo = 0, d = 0, h = 0, mi = 0, s = 0, ms = 0;
-  char z = 0;
-  if (std::sscanf(text.c_str(), "%d-%u-%uT%u:%u:%u.%3u%c", &y, &mo, &d, &h, &mi, &s, &ms, &z) != 8 || z != 'Z') {
-    throw std::runtime_error(fmt::format("not a UTC time of the form 2026-12-01T06:15:00.123Z: \"{}\"", text));
-  }
-  // system_clock counts nanoseconds in 64 bits: from 1677-09-21 to
-  // 2262-04-11. Whole years inside that, so that no time overflows it.
-  if (y < kFirstRecordYear || y > kLastRecordYear) {
-    throw std::runtime_error(fmt::format("year {} is outside {} to {}, the years markerd's clock holds: \"{}\"", y,
-                                         kFirstRecordYear, kLastRecordYear, text));
-  }
-  const year_month_day date{year{y}, month{mo}, day{d}};
-  if (!date.ok()) throw std::runtime_error(fmt::format("not a date: \"{}\"", text));
-  // sscanf's %u takes a minus sign and wraps it: unbounded hours or minutes
-  // would overflow the clock as a year would.
-  if (h > 23 || mi > 59 || s > 59 || ms > 999) throw std::runtime_error(fmt::format("not a time of day: \"{}\"", text));
-  return sys_days{date} + hours{h} + minutes{mi} + seconds{s} + milliseconds{ms};
-}
+std::string to_iso(std::chrono::system_clock::time_point t) { return format_utc(t, UtcForm::milliseconds); }
 
 // A field of a record, of the type markerd writes there; anything else is
 // an error naming the field (the callers add the file and the line), never
@@ -153,17 +122,14 @@ std::array<double, 3> vec3(const nlohmann::json& json, const char* key) {
 nlohmann::json json_vec3(const std::array<double, 3>& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
 
 void sync_directory(const fs::path& directory) {
-  const int fd = ::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) fail(directory, "open the directory to sync it", errno);
-  const int rc = ::fsync(fd);
-  const int error = errno;
-  ::close(fd);
-  if (rc != 0) fail(directory, "sync the directory", error);
+  const UniqueFd fd(::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (!fd) fail(directory, "open the directory to sync it", errno);
+  if (::fsync(fd.get()) != 0) fail(directory, "sync the directory", errno);
 }
 
-int open_for_append(const fs::path& path) {
-  const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644);
-  if (fd < 0) fail(path, "open for appending", errno);
+UniqueFd open_for_append(const fs::path& path) {
+  UniqueFd fd(::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0644));
+  if (!fd) fail(path, "open for appending", errno);
   return fd;
 }
 
@@ -178,12 +144,9 @@ void cut_partial_last_line(const fs::path& path) {
   const std::size_t newline = content.rfind('\n');
   const off_t keep = newline == std::string::npos ? 0 : static_cast<off_t>(newline + 1);
   if (::truncate(path.c_str(), keep) != 0) fail(path, "cut off its partial last line", errno);
-  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC);
-  if (fd < 0) fail(path, "open to sync", errno);
-  const int rc = ::fsync(fd);
-  const int error = errno;
-  ::close(fd);
-  if (rc != 0) fail(path, "sync", error);
+  const UniqueFd fd(::open(path.c_str(), O_WRONLY | O_CLOEXEC));
+  if (!fd) fail(path, "open to sync", errno);
+  if (::fsync(fd.get()) != 0) fail(path, "sync", errno);
 }
 
 // One line in one write() to a file opened O_APPEND, then synced. A write
@@ -242,22 +205,17 @@ std::string read_text_file(const fs::path& path) {
   const auto fail = [&](int error) {
     throw std::runtime_error(fmt::format("{}: cannot read: {}", path.string(), std::generic_category().message(error)));
   };
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) fail(errno);
+  const UniqueFd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
+  if (!fd) fail(errno);
   std::string content;
   std::array<char, 65536> chunk{};
   for (;;) {
-    const ssize_t n = ::read(fd, chunk.data(), chunk.size());
+    const ssize_t n = ::read(fd.get(), chunk.data(), chunk.size());
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      const int error = errno;
-      ::close(fd);
-      fail(error);
-    }
+    if (n < 0) fail(errno);
     if (n == 0) break;
     content.append(chunk.data(), static_cast<std::size_t>(n));
   }
-  ::close(fd);
   return content;
 }
 
@@ -318,8 +276,8 @@ PointRecord point_from_json(const nlohmann::json& j) {
   r.truth_distance_m = number(truth, "distance_m");
   r.truth_yaw_deg = number(truth, "yaw_deg");
   r.frames_corrupt = field<int>(j, "frames_corrupt");
-  r.started = from_iso(field<std::string>(j, "started"));
-  r.finished = from_iso(field<std::string>(j, "finished"));
+  r.started = parse_utc_milliseconds(field<std::string>(j, "started"));
+  r.finished = parse_utc_milliseconds(field<std::string>(j, "finished"));
   const nlohmann::json* frames = find_field(j, "frames");
   if (frames == nullptr || !frames->is_array()) throw std::runtime_error("\"frames\" must be an array");
   for (const auto& f : *frames) {
@@ -362,7 +320,7 @@ RunStart start_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunStart s;
   s.run_id = field<std::string>(j, "run_id");
-  s.time = from_iso(field<std::string>(j, "time"));
+  s.time = parse_utc_milliseconds(field<std::string>(j, "time"));
   s.software_version = optional_field<std::string>(j, "software_version", "");
   s.hostname = optional_field<std::string>(j, "hostname", "");
   const auto plan = field<nlohmann::json>(j, "plan");
@@ -384,7 +342,7 @@ nlohmann::json to_json(const RunEvent& e) {
 RunEvent event_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunEvent e;
-  e.time = from_iso(field<std::string>(j, "time"));
+  e.time = parse_utc_milliseconds(field<std::string>(j, "time"));
   e.kind = field<std::string>(j, "event");
   e.reason = optional_field<std::string>(j, "reason", "");
   e.step = optional_field<std::size_t>(j, "step", 0);
@@ -402,7 +360,7 @@ nlohmann::json to_json(const RunStop& s) {
 RunStop stop_from_json(const nlohmann::json& j) {
   check_schema(j);
   RunStop s;
-  s.time = from_iso(field<std::string>(j, "time"));
+  s.time = parse_utc_milliseconds(field<std::string>(j, "time"));
   const std::string status = field<std::string>(j, "exit_status");
   if (status == "done") s.status = ExitStatus::done;
   else if (status == "aborted") s.status = ExitStatus::aborted;
@@ -446,48 +404,36 @@ RunRecords read_run(const fs::path& directory) {
 
 void write_file_atomically(const fs::path& path, std::string_view text) {
   const fs::path temporary = fs::path(path).concat(".tmp");
-  const int fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) fail(temporary, "create", errno);
+  UniqueFd fd(::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644));
+  if (!fd) fail(temporary, "create", errno);
   std::size_t written = 0;
   while (written < text.size()) {
-    const ssize_t n = ::write(fd, text.data() + written, text.size() - written);
+    const ssize_t n = ::write(fd.get(), text.data() + written, text.size() - written);
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) {
-      const int error = n < 0 ? errno : EIO;
-      ::close(fd);
-      fail(temporary, "write", error);
-    }
+    if (n <= 0) fail(temporary, "write", n < 0 ? errno : EIO);
     written += static_cast<std::size_t>(n);
   }
-  if (::fsync(fd) != 0) {
-    const int error = errno;
-    ::close(fd);
-    fail(temporary, "sync", error);
-  }
-  ::close(fd);
+  if (::fsync(fd.get()) != 0) fail(temporary, "sync", errno);
+  if (fd.close() != 0) fail(temporary, "close", errno);
   if (::rename(temporary.c_str(), path.c_str()) != 0) fail(path, "rename into place", errno);
   sync_directory(path.has_parent_path() ? path.parent_path() : fs::path("."));
 }
 
 void overwrite_file_in_place(const fs::path& path, std::string_view text) {
-  const int fd = ::open(path.c_str(), O_WRONLY | O_CLOEXEC);
-  if (fd < 0) fail(path, "open to overwrite", errno);
-  struct Closer {
-    int fd;
-    ~Closer() { ::close(fd); }
-  } closer{fd};
+  const UniqueFd fd(::open(path.c_str(), O_WRONLY | O_CLOEXEC));
+  if (!fd) fail(path, "open to overwrite", errno);
   struct stat st {};
-  if (::fstat(fd, &st) != 0) fail(path, "stat", errno);
+  if (::fstat(fd.get(), &st) != 0) fail(path, "stat", errno);
   std::string padded(text);
   if (std::cmp_less(padded.size(), st.st_size)) padded.resize(static_cast<std::size_t>(st.st_size), ' ');
   std::size_t written = 0;
   while (written < padded.size()) {
-    const ssize_t n = ::pwrite(fd, padded.data() + written, padded.size() - written, static_cast<off_t>(written));
+    const ssize_t n = ::pwrite(fd.get(), padded.data() + written, padded.size() - written, static_cast<off_t>(written));
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) fail(path, "overwrite", n < 0 ? errno : EIO);
     written += static_cast<std::size_t>(n);
   }
-  if (::fdatasync(fd) != 0) fail(path, "sync", errno);
+  if (::fdatasync(fd.get()) != 0) fail(path, "sync", errno);
 }
 
 RunRecorder RunRecorder::create(const fs::path& directory, const RunStart& start) {
@@ -510,41 +456,20 @@ RunRecorder RunRecorder::resume(const fs::path& directory) {
   return recorder;
 }
 
-RunRecorder::RunRecorder(RunRecorder&& other) noexcept
-    : directory_(std::move(other.directory_)),
-      points_fd_(std::exchange(other.points_fd_, -1)),
-      events_fd_(std::exchange(other.events_fd_, -1)) {}
-
-RunRecorder& RunRecorder::operator=(RunRecorder&& other) noexcept {
-  if (this != &other) {
-    if (points_fd_ >= 0) ::close(points_fd_);
-    if (events_fd_ >= 0) ::close(events_fd_);
-    directory_ = std::move(other.directory_);
-    points_fd_ = std::exchange(other.points_fd_, -1);
-    events_fd_ = std::exchange(other.events_fd_, -1);
-  }
-  return *this;
-}
-
-RunRecorder::~RunRecorder() {
-  if (points_fd_ >= 0) ::close(points_fd_);
-  if (events_fd_ >= 0) ::close(events_fd_);
-}
-
 void RunRecorder::append_point(const PointRecord& record) {
-  if (points_fd_ < 0) throw std::logic_error("sweep records: the run is finished");
-  append_line(points_fd_, directory_ / kPointsFile, to_json(record).dump() + "\n");
+  if (!points_fd_) throw std::logic_error("sweep records: the run is finished");
+  append_line(points_fd_.get(), directory_ / kPointsFile, to_json(record).dump() + "\n");
 }
 
 void RunRecorder::append_event(const RunEvent& event) {
-  if (events_fd_ < 0) throw std::logic_error("sweep records: the run is finished");
-  append_line(events_fd_, directory_ / kEventsFile, to_json(event).dump() + "\n");
+  if (!events_fd_) throw std::logic_error("sweep records: the run is finished");
+  append_line(events_fd_.get(), directory_ / kEventsFile, to_json(event).dump() + "\n");
 }
 
 void RunRecorder::finish(const RunStop& stop) {
   write_file_atomically(directory_ / kStopFile, to_json(stop).dump(2) + "\n");
-  if (points_fd_ >= 0) ::close(std::exchange(points_fd_, -1));
-  if (events_fd_ >= 0) ::close(std::exchange(events_fd_, -1));
+  points_fd_.reset();
+  events_fd_.reset();
 }
 
 }  // namespace markerd::sweep

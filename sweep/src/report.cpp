@@ -19,6 +19,9 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/base/unique_fd.hpp"
+#include "markerd/base/utc_time.hpp"
+#include "markerd/base/errno_text.hpp"
 #include "markerd/detector/family.hpp"
 
 extern char** environ;
@@ -44,7 +47,7 @@ void write_text(const fs::path& path, std::string_view text) {
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (out) out.write(text.data(), static_cast<std::streamsize>(text.size()));
   if (out) out.close();
-  if (!out) throw std::runtime_error(fmt::format("{}: cannot write: {}", path.string(), std::strerror(errno)));
+  if (!out) throw std::runtime_error(fmt::format("{}: cannot write: {}", path.string(), errno_text(errno)));
 }
 
 double norm(const std::array<double, 3>& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
@@ -66,40 +69,41 @@ void run_gnuplot(const std::string& program, const fs::path& directory, const st
   const std::string executable = program.find('/') == std::string::npos ? program : fs::absolute(program).string();
   int stderr_pipe[2];
   if (::pipe2(stderr_pipe, O_CLOEXEC) != 0) {
-    throw std::runtime_error(fmt::format("gnuplot: cannot make a pipe: {}", std::strerror(errno)));
+    throw std::runtime_error(fmt::format("gnuplot: cannot make a pipe: {}", errno_text(errno)));
   }
+  UniqueFd read_end(stderr_pipe[0]);
+  UniqueFd write_end(stderr_pipe[1]);
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
   posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
   posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
-  posix_spawn_file_actions_adddup2(&actions, stderr_pipe[1], STDERR_FILENO);
+  posix_spawn_file_actions_adddup2(&actions, write_end.get(), STDERR_FILENO);
   posix_spawn_file_actions_addchdir_np(&actions, directory.c_str());
   std::string script_argument = script;
   std::vector<char*> argv = {const_cast<char*>(executable.c_str()), script_argument.data(), nullptr};
   pid_t pid = 0;
   const int spawn_error = ::posix_spawnp(&pid, executable.c_str(), &actions, nullptr, argv.data(), environ);
   posix_spawn_file_actions_destroy(&actions);
-  ::close(stderr_pipe[1]);
+  write_end.reset();  // gnuplot's copy is the only writer left: its end is our end of file
   if (spawn_error != 0) {
-    ::close(stderr_pipe[0]);
     throw std::runtime_error(fmt::format("gnuplot: cannot run '{}': {} (install gnuplot-nox, or leave the plots out)",
-                                         program, std::strerror(spawn_error)));
+                                         program, errno_text(spawn_error)));
   }
   std::string messages;
   char buffer[4096];
   for (;;) {
-    const ssize_t n = ::read(stderr_pipe[0], buffer, sizeof buffer);
+    const ssize_t n = ::read(read_end.get(), buffer, sizeof buffer);
     if (n > 0) {
       messages.append(buffer, static_cast<std::size_t>(n));
     } else if (n == 0 || errno != EINTR) {
       break;
     }
   }
-  ::close(stderr_pipe[0]);
+  read_end.reset();
   int status = 0;
   while (::waitpid(pid, &status, 0) < 0) {
     if (errno != EINTR) {
-      throw std::runtime_error(fmt::format("gnuplot: waiting for '{}': {}", program, std::strerror(errno)));
+      throw std::runtime_error(fmt::format("gnuplot: waiting for '{}': {}", program, errno_text(errno)));
     }
   }
   if (WIFEXITED(status) && WEXITSTATUS(status) == 0) return;
@@ -391,12 +395,7 @@ fs::path draw(const PlotFile& plot, const ReportOptions& options) {
 
 std::string time_text(std::chrono::system_clock::time_point time) {
   if (time == std::chrono::system_clock::time_point{}) return std::string(kNone);
-  const std::time_t t = std::chrono::system_clock::to_time_t(time);
-  std::tm utc{};
-  ::gmtime_r(&t, &utc);
-  char text[32];
-  std::strftime(text, sizeof text, "%Y-%m-%d %H:%M:%S UTC", &utc);
-  return text;
+  return format_utc(time, UtcForm::readable);
 }
 
 std::string cell(std::string_view text) {

@@ -6,6 +6,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "markerd/base/utc_time.hpp"
 #include "markerd/base/read_file.hpp"
 #include "markerd/rig/motion_profile.hpp"
 #include "markerd/sweep/report.hpp"
@@ -135,17 +136,6 @@ class RunFailed : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
-
-std::string utc_run_stamp(std::chrono::system_clock::time_point t) {
-  using namespace std::chrono;
-  const auto secs = floor<seconds>(t);
-  const auto day = floor<days>(secs);
-  const year_month_day date{day};
-  const hh_mm_ss time{secs - day};
-  return fmt::format("{:04}{:02}{:02}T{:02}{:02}{:02}Z", static_cast<int>(date.year()),
-                     static_cast<unsigned>(date.month()), static_cast<unsigned>(date.day()), time.hours().count(),
-                     time.minutes().count(), time.seconds().count());
-}
 
 std::string this_hostname() {
   std::array<char, 256> name{};
@@ -303,7 +293,7 @@ fs::path SweepRunner::start(SweepPlan plan) {
 
   auto run = std::make_unique<Run>();
   const auto now = std::chrono::system_clock::now();
-  run->run_id = utc_run_stamp(now) + "-" + plan.name;
+  run->run_id = format_utc(now, UtcForm::compact) + "-" + plan.name;
   run->directory = settings_.runs_directory / run->run_id;
   for (int n = 2; fs::exists(run->directory); ++n) {
     run->directory = settings_.runs_directory / fmt::format("{}-{}", run->run_id, n);

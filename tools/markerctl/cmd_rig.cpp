@@ -44,6 +44,8 @@
 
 #include "cmd_daemon.hpp"
 #include "common.hpp"
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/rig/device_lock.hpp"
 #include "markerd/rig/rig.hpp"
 #include "markerd/rig/rig_config.hpp"
@@ -57,6 +59,8 @@ using markerd::rig::AxisSettings;
 using markerd::rig::AxisState;
 using markerd::rig::AxisStatus;
 using Clock = std::chrono::steady_clock;
+using markerd::errno_text;
+using markerd::UniqueFd;
 using namespace std::chrono_literals;
 
 // ---------------------------------------------------------------- quantities
@@ -145,12 +149,11 @@ class SignalWatch {
       sigaddset(&set_, s);
     }
     if (const int error = pthread_sigmask(SIG_BLOCK, &set_, nullptr); error != 0) {
-      throw std::runtime_error(fmt::format("cannot block the interrupt signals: {}", std::strerror(error)));
+      throw std::runtime_error(fmt::format("cannot block the interrupt signals: {}", errno_text(error)));
     }
-    fd_ = signalfd(-1, &set_, SFD_CLOEXEC | SFD_NONBLOCK);
-    if (fd_ < 0) throw std::runtime_error(fmt::format("signalfd: {}", std::strerror(errno)));
+    fd_.reset(signalfd(-1, &set_, SFD_CLOEXEC | SFD_NONBLOCK));
+    if (!fd_) throw std::runtime_error(fmt::format("signalfd: {}", errno_text(errno)));
   }
-  ~SignalWatch() { ::close(fd_); }
   SignalWatch(const SignalWatch&) = delete;
   SignalWatch& operator=(const SignalWatch&) = delete;
 
@@ -160,13 +163,13 @@ class SignalWatch {
   };
   // Sleeps up to `timeout`, waking early for a signal or input.
   Wake wait(std::chrono::milliseconds timeout, int input_fd = -1) const {
-    std::array<pollfd, 2> fds{{{fd_, POLLIN, 0}, {input_fd, POLLIN, 0}}};
+    std::array<pollfd, 2> fds{{{fd_.get(), POLLIN, 0}, {input_fd, POLLIN, 0}}};
     const nfds_t count = input_fd >= 0 ? 2 : 1;
     Wake wake;
     if (::poll(fds.data(), count, static_cast<int>(timeout.count())) <= 0) return wake;
     if ((fds[0].revents & POLLIN) != 0) {
       signalfd_siginfo info{};
-      if (::read(fd_, &info, sizeof info) == static_cast<ssize_t>(sizeof info)) {
+      if (::read(fd_.get(), &info, sizeof info) == static_cast<ssize_t>(sizeof info)) {
         wake.signal = static_cast<int>(info.ssi_signo);
       }
     }
@@ -176,7 +179,7 @@ class SignalWatch {
 
  private:
   sigset_t set_{};
-  int fd_ = -1;
+  UniqueFd fd_;
 };
 
 std::string signal_name(int signal) {
@@ -606,7 +609,7 @@ int run_on_daemon(const RigOptions& o, DaemonRigRequest::Action action, bool rel
 class RawTerminal {
  public:
   explicit RawTerminal(int fd) : fd_(fd) {
-    if (tcgetattr(fd_, &saved_) != 0) throw std::runtime_error(fmt::format("tcgetattr: {}", std::strerror(errno)));
+    if (tcgetattr(fd_, &saved_) != 0) throw std::runtime_error(fmt::format("tcgetattr: {}", errno_text(errno)));
     crash_fd_ = fd_;
     crash_saved_ = saved_;
     crash_armed_ = 1;
@@ -623,7 +626,7 @@ class RawTerminal {
     if (tcsetattr(fd_, TCSANOW, &raw) != 0) {
       const int error = errno;
       restore();
-      throw std::runtime_error(fmt::format("tcsetattr: {}", std::strerror(error)));
+      throw std::runtime_error(fmt::format("tcsetattr: {}", errno_text(error)));
     }
   }
   ~RawTerminal() { restore(); }

@@ -12,6 +12,9 @@
 #include <string>
 #include <vector>
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
+
 namespace markerd::soak {
 
 namespace fs = std::filesystem;
@@ -37,7 +40,7 @@ SmallDisk::SmallDisk(fs::path mount_point, std::uint64_t size_mib) : mount_point
   if (::mount("markerd-soak", mount_point_.c_str(), "tmpfs", MS_NOSUID | MS_NODEV, options.c_str()) != 0) {
     const int error = errno;
     throw std::runtime_error("cannot mount a tmpfs (" + options + ") at " + mount_point_.string() + ": " +
-                             std::strerror(error) + (error == EPERM ? " (the soak must run as root)" : ""));
+                             errno_text(error) + (error == EPERM ? " (the soak must run as root)" : ""));
   }
   mounted_ = true;
 }
@@ -51,28 +54,25 @@ SmallDisk::~SmallDisk() {
 
 std::uint64_t SmallDisk::fill() {
   const fs::path ballast = ballast_of(mount_point_);
-  const int fd = ::open(ballast.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
-  if (fd < 0) throw std::runtime_error("cannot create " + ballast.string() + ": " + std::strerror(errno));
+  const UniqueFd fd(::open(ballast.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644));
+  if (!fd) throw std::runtime_error("cannot create " + ballast.string() + ": " + errno_text(errno));
   std::uint64_t written = 0;
   // Large writes first, then pages, then single bytes: full to the last block.
   for (const std::size_t chunk : {std::size_t{1} << 20, std::size_t{4096}, std::size_t{1}}) {
     const std::vector<char> bytes(chunk, 0);
     for (;;) {
-      const ssize_t n = ::write(fd, bytes.data(), bytes.size());
+      const ssize_t n = ::write(fd.get(), bytes.data(), bytes.size());
       if (n > 0) {
         written += static_cast<std::uint64_t>(n);
         continue;
       }
       if (n < 0 && errno == EINTR) continue;
       if (n < 0 && errno != ENOSPC) {
-        const int error = errno;
-        ::close(fd);
-        throw std::runtime_error("writing " + ballast.string() + ": " + std::strerror(error));
+        throw std::runtime_error("writing " + ballast.string() + ": " + errno_text(errno));
       }
       break;
     }
   }
-  ::close(fd);
   full_ = true;
   return written;
 }
@@ -100,7 +100,7 @@ void SmallDisk::unmount() {
   if (!mounted_) return;
   mounted_ = false;
   if (::umount2(mount_point_.c_str(), MNT_DETACH) != 0) {
-    throw std::runtime_error("cannot unmount " + mount_point_.string() + ": " + std::strerror(errno));
+    throw std::runtime_error("cannot unmount " + mount_point_.string() + ": " + errno_text(errno));
   }
 }
 
@@ -109,7 +109,7 @@ void SmallDisk::unmount_stale(const fs::path& mount_point) {
   if (!fs::exists(mount_point, ec) || !is_mount_point(mount_point)) return;
   if (::umount2(mount_point.c_str(), MNT_DETACH) != 0) {
     throw std::runtime_error("cannot unmount " + mount_point.string() + " (left by an earlier soak): " +
-                             std::strerror(errno));
+                             errno_text(errno));
   }
 }
 

@@ -78,16 +78,6 @@ void throw_missing(const fs::path& path) {
                      fmt::format("file source {}: no such file or directory", path.string()));
 }
 
-// Publishes the frame as unreadable with a cause formatted on the stack.
-template <class... Args>
-void mark_corrupt(Frame& frame, fmt::format_string<Args...> format, Args&&... args) {
-  std::array<char, Frame::kCauseCapacity> text{};
-  const auto written = fmt::format_to_n(text.data(), text.size(), format, std::forward<Args>(args)...);
-  frame.image = {};
-  frame.status = FrameStatus::corrupt_frame;
-  frame.set_cause({text.data(), std::min(written.size, text.size())});
-}
-
 class FileSource final : public CaptureSource {
  public:
   explicit FileSource(const FileSourceSettings& settings) : settings_(settings) {

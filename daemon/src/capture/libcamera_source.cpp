@@ -27,6 +27,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
 #include "markerd/base/config_table.hpp"
 
@@ -63,7 +64,7 @@ std::shared_ptr<CameraManager> shared_camera_manager() {
   auto manager = std::make_unique<CameraManager>();
   if (const int ret = manager->start(); ret < 0) {
     throw CaptureError(CaptureError::Kind::io,
-                       fmt::format("libcamera: cannot start the camera manager: {}", std::strerror(-ret)));
+                       fmt::format("libcamera: cannot start the camera manager: {}", errno_text(-ret)));
   }
   std::shared_ptr<CameraManager> shared(manager.release(), [](CameraManager* m) {
     m->stop();
@@ -179,16 +180,6 @@ std::unique_ptr<libcamera::CameraConfiguration> generate_configuration(Camera& c
   return nullptr;
 }
 
-// Publishes the frame as unreadable with a cause formatted on the stack.
-template <class... Args>
-void mark_corrupt(Frame& frame, fmt::format_string<Args...> format, Args&&... args) {
-  std::array<char, Frame::kCauseCapacity> text{};
-  const auto written = fmt::format_to_n(text.data(), text.size(), format, std::forward<Args>(args)...);
-  frame.image = {};
-  frame.status = FrameStatus::corrupt_frame;
-  frame.set_cause({text.data(), std::min(written.size, text.size())});
-}
-
 // ---------------------------------------------------------------- a streaming session
 
 // Everything one open() sets up: the acquired camera, its buffers and their
@@ -297,7 +288,7 @@ void Session::open(const LibcameraSettings& settings) {
   connected_ = true;
 
   if (const int ret = camera_->start(&controls); ret < 0) {
-    fail(CaptureError::Kind::io, fmt::format("cannot start streaming: {}", std::strerror(-ret)));
+    fail(CaptureError::Kind::io, fmt::format("cannot start streaming: {}", errno_text(-ret)));
   }
   started_ = true;
   {
@@ -311,7 +302,7 @@ void Session::open(const LibcameraSettings& settings) {
   if (!slots_.empty()) slots_.front().request->controls().merge(controls);
   for (auto& slot : slots_) {
     if (const int ret = camera_->queueRequest(slot.request.get()); ret < 0) {
-      fail(CaptureError::Kind::io, fmt::format("cannot queue a request: {}", std::strerror(-ret)));
+      fail(CaptureError::Kind::io, fmt::format("cannot queue a request: {}", errno_text(-ret)));
     }
   }
 }
@@ -331,7 +322,7 @@ void Session::find_camera(const LibcameraSettings& settings) {
   camera_id_ = camera_->id();
   if (const int ret = camera_->acquire(); ret < 0) {
     fail(CaptureError::Kind::io,
-         fmt::format("cannot acquire camera '{}': {}{}", camera_id_, std::strerror(-ret),
+         fmt::format("cannot acquire camera '{}': {}{}", camera_id_, errno_text(-ret),
                      ret == -EBUSY ? " (another process or source has it)" : ""));
   }
   acquired_ = true;
@@ -362,7 +353,7 @@ void Session::configure(const LibcameraSettings& settings) {
                      stream_config.pixelFormat.toString(), stream_config.size.toString(), offered));
   }
   if (const int ret = camera_->configure(config_.get()); ret < 0) {
-    fail(CaptureError::Kind::io, fmt::format("cannot configure {}: {}", asked, std::strerror(-ret)));
+    fail(CaptureError::Kind::io, fmt::format("cannot configure {}: {}", asked, errno_text(-ret)));
   }
   stream_ = stream_config.stream();
   format_ = settings.format;
@@ -386,7 +377,7 @@ void Session::configure(const LibcameraSettings& settings) {
 void Session::allocate_and_map() {
   allocator_ = std::make_unique<libcamera::FrameBufferAllocator>(camera_);
   if (const int ret = allocator_->allocate(stream_); ret < 0) {
-    fail(CaptureError::Kind::io, fmt::format("cannot allocate buffers: {}", std::strerror(-ret)));
+    fail(CaptureError::Kind::io, fmt::format("cannot allocate buffers: {}", errno_text(-ret)));
   }
   const auto& buffers = allocator_->buffers(stream_);
   slots_.resize(buffers.size());
@@ -410,7 +401,7 @@ void Session::allocate_and_map() {
     }
     void* address = ::mmap(nullptr, length, PROT_READ, MAP_SHARED, first.fd.get(), 0);
     if (address == MAP_FAILED) {
-      fail(CaptureError::Kind::io, fmt::format("cannot map buffer {}: {}", i, std::strerror(errno)));
+      fail(CaptureError::Kind::io, fmt::format("cannot map buffer {}: {}", i, errno_text(errno)));
     }
     mappings_.push_back({address, length});
 
@@ -421,7 +412,7 @@ void Session::allocate_and_map() {
     slot.request = camera_->createRequest(i);
     if (!slot.request) fail(CaptureError::Kind::io, "cannot create a request");
     if (const int ret = slot.request->addBuffer(stream_, buffers[i].get()); ret < 0) {
-      fail(CaptureError::Kind::io, fmt::format("cannot add buffer {} to its request: {}", i, std::strerror(-ret)));
+      fail(CaptureError::Kind::io, fmt::format("cannot add buffer {} to its request: {}", i, errno_text(-ret)));
     }
   }
   completed_.assign(slots_.size(), 0);

@@ -99,24 +99,19 @@ const char* MjpegDecoder::decode(std::span<const std::uint8_t> jpeg, int width, 
 }
 
 void decode_mjpeg_frame(Frame& frame) noexcept {
-  const auto mark_corrupt = [&frame](const char* why) {
-    frame.image = {};
-    frame.status = FrameStatus::corrupt_frame;
-    frame.set_cause(why);
-  };
   thread_local std::unique_ptr<MjpegDecoder> decoder;
   if (!decoder) {
     try {
       decoder = std::make_unique<MjpegDecoder>();
     } catch (const std::exception& e) {
-      return mark_corrupt(e.what());
+      return frame.mark_corrupt(e.what());
     }
   }
   const GreyView image = frame.image;
   assert(image.data == frame.pixel_buffer().data());
   if (const char* why =
           decoder->decode(frame.encoded(), image.width, image.height, frame.pixel_buffer().data(), image.stride)) {
-    mark_corrupt(why);
+    frame.mark_corrupt(why);
   }
 }
 

@@ -160,9 +160,7 @@ void SimCamera::fill(Frame& frame) {
     // A scene the renderer refuses is this frame's problem, not the
     // camera's: the frame is logged with the cause and capture goes on.
     frame.sequence = sequence_++;
-    frame.status = FrameStatus::corrupt_frame;
-    frame.set_cause(fmt::format("simulated camera cannot render rail {} mm, turntable {} deg: {}", rail, turntable,
-                                e.what()));
+    mark_corrupt(frame, "simulated camera cannot render rail {} mm, turntable {} deg: {}", rail, turntable, e.what());
     rendered_at_.reset();
     return;
   }

@@ -24,6 +24,8 @@
 #include <system_error>
 #include <utility>
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
 #include "markerd/base/config_table.hpp"
 
@@ -334,11 +336,11 @@ struct MappedBuffer {
 // another file: the descriptor it uses is still this stream's own.
 class Stream {
  public:
-  explicit Stream(int fd) : fd_(fd) {}
+  explicit Stream(UniqueFd fd) : fd_(std::move(fd)) {}
   Stream(const Stream&) = delete;
   Stream& operator=(const Stream&) = delete;
 
-  [[nodiscard]] int fd() const noexcept { return fd_; }
+  [[nodiscard]] int fd() const noexcept { return fd_.get(); }
 
   void retain() noexcept { references_.fetch_add(1, std::memory_order_relaxed); }
   void release() noexcept {
@@ -351,7 +353,7 @@ class Stream {
     buffer.type = V4L2_BUF_TYPE_VIDEO_CAPTURE;
     buffer.memory = V4L2_MEMORY_MMAP;
     buffer.index = index;
-    return xioctl(fd_, VIDIOC_QBUF, &buffer) == 0 ? 0 : errno;
+    return xioctl(fd_.get(), VIDIOC_QBUF, &buffer) == 0 ? 0 : errno;
   }
 
   std::vector<MappedBuffer> buffers;
@@ -363,12 +365,12 @@ class Stream {
   std::atomic<int> requeue_error{0};
 
  private:
+  // The buffers are unmapped before the device is closed (fd_ goes after).
   ~Stream() {
     for (const auto& b : buffers) ::munmap(b.data, b.length);
-    ::close(fd_);
   }
 
-  int fd_;
+  UniqueFd fd_;
   std::atomic<int> references_{1};
 };
 
@@ -458,7 +460,7 @@ class V4l2Source final : public CaptureSource {
   // An ioctl that failed on the open device: ENODEV is the device gone.
   [[nodiscard]] CaptureError ioctl_error(std::string_view ioctl, int error_number) const {
     const Kind kind = error_number == ENODEV ? Kind::vanished : Kind::io;
-    return error(kind, fmt::format("{}: {}", ioctl, std::strerror(error_number)));
+    return error(kind, fmt::format("{}: {}", ioctl, errno_text(error_number)));
   }
 
   void check_capabilities(int fd);
@@ -493,17 +495,18 @@ void V4l2Source::open() {
   const fs::path node = fs::canonical(path, ec);
   label_ = !ec && node.string() != settings_.device ? fmt::format("{} ({})", name_, node.string()) : name_;
 
-  const int fd = ::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC);
-  if (fd < 0) {
+  UniqueFd device(::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC));
+  if (!device) {
     const int e = errno;
     if (e == ENOENT || e == ENODEV || e == ENXIO) {
       throw error(Kind::not_found, fmt::format("cannot open {}: {} (not plugged in, or its driver not loaded)",
-                                               path.string(), std::strerror(e)));
+                                               path.string(), errno_text(e)));
     }
-    throw error(Kind::io, fmt::format("cannot open {}: {}{}", path.string(), std::strerror(e),
+    throw error(Kind::io, fmt::format("cannot open {}: {}{}", path.string(), errno_text(e),
                                       e == EACCES ? " (is the user in the group that owns it, usually 'video'?)" : ""));
   }
-  StreamHold stream(new Stream(fd));
+  const int fd = device.get();
+  StreamHold stream(new Stream(std::move(device)));
   check_capabilities(fd);
   if (settings_.input) select_input(fd, *settings_.input);
   set_format(fd);
@@ -524,7 +527,7 @@ void V4l2Source::check_capabilities(int fd) {
   if (xioctl(fd, VIDIOC_QUERYCAP, &cap) != 0) {
     const int e = errno;
     if (e == ENOTTY || e == EINVAL) {
-      throw error(Kind::config, fmt::format("not a V4L2 device (VIDIOC_QUERYCAP: {})", std::strerror(e)));
+      throw error(Kind::config, fmt::format("not a V4L2 device (VIDIOC_QUERYCAP: {})", errno_text(e)));
     }
     throw ioctl_error("VIDIOC_QUERYCAP", e);
   }
@@ -566,11 +569,11 @@ void V4l2Source::set_format(int fd) {
     const int e = errno;
     if (e == EINVAL) {
       throw error(Kind::config,
-                  fmt::format("VIDIOC_S_FMT {}: {} (it offers {})", asked, std::strerror(e), offered_formats(fd)));
+                  fmt::format("VIDIOC_S_FMT {}: {} (it offers {})", asked, errno_text(e), offered_formats(fd)));
     }
     if (e == EBUSY) {
       throw error(Kind::io,
-                  fmt::format("VIDIOC_S_FMT {}: {} (another program is streaming from it)", asked, std::strerror(e)));
+                  fmt::format("VIDIOC_S_FMT {}: {} (another program is streaming from it)", asked, errno_text(e)));
     }
     throw ioctl_error(fmt::format("VIDIOC_S_FMT {}", asked), e);
   }
@@ -599,7 +602,7 @@ void V4l2Source::set_frame_rate(int fd) {
     if (errno == ENODEV) throw ioctl_error("VIDIOC_G_PARM", ENODEV);
     if (settings_.fps > 0) {
       spdlog::warn("{}: cannot set the frame rate to {} fps: VIDIOC_G_PARM: {}", label_, settings_.fps,
-                   std::strerror(errno));
+                   errno_text(errno));
     }
     geometry_.frame_rate = 0;
     return;
@@ -724,7 +727,7 @@ void V4l2Source::set_controls(int fd) {
     if (result != 0) {
       const int e = errno;
       const std::string what = fmt::format("control {} ({}) = {}: VIDIOC_S_EXT_CTRLS: {}", setting->name,
-                                           setting->origin, value, std::strerror(e));
+                                           setting->origin, value, errno_text(e));
       if (e == EACCES) throw error(Kind::config, what + " (the device refuses it now: an automatic mode holds it?)");
       if (e == EINVAL || e == ERANGE) throw error(Kind::config, what);
       throw error(e == ENODEV ? Kind::vanished : Kind::io, what);
@@ -741,11 +744,11 @@ void V4l2Source::map_buffers(Stream& stream) {
     const int e = errno;
     if (e == EINVAL) {
       throw error(Kind::config, fmt::format("VIDIOC_REQBUFS {}: {} (it cannot stream through mmap buffers)",
-                                            settings_.buffers, std::strerror(e)));
+                                            settings_.buffers, errno_text(e)));
     }
     if (e == EBUSY) {
       throw error(Kind::io, fmt::format("VIDIOC_REQBUFS {}: {} (another program is streaming from it)",
-                                        settings_.buffers, std::strerror(e)));
+                                        settings_.buffers, errno_text(e)));
     }
     throw ioctl_error(fmt::format("VIDIOC_REQBUFS {}", settings_.buffers), e);
   }
@@ -840,9 +843,7 @@ void V4l2Source::requeue(std::uint32_t index) {
 }
 
 void V4l2Source::publish_corrupt(Frame& frame, const char* cause, std::uint32_t index) {
-  frame.image = {};
-  frame.status = FrameStatus::corrupt_frame;
-  frame.set_cause(cause);
+  frame.mark_corrupt(cause);
   requeue(index);
 }
 
@@ -931,20 +932,17 @@ V4l2DeviceInfo describe(const fs::path& path, const std::map<std::string, std::v
   if (const fs::path node = fs::canonical(path, ec); !ec) {
     if (const auto it = links.find(node.string()); it != links.end()) info.stable_names = it->second;
   }
-  int fd = ::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC);
-  if (fd < 0 && errno == EACCES) fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
-  if (fd < 0) {
-    info.error = fmt::format("cannot open: {}", std::strerror(errno));
+  UniqueFd device(::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC));
+  if (!device && errno == EACCES) device.reset(::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC));
+  if (!device) {
+    info.error = fmt::format("cannot open: {}", errno_text(errno));
     capture = true;  // it may be one; the error says why it is not described
     return info;
   }
-  struct Closer {
-    int fd;
-    ~Closer() { ::close(fd); }
-  } closer{fd};
+  const int fd = device.get();
   v4l2_capability cap{};
   if (xioctl(fd, VIDIOC_QUERYCAP, &cap) != 0) {
-    info.error = fmt::format("not a V4L2 device (VIDIOC_QUERYCAP: {})", std::strerror(errno));
+    info.error = fmt::format("not a V4L2 device (VIDIOC_QUERYCAP: {})", errno_text(errno));
     capture = true;
     return info;
   }

@@ -14,6 +14,8 @@
 #include <cstring>
 #include <vector>
 
+#include "markerd/base/errno_text.hpp"
+
 namespace markerd::daemon {
 
 using Clock = std::chrono::steady_clock;
@@ -65,19 +67,14 @@ ControlClient::ControlClient(std::filesystem::path socket_path) : path_(std::mov
     fail(fmt::format("the path is longer than {} bytes, the limit of a Unix socket", sizeof address.sun_path - 1));
   }
   std::memcpy(address.sun_path, path_.c_str(), path_.native().size() + 1);
-  fd_ = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-  if (fd_ < 0) throw ControlClientError(fmt::format("socket(): {}", std::strerror(errno)));
-  if (::connect(fd_, reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
+  fd_.reset(::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0));
+  if (!fd_) throw ControlClientError(fmt::format("socket(): {}", errno_text(errno)));
+  if (::connect(fd_.get(), reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
     const int error = errno;
-    ::close(fd_);
-    fd_ = -1;
-    throw ControlClientError(fmt::format("cannot connect to {}: {}{}", path_.string(), std::strerror(error),
+    fd_.reset();
+    throw ControlClientError(fmt::format("cannot connect to {}: {}{}", path_.string(), errno_text(error),
                                          connect_hint(path_, error)));
   }
-}
-
-ControlClient::~ControlClient() {
-  if (fd_ >= 0) ::close(fd_);
 }
 
 void ControlClient::fail(const std::string& why) const {
@@ -89,11 +86,11 @@ bool ControlClient::send_line(const nlohmann::json& request) {
   line += '\n';
   std::size_t sent = 0;
   while (sent < line.size()) {
-    const ssize_t n = ::send(fd_, line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
+    const ssize_t n = ::send(fd_.get(), line.data() + sent, line.size() - sent, MSG_NOSIGNAL);
     if (n < 0) {
       if (errno == EINTR) continue;
       if (errno == EPIPE || errno == ECONNRESET) return false;
-      fail(fmt::format("cannot send: {}", std::strerror(errno)));
+      fail(fmt::format("cannot send: {}", errno_text(errno)));
     }
     sent += static_cast<std::size_t>(n);
   }
@@ -141,19 +138,19 @@ std::optional<std::string> ControlClient::read_line(std::optional<std::chrono::m
       if (left <= 0) return std::nullopt;
       wait_ms = static_cast<int>(std::min<std::int64_t>(left, 60000));
     }
-    pollfd pfd{fd_, POLLIN, 0};
+    pollfd pfd{fd_.get(), POLLIN, 0};
     const int ready = ::poll(&pfd, 1, wait_ms);
     if (ready < 0) {
       if (errno == EINTR) continue;
-      fail(fmt::format("poll: {}", std::strerror(errno)));
+      fail(fmt::format("poll: {}", errno_text(errno)));
     }
     if (ready == 0) continue;  // the deadline is checked above
     char chunk[65536];
-    const ssize_t n = ::recv(fd_, chunk, sizeof chunk, 0);
+    const ssize_t n = ::recv(fd_.get(), chunk, sizeof chunk, 0);
     if (n < 0) {
       if (errno == EINTR || errno == EAGAIN) continue;
       fail(errno == ECONNRESET ? std::string("markerd closed the connection")
-                               : fmt::format("cannot read: {}", std::strerror(errno)));
+                               : fmt::format("cannot read: {}", errno_text(errno)));
     }
     if (n == 0) fail("markerd closed the connection");
     buffer_.append(chunk, static_cast<std::size_t>(n));

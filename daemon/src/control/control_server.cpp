@@ -13,6 +13,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/base/read_file.hpp"
 
 #include <algorithm>
@@ -53,7 +54,6 @@ constexpr auto kAcceptPause = 100ms;
 constexpr std::size_t kBeyondLimitClients = 4;
 constexpr auto kBeyondLimitIdle = 5s;
 
-std::string errno_text(int error) { return std::strerror(error); }
 
 [[noreturn]] void socket_error(const std::filesystem::path& path, std::string_view why) {
   throw ControlSocketError(fmt::format("control socket {}: {}", path.string(), why));
@@ -91,11 +91,10 @@ std::optional<gid_t> group_id(const std::string& name) {
 // one does, false when nobody listens (a stale socket file); a
 // ControlSocketError when it cannot be told.
 bool someone_listens(const std::filesystem::path& path, const sockaddr_un& address) {
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-  if (fd < 0) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
-  const int result = ::connect(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address);
+  const UniqueFd fd(::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0));
+  if (!fd) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
+  const int result = ::connect(fd.get(), reinterpret_cast<const sockaddr*>(&address), sizeof address);
   const int error = errno;
-  ::close(fd);
   if (result == 0) return true;
   // EAGAIN: a listener whose backlog is full, which is alive all the same.
   if (error == EAGAIN || error == EINPROGRESS) return true;
@@ -233,7 +232,7 @@ std::optional<std::string> find_socket_group_problem(const ControlSettings& sett
 // ---------------------------------------------------------------- the server
 
 struct ControlServer::Client {
-  int fd = -1;
+  UniqueFd fd;
   std::uint64_t id = 0;
   std::string input;              // received, not yet answered; starts at a line's start
   std::size_t input_scanned = 0;  // bytes of `input` known to hold no '\n'
@@ -323,7 +322,7 @@ std::size_t ControlServer::regular_clients() const {
 }
 
 void ControlServer::start() {
-  if (running() || listen_fd_ >= 0) throw std::logic_error("ControlServer: started twice");
+  if (running() || listen_fd_) throw std::logic_error("ControlServer: started twice");
   set_up_socket();
   thread_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
 }
@@ -354,18 +353,16 @@ void ControlServer::set_up_socket() {
                  path.string());
   }
 
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-  if (fd < 0) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
-  if (::bind(fd, reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
-    const int error = errno;
-    ::close(fd);
-    socket_error(path, fmt::format("cannot bind: {}", errno_text(error)));
+  UniqueFd fd(::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
+  if (!fd) socket_error(path, fmt::format("socket(): {}", errno_text(errno)));
+  if (::bind(fd.get(), reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
+    socket_error(path, fmt::format("cannot bind: {}", errno_text(errno)));
   }
   // Owner, group and mode are set between bind() and listen(): until
   // listen() every connect() is refused, so no client ever reaches the
   // socket with the permissions the umask gave it.
   const auto fail_bound = [&](const std::string& why) {
-    ::close(fd);
+    fd.reset();
     ::unlink(path.c_str());
     socket_error(path, why);
   };
@@ -383,12 +380,12 @@ void ControlServer::set_up_socket() {
   if (::lstat(path.c_str(), &st) != 0) fail_bound(fmt::format("cannot stat it after bind: {}", errno_text(errno)));
   socket_dev_ = st.st_dev;
   socket_ino_ = st.st_ino;
-  if (::listen(fd, static_cast<int>(std::min<std::size_t>(settings_.max_clients, 128))) != 0) {
+  if (::listen(fd.get(), static_cast<int>(std::min<std::size_t>(settings_.max_clients, 128))) != 0) {
     fail_bound(fmt::format("cannot listen: {}", errno_text(errno)));
   }
-  stop_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-  if (stop_fd_ < 0) fail_bound(fmt::format("eventfd: {}", errno_text(errno)));
-  listen_fd_ = fd;
+  stop_fd_.reset(::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC));
+  if (!stop_fd_) fail_bound(fmt::format("eventfd: {}", errno_text(errno)));
+  listen_fd_ = std::move(fd);
   spdlog::info("control socket {}: listening (mode 0{:o}{})", path.string(), static_cast<unsigned>(settings_.mode),
                settings_.group.empty() ? std::string() : ", group " + settings_.group);
 }
@@ -397,16 +394,14 @@ void ControlServer::stop() noexcept {
   if (thread_.joinable()) {
     thread_.request_stop();
     const std::uint64_t one = 1;
-    [[maybe_unused]] const ssize_t n = ::write(stop_fd_, &one, sizeof one);
+    [[maybe_unused]] const ssize_t n = ::write(stop_fd_.get(), &one, sizeof one);
     thread_.join();
   }
-  for (auto& client : clients_) ::close(client->fd);
   clients_.clear();
   counters_.clients.store(0, std::memory_order_relaxed);
   for (LineBroadcast* stream : streams_) stream->set_listening(false);
-  if (listen_fd_ >= 0) {
-    ::close(listen_fd_);
-    listen_fd_ = -1;
+  if (listen_fd_) {
+    listen_fd_.reset();
     // Only our own socket: after a restart race another markerd may have
     // replaced it, and its socket is not ours to remove.
     struct stat st {};
@@ -415,10 +410,7 @@ void ControlServer::stop() noexcept {
       ::unlink(path.c_str());
     }
   }
-  if (stop_fd_ >= 0) {
-    ::close(stop_fd_);
-    stop_fd_ = -1;
-  }
+  stop_fd_.reset();
 }
 
 ControlServerStats ControlServer::stats() const noexcept {
@@ -447,8 +439,8 @@ void ControlServer::run(const std::stop_token& stop) {
     std::optional<Clock::time_point> wake_at = accept_paused_until;
 
     fds.clear();
-    fds.push_back({stop_fd_, POLLIN, 0});
-    fds.push_back({accept_paused_until ? -1 : listen_fd_, POLLIN, 0});
+    fds.push_back({stop_fd_.get(), POLLIN, 0});
+    fds.push_back({accept_paused_until ? -1 : listen_fd_.get(), POLLIN, 0});
     for (const LineBroadcast* stream : streams_) fds.push_back({stream->wake_fd(), POLLIN, 0});
     const std::size_t first_client = fds.size();
     bool serve_now = false;
@@ -461,7 +453,7 @@ void ControlServer::run(const std::stop_token& stop) {
       // while the client's replies pile up), so it stays bounded.
       if (!client->closing && !client->peer_closed && !client->request_waiting()) events |= POLLIN;
       if (client->pending() > 0) events |= POLLOUT;
-      fds.push_back({client->fd, events, 0});
+      fds.push_back({client->fd.get(), events, 0});
       std::optional<Clock::time_point> deadline = client->closing ? std::optional(client->close_deadline)
                                                                   : idle_deadline(*client);
       if (deadline && (!wake_at || *deadline < *wake_at)) wake_at = deadline;
@@ -527,8 +519,8 @@ void ControlServer::run(const std::stop_token& stop) {
 
 void ControlServer::accept_clients() {
   for (;;) {
-    const int fd = ::accept4(listen_fd_, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
-    if (fd < 0) {
+    UniqueFd fd(::accept4(listen_fd_.get(), nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC));
+    if (!fd) {
       const int error = errno;
       if (error == EAGAIN || error == EWOULDBLOCK) return;
       if (error == EINTR || error == ECONNABORTED) continue;
@@ -542,21 +534,20 @@ void ControlServer::accept_clients() {
     const std::uint64_t id = next_client_id_++;
     ucred peer{};
     socklen_t peer_size = sizeof peer;
-    if (::getsockopt(fd, SOL_SOCKET, SO_PEERCRED, &peer, &peer_size) != 0) peer = {};
+    if (::getsockopt(fd.get(), SOL_SOCKET, SO_PEERCRED, &peer, &peer_size) != 0) peer = {};
     const bool beyond_limit = regular_clients() >= settings_.max_clients;
     // Without commands to serve beyond the limit, nothing is gained by taking the connection.
     if (beyond_limit && (beyond_limit_commands().empty() || !make_room_beyond_limit())) {
       counters_.refused.fetch_add(1, std::memory_order_relaxed);
       const std::string line = dump_line({{"ok", false}, {"error", too_many_clients()}});
       // A fresh socket's buffer takes the line; if not, it is lost with the connection.
-      [[maybe_unused]] const ssize_t n = ::send(fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
-      ::close(fd);
+      [[maybe_unused]] const ssize_t n = ::send(fd.get(), line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
       spdlog::warn("control socket: refused a connection from pid {} (uid {}): {} clients connected", peer.pid,
                    peer.uid, clients_.size());
       continue;
     }
     auto client = std::make_unique<Client>();
-    client->fd = fd;
+    client->fd = std::move(fd);
     client->id = id;
     client->last_activity = Clock::now();
     client->beyond_limit = beyond_limit;
@@ -631,7 +622,7 @@ void ControlServer::read_from(Client& client) {
   if (client.closing || client.peer_closed) return;
   const std::size_t old_size = client.input.size();
   client.input.resize(old_size + kReadChunk);
-  const ssize_t n = ::recv(client.fd, client.input.data() + old_size, kReadChunk, MSG_DONTWAIT);
+  const ssize_t n = ::recv(client.fd.get(), client.input.data() + old_size, kReadChunk, MSG_DONTWAIT);
   client.input.resize(old_size + static_cast<std::size_t>(std::max<ssize_t>(n, 0)));
   if (n > 0) return;
   if (n < 0) {
@@ -686,7 +677,7 @@ void ControlServer::serve_buffered(Client& client) {
 
 void ControlServer::write_to(Client& client) {
   while (client.pending() > 0 && !client.dead) {
-    const ssize_t n = ::send(client.fd, client.output.data() + client.output_sent, client.pending(),
+    const ssize_t n = ::send(client.fd.get(), client.output.data() + client.output_sent, client.pending(),
                              MSG_NOSIGNAL | MSG_DONTWAIT);
     if (n < 0) {
       if (errno == EINTR) continue;
@@ -718,10 +709,9 @@ void ControlServer::close_client(Client& client) {
   // with ECONNRESET instead of reading the reply and then the end: discard
   // what has arrived (a bounded amount) before closing.
   std::array<char, 4096> sink{};
-  for (int i = 0; i < 256 && ::recv(client.fd, sink.data(), sink.size(), MSG_DONTWAIT) > 0; ++i) {
+  for (int i = 0; i < 256 && ::recv(client.fd.get(), sink.data(), sink.size(), MSG_DONTWAIT) > 0; ++i) {
   }
-  ::close(client.fd);
-  client.fd = -1;
+  client.fd.reset();
   spdlog::debug("control: client {} disconnected", client.id);
 }
 

@@ -22,13 +22,13 @@ LineBroadcast::LineBroadcast(std::string name, std::size_t capacity_bytes)
     : name_(std::move(name)),
       mask_(ring_capacity(capacity_bytes) - 1),
       bytes_(std::make_unique<char[]>(mask_ + 1)) {
-  wake_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-  if (wake_fd_ < 0) {
+  wake_fd_.reset(::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC));
+  if (!wake_fd_) {
     throw std::system_error(errno, std::generic_category(), "stream " + name_ + ": eventfd");
   }
 }
 
-LineBroadcast::~LineBroadcast() { ::close(wake_fd_); }
+LineBroadcast::~LineBroadcast() = default;
 
 bool LineBroadcast::publish(std::string_view line) noexcept {
   if (!listening_.load(std::memory_order_relaxed)) {
@@ -79,13 +79,13 @@ void LineBroadcast::ring_bell() noexcept {
     const std::uint64_t one = 1;
     // EFD_NONBLOCK: an eventfd write fails only when its counter would
     // overflow 2^64 - 2, which one write per drain never reaches.
-    [[maybe_unused]] const ssize_t n = ::write(wake_fd_, &one, sizeof one);
+    [[maybe_unused]] const ssize_t n = ::write(wake_fd_.get(), &one, sizeof one);
   }
 }
 
 void LineBroadcast::clear_bell() noexcept {
   std::uint64_t count = 0;
-  [[maybe_unused]] const ssize_t n = ::read(wake_fd_, &count, sizeof count);
+  [[maybe_unused]] const ssize_t n = ::read(wake_fd_.get(), &count, sizeof count);
   bell_pending_.exchange(false, std::memory_order_acq_rel);
 }
 

@@ -3,6 +3,9 @@
 // a capture source fills, the detection stage completes and the log stage
 // hands to a FrameSink. See docs/pipeline.md for who owns a frame when.
 
+#include <fmt/format.h>
+
+#include <algorithm>
 #include <array>
 #include <chrono>
 #include <cstddef>
@@ -81,6 +84,8 @@ class Frame {
   [[nodiscard]] std::string_view cause() const noexcept { return {cause_.data(), cause_length_}; }
   void set_cause(std::string_view cause) noexcept;
   static constexpr std::size_t kCauseCapacity = 200;
+  // Publishes the frame as unreadable: no image, corrupt_frame, the cause.
+  void mark_corrupt(std::string_view cause) noexcept;
 
   // The slot's own pixel memory, for sources that write the grey image
   // themselves (a renderer, a YUYV or MJPEG conversion); empty when the pool
@@ -153,5 +158,14 @@ class FrameSink {
   [[nodiscard]] virtual std::chrono::milliseconds idle_period() const { return std::chrono::milliseconds{0}; }
   virtual void idle() {}
 };
+
+// Frame::mark_corrupt with a cause formatted on the stack: sources call it on
+// their capture thread, which must not allocate.
+template <class... Args>
+void mark_corrupt(Frame& frame, fmt::format_string<Args...> format, Args&&... args) {
+  std::array<char, Frame::kCauseCapacity> text{};
+  const auto written = fmt::format_to_n(text.data(), text.size(), format, std::forward<Args>(args)...);
+  frame.mark_corrupt({text.data(), std::min(written.size, text.size())});
+}
 
 }  // namespace markerd::daemon

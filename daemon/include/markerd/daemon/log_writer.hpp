@@ -23,6 +23,8 @@
 #include <string_view>
 #include <system_error>
 
+#include "markerd/base/unique_fd.hpp"
+
 namespace markerd::daemon {
 
 enum class FsyncPolicy : std::uint8_t {
@@ -125,7 +127,7 @@ class LogWriter {
   [[nodiscard]] std::filesystem::path file_path(unsigned index) const;
 
   LogWriterConfig config_;
-  int fd_ = -1;
+  UniqueFd fd_;
   unsigned index_ = 0;  // NNN of the current file
   std::filesystem::path path_;
   std::uint64_t file_bytes_ = 0;

@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/rig/rig_config.hpp"
 
 namespace markerd::rig {
@@ -66,7 +67,7 @@ class DeviceLock {
 
   std::vector<DeviceClaim> claims_;
   std::vector<std::filesystem::path> files_;
-  std::vector<int> fds_;
+  std::vector<UniqueFd> fds_;
 };
 
 // device_claims(config), locked in the default directory.

@@ -27,6 +27,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/sweep/plan.hpp"
 
 namespace markerd::sweep {
@@ -137,10 +138,6 @@ class RunRecorder {
   // and events.jsonl (a crash mid-write) and opens both for appending.
   static RunRecorder resume(const std::filesystem::path& directory);
 
-  RunRecorder(RunRecorder&&) noexcept;
-  RunRecorder& operator=(RunRecorder&&) noexcept;
-  ~RunRecorder();
-
   // Appends the point's line and syncs it: when this returns the
   // measurement is done, whatever happens next.
   void append_point(const PointRecord& record);
@@ -154,8 +151,8 @@ class RunRecorder {
 
  private:
   std::filesystem::path directory_;
-  int points_fd_ = -1;
-  int events_fd_ = -1;
+  UniqueFd points_fd_;
+  UniqueFd events_fd_;
 };
 
 // A whole file as text; std::runtime_error naming the path when it cannot be read.

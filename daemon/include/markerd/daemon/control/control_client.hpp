@@ -12,6 +12,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "markerd/base/unique_fd.hpp"
+
 namespace markerd::daemon {
 
 inline constexpr const char* kDefaultControlSocket = "/run/markerd/control.sock";
@@ -26,7 +28,7 @@ class ControlClient {
   // Connects. ControlClientError naming the path and, where it helps, the
   // likely cause (markerd not running; the group that grants access).
   explicit ControlClient(std::filesystem::path socket_path);
-  ~ControlClient();
+  ~ControlClient() = default;
   ControlClient(const ControlClient&) = delete;
   ControlClient& operator=(const ControlClient&) = delete;
 
@@ -61,7 +63,7 @@ class ControlClient {
   [[nodiscard]] std::optional<nlohmann::json> refusal_before_close();
 
   std::filesystem::path path_;
-  int fd_ = -1;
+  UniqueFd fd_;
   std::string buffer_;  // received, not yet returned
   std::int64_t next_id_ = 1;
 };

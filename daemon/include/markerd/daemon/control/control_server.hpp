@@ -34,6 +34,7 @@
 #include <thread>
 #include <vector>
 
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/daemon/control/command_arguments.hpp"
 #include "markerd/daemon/control/line_broadcast.hpp"
 
@@ -170,8 +171,8 @@ class ControlServer {
   std::map<std::string, Command, std::less<>> commands_;
   std::vector<LineBroadcast*> streams_;
 
-  int listen_fd_ = -1;
-  int stop_fd_ = -1;  // an eventfd that ends poll() for stop()
+  UniqueFd listen_fd_;
+  UniqueFd stop_fd_;  // an eventfd that ends poll() for stop()
   dev_t socket_dev_ = 0;
   ino_t socket_ino_ = 0;
   // The server thread's own.

@@ -22,6 +22,7 @@
 #include <string>
 #include <string_view>
 
+#include "markerd/base/unique_fd.hpp"
 #include "markerd/daemon/spsc_ring.hpp"
 
 namespace markerd::daemon {
@@ -63,7 +64,7 @@ class LineBroadcast {
   // ---- consumer (one thread) ----
 
   // Readable when lines (or drops) may be waiting: the server polls it.
-  [[nodiscard]] int wake_fd() const noexcept { return wake_fd_; }
+  [[nodiscard]] int wake_fd() const noexcept { return wake_fd_.get(); }
 
   void set_listening(bool listening) noexcept { listening_.store(listening, std::memory_order_relaxed); }
 
@@ -98,7 +99,7 @@ class LineBroadcast {
   const std::string name_;
   const std::size_t mask_;
   const std::unique_ptr<char[]> bytes_;
-  int wake_fd_ = -1;
+  UniqueFd wake_fd_;
 
   // Positions are byte counts since the start; 64 bits never wrap.
   alignas(kCacheLineBytes) std::atomic<std::uint64_t> tail_{0};  // written by the producer
