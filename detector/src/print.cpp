@@ -17,6 +17,7 @@
 
 #include <fmt/format.h>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"
 
@@ -203,10 +204,10 @@ std::string with_phys(const std::string& png, double dpi, const std::filesystem:
 
 void write_file(const std::filesystem::path& out, const std::string& bytes) {
   std::ofstream f(out, std::ios::binary | std::ios::trunc);
-  if (!f) throw PrintError(fmt::format("{}: cannot open for writing: {}", out.string(), std::strerror(errno)));
+  if (!f) throw PrintError(fmt::format("{}: cannot open for writing: {}", out.string(), errno_text(errno)));
   f.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
   f.close();
-  if (!f) throw PrintError(fmt::format("{}: write failed: {}", out.string(), std::strerror(errno)));
+  if (!f) throw PrintError(fmt::format("{}: write failed: {}", out.string(), errno_text(errno)));
 }
 
 }  // namespace
