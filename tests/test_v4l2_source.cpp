@@ -26,6 +26,7 @@
 
 #include "markerd/daemon/capture/pixel_convert.hpp"
 #include "markerd/daemon/frame_pool.hpp"
+#include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/base/config_table.hpp"
 

@@ -1,5 +1,6 @@
 #include "markerd/daemon/daemon.hpp"
 
+#include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
 #include "markerd/daemon/control/sweep_commands.hpp"

@@ -38,6 +38,7 @@
 #include <vector>
 
 #include "markerd/daemon/capture/libcamera_source.hpp"
+#include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/detector.hpp"

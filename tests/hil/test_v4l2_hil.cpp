@@ -48,6 +48,7 @@
 #include <thread>
 #include <vector>
 
+#include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd_child.hpp"

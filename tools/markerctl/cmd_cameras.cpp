@@ -21,6 +21,7 @@
 
 #include "common.hpp"
 #include "markerd/daemon/capture/libcamera_source.hpp"
+#include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 
 namespace markerctl {

@@ -14,7 +14,7 @@
 #include "markerd/daemon/capture/file_source.hpp"
 #include "markerd/daemon/capture/libcamera_source.hpp"
 #include "markerd/daemon/capture/sim_camera.hpp"
-#include "markerd/daemon/capture/v4l2_source.hpp"
+#include "markerd/daemon/capture/v4l2_settings.hpp"
 #include "markerd/daemon/control/control_server.hpp"
 #include "markerd/daemon/log_writer.hpp"
 #include "markerd/daemon/pipeline.hpp"
