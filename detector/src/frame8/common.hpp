@@ -1,0 +1,242 @@
+#pragma once
+// Stage 0 of the frame8 detector (docs/architecture.md, "The frame8
+// pipeline"): the types and geometry every stage shares. The grid is the
+// marker's 10 x 10 cells (0..10 across, y down); a quad's corners run
+// clockwise on screen from its top-left.
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+
+#include <Eigen/Core>
+
+#include "markerd/detector/frame8.hpp"
+#include "markerd/detector/geometry.hpp"
+#include "markerd/detector/image.hpp"
+
+#ifdef FRAME8_DEBUG
+#include <cstdio>
+#define F8_TRACE(...) std::fprintf(stderr, __VA_ARGS__)
+#else
+#define F8_TRACE(...) ((void)0)
+#endif
+
+namespace markerd::frame8 {
+
+// Maps the unit square (0,0) (1,0) (1,1) (0,1) onto a quad (Heckbert's closed form).
+struct Homography {
+  double a = 1, b = 0, c = 0, d = 0, e = 1, f = 0, g = 0, h = 0;
+
+  static bool from_unit_square(const std::array<Point2, 4>& q, Homography& out) {
+    const double sx = q[0].x - q[1].x + q[2].x - q[3].x;
+    const double sy = q[0].y - q[1].y + q[2].y - q[3].y;
+    const double dx1 = q[1].x - q[2].x, dx2 = q[3].x - q[2].x;
+    const double dy1 = q[1].y - q[2].y, dy2 = q[3].y - q[2].y;
+    const double den = dx1 * dy2 - dx2 * dy1;
+    if (std::abs(den) < 1e-12) return false;
+    out.g = (sx * dy2 - dx2 * sy) / den;
+    out.h = (dx1 * sy - sx * dy1) / den;
+    out.a = q[1].x - q[0].x + out.g * q[1].x;
+    out.b = q[3].x - q[0].x + out.h * q[3].x;
+    out.c = q[0].x;
+    out.d = q[1].y - q[0].y + out.g * q[1].y;
+    out.e = q[3].y - q[0].y + out.h * q[3].y;
+    out.f = q[0].y;
+    return true;
+  }
+  // From a map of grid coordinates (see grid_map() below).
+  static Homography from_grid_map(const Eigen::Matrix3d& grid_to_image);
+
+  [[nodiscard]] Point2 map(double u, double v) const {
+    const double w = g * u + h * v + 1;
+    return {(a * u + b * v + c) / w, (d * u + e * v + f) / w};
+  }
+};
+
+// Grid coordinates (0..10 across the marker, y down) of the inner square's
+// corners, and the map from grid coordinates to the unit square of that quad.
+constexpr double kInnerLo = frame8::line_inner;
+constexpr double kInnerSide = frame8::grid - 2 * frame8::line_inner;  // 7 cells
+inline Point2 grid_point(const Homography& H, double gx, double gy) {
+  return H.map((gx - kInnerLo) / kInnerSide, (gy - kInnerLo) / kInnerSide);
+}
+
+inline Point2 grid_point(const Homography& H, Point2 g) { return grid_point(H, g.x, g.y); }
+
+// The same map as a 3x3 matrix on homogeneous grid coordinates.
+inline Eigen::Matrix3d grid_map(const Homography& H) {
+  Eigen::Matrix3d unit_to_image;
+  unit_to_image << H.a, H.b, H.c, H.d, H.e, H.f, H.g, H.h, 1;
+  Eigen::Matrix3d grid_to_unit;
+  grid_to_unit << 1 / kInnerSide, 0, -kInnerLo / kInnerSide, 0, 1 / kInnerSide, -kInnerLo / kInnerSide, 0, 0, 1;
+  return unit_to_image * grid_to_unit;
+}
+
+inline Homography Homography::from_grid_map(const Eigen::Matrix3d& grid_to_image) {
+  Eigen::Matrix3d unit_to_grid;
+  unit_to_grid << kInnerSide, 0, kInnerLo, 0, kInnerSide, kInnerLo, 0, 0, 1;
+  Eigen::Matrix3d m = grid_to_image * unit_to_grid;
+  m /= m(2, 2);
+  Homography h;
+  h.a = m(0, 0), h.b = m(0, 1), h.c = m(0, 2);
+  h.d = m(1, 0), h.e = m(1, 1), h.f = m(1, 2);
+  h.g = m(2, 0), h.h = m(2, 1);
+  return h;
+}
+
+inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
+  const Eigen::Vector3d q = M * Eigen::Vector3d(gx, gy, 1);
+  return {q(0) / q(2), q(1) / q(2)};
+}
+
+// The grid point `in` cells in from the outer edge on a side (0 top, 1
+// right, 2 bottom, 3 left), `along` cells along it in the clockwise reading
+// order: one description of a position for all four sides.
+inline Point2 side_point(int side, double along, double in) {
+  switch (side) {
+    case 0: return {along, in};
+    case 1: return {frame8::grid - in, along};
+    case 2: return {frame8::grid - along, frame8::grid - in};
+    default: return {in, frame8::grid - along};
+  }
+}
+
+inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
+
+// Bilinear sample; false outside the image.
+inline bool sample(const GreyView& img, double x, double y, float& out) {
+  if (!(x >= 0 && y >= 0 && x <= img.width - 1.001 && y <= img.height - 1.001)) return false;
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+  const std::uint8_t* r0 = img.row(y0) + x0;
+  const std::uint8_t* r1 = r0 + img.stride;
+  const float top = r0[0] + fx * (r0[1] - r0[0]);
+  const float bot = r1[0] + fx * (r1[1] - r1[0]);
+  out = top + fy * (bot - top);
+  return true;
+}
+
+struct Line {
+  double nx = 0, ny = 0, c = 0;  // nx*x + ny*y = c, |n| = 1
+};
+
+// Twice the signed area of a polygon (the shoelace sum): positive when its
+// vertices run clockwise on screen (y down).
+inline double twice_signed_area(const Point2* v, std::size_t n) {
+  double sum = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Point2 a = v[i], b = v[(i + 1) % n];
+    sum += a.x * b.y - b.x * a.y;
+  }
+  return sum;
+}
+
+inline bool intersect(const Line& l1, const Line& l2, Point2& p) {
+  const double det = l1.nx * l2.ny - l1.ny * l2.nx;
+  if (std::abs(det) < 1e-9) return false;
+  p = {(l1.c * l2.ny - l1.ny * l2.c) / det, (l1.nx * l2.c - l1.c * l2.nx) / det};
+  return true;
+}
+
+struct EdgePoint {
+  double x, y, w;
+};
+
+// Weighted total least squares; drops points further than `reject` from a
+// first fit and fits again.
+inline bool fit_line(EdgePoint* pts, int n, double reject, Line& line) {
+  auto fit = [&](Line& out) {
+    double sw = 0, mx = 0, my = 0;
+    for (int i = 0; i < n; ++i) {
+      if (pts[i].w <= 0) continue;
+      sw += pts[i].w;
+      mx += pts[i].w * pts[i].x;
+      my += pts[i].w * pts[i].y;
+    }
+    if (sw <= 0) return false;
+    mx /= sw;
+    my /= sw;
+    double sxx = 0, sxy = 0, syy = 0;
+    int used = 0;
+    for (int i = 0; i < n; ++i) {
+      if (pts[i].w <= 0) continue;
+      const double dx = pts[i].x - mx, dy = pts[i].y - my;
+      sxx += pts[i].w * dx * dx;
+      sxy += pts[i].w * dx * dy;
+      syy += pts[i].w * dy * dy;
+      ++used;
+    }
+    if (used < 2) return false;
+    // Normal = eigenvector of the smaller eigenvalue of the scatter matrix.
+    const double theta = 0.5 * std::atan2(2 * sxy, sxx - syy);  // direction of the line
+    out.nx = -std::sin(theta);
+    out.ny = std::cos(theta);
+    out.c = out.nx * mx + out.ny * my;
+    return true;
+  };
+  if (!fit(line)) return false;
+  bool dropped = false;
+  for (int i = 0; i < n; ++i) {
+    if (pts[i].w > 0 && std::abs(line.nx * pts[i].x + line.ny * pts[i].y - line.c) > reject) {
+      pts[i].w = 0;
+      dropped = true;
+    }
+  }
+  return dropped ? fit(line) : true;
+}
+
+// The size of a cell in pixels: the mean over the quad, and across its
+// narrow direction (a marker turned far has cells of a pixel one way and
+// of four the other).
+struct CellSize {
+  double narrow;
+  double mean;
+};
+
+// Stage 1's output: light pixels of the working image as row runs, joined
+// into components.
+struct Run {
+  std::int32_t x0, x1;  // light pixels x0 .. x1-1
+  std::int32_t y;
+  std::int32_t parent;
+  std::int32_t next;  // next run of the same component, -1 at the end
+};
+struct Component {
+  std::int64_t area = 0;
+  std::int32_t x0 = 0, x1 = 0, y0 = 0, y1 = 0;
+  std::int32_t first = -1, last = -1;
+  bool touches_border = false;
+};
+
+// An edge of the printed pattern seen in the image: the point lies on the
+// grid line `value` of the given axis (0: x = value, 1: y = value).
+struct PatternEdge {
+  double x, y, w;
+  int axis;
+  double value;
+};
+
+struct CellSample {
+  float mean = 0, lo = 0, hi = 0;  // over the points sampled in the cell
+  bool valid = false;
+};
+
+// The two short edges of a marker turned far hold all four corners, as
+// cells of about a pixel along the edge, with the background beyond them:
+// a corner's centre sample is a mix no fixed share can undo. Along the
+// edge, though, the profile of the ten cells is known once the code is:
+// fitted to it with the corners coloured each way, the right colouring
+// leaves the least residual. Per colouring of the edge's first and last
+// cell (0: both black, 1: the first white, 2: the last white): the
+// residual sum of squares, and what a corner's colour is worth in it (the
+// residual that taking a right-coloured corner for the wrong colour adds,
+// per unit of contrast squared).
+struct ShortEdgeFit {
+  std::array<double, 3> residual{};
+  std::array<double, 2> corner_worth{};
+  double spread = 0;  // the profile's sum of squares about its mean
+};
+
+}  // namespace markerd::frame8

@@ -1,0 +1,255 @@
+// The frame8 detector.
+//
+// The thesis found the marker with Canny, contours and approxPolyDP and read
+// it by counting pixels per cell against a fixed 127 threshold. Here:
+//
+//  1. Segmentation on a (possibly decimated) working image: a pixel is dark
+//     when it lies a few grey levels under the mean of its neighbourhood (tile
+//     means, so the threshold follows light falloff and exposure). Light
+//     pixels are grouped into 4-connected components from row runs with
+//     union-find; the hole of a marker is a light component enclosed by the
+//     black line (8-connected dark, so a line one pixel thin on a diagonal
+//     still closes it).
+//  2. Each enclosed component's convex hull is fitted with its largest
+//     inscribed quadrilateral; components that are not quads are dropped.
+//  3. Each side of the quad is refined at full resolution: points along the
+//     side search the intensity profile across it for the light-to-dark step
+//     into the line, with sub-pixel peak interpolation, and a weighted total
+//     least-squares line is fitted (with one round of outlier rejection). The
+//     corners are the intersections. With a camera model the same edge points
+//     are fitted again in undistorted coordinates, so the corners and the pose
+//     are right under lens distortion.
+//  4. The ring is sampled at the centre of each cell (the thesis's own future
+//     work) through the homography of the refined quad; black and white levels
+//     come from the cells themselves (2-means seeded by the corners), each cell
+//     gives a soft vote, and every bit is decided over the four edges, each
+//     weighted by how well its cells are resolved. A bit with two confident
+//     dissenting edges is uncorrectable and rejects the candidate.
+//
+// Memory: every buffer is a member that grows to the largest frame seen and is
+// reused, so detect() allocates nothing in steady state.
+
+#include "frame8/detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+#include <memory>
+
+#include <fmt/format.h>
+
+#include "frame8_detector.hpp"
+
+namespace markerd::frame8 {
+
+Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
+  if (config_.frame8.decimate < 0 || config_.frame8.decimate > 8) {
+    throw DetectorError("frame8: decimate must be 0 (auto) to 8");
+  }
+  if (config_.frame8.threshold_offset < Frame8Options::kMinThresholdOffset ||
+      config_.frame8.threshold_offset > Frame8Options::kMaxThresholdOffset) {
+    throw DetectorError(fmt::format("frame8: threshold_offset must be {}..{} grey levels",
+                                    Frame8Options::kMinThresholdOffset, Frame8Options::kMaxThresholdOffset));
+  }
+  if (!(config_.frame8.blur_sigma_px >= 0 && config_.frame8.blur_sigma_px <= Frame8Options::kMaxBlurSigmaPx)) {
+    throw DetectorError(fmt::format("frame8: blur_sigma_px must be 0..{:g} pixels", Frame8Options::kMaxBlurSigmaPx));
+  }
+  profile_sigma_ = std::sqrt(config_.frame8.blur_sigma_px * config_.frame8.blur_sigma_px + 1.0 / 12 + 1.0 / 8);
+}
+
+void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) {
+  out.clear();
+  if (image.empty()) throw DetectorError("frame8: empty image");
+  if (image.stride < image.width) throw DetectorError("frame8: image stride is smaller than its width");
+  if (config_.camera && (config_.camera->width != image.width || config_.camera->height != image.height)) {
+    throw DetectorError("frame8: image size differs from the camera model's");
+  }
+  if (image.width < 16 || image.height < 16) return;
+  full_ = image;
+  make_working_image();
+  threshold_and_runs();
+  label_components();
+  // Largest first: a marker's light cells and hole are components inside
+  // it, and once the marker is read they need no look (a white ring cell of
+  // a near marker is a light square with black neighbours, and with small
+  // cells of its own it would cost the ring model a fit).
+  roots_.clear();
+  for (std::int32_t r = 0; r < static_cast<std::int32_t>(runs_.size()); ++r) {
+    if (runs_[static_cast<std::size_t>(r)].parent == r) roots_.push_back(r);
+  }
+  auto box_area = [&](std::int32_t r) {
+    const Component& c = components_[static_cast<std::size_t>(r)];
+    return static_cast<std::int64_t>(c.x1 - c.x0) * (c.y1 - c.y0 + 1);
+  };
+  std::sort(roots_.begin(), roots_.end(), [&](std::int32_t a, std::int32_t b) { return box_area(a) > box_area(b); });
+  for (const std::int32_t r : roots_) {
+    if (!inside_detection(components_[static_cast<std::size_t>(r)], out)) consider_component(r, out);
+  }
+  remove_nested(out);
+}
+
+bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
+  double perimeter = 0;
+  for (int i = 0; i < 4; ++i) {
+    perimeter += distance(coarse[static_cast<std::size_t>(i)], coarse[static_cast<std::size_t>((i + 1) % 4)]);
+  }
+  double cell_px = perimeter / 4 / kInnerSide;
+  if (perimeter / 4 < config_.frame8.min_hole_side_px) return false;
+
+  std::array<Point2, 4> inner{};
+  if (!refine_sides(coarse, kNoCode, cell_px, inner)) return false;
+  // The coarse quad lies inside the hole; the refined one gives the scale.
+  perimeter = 0;
+  for (int i = 0; i < 4; ++i) {
+    perimeter += distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+  }
+  cell_px = perimeter / 4 / kInnerSide;
+  // Below a few pixels a cell the profile classification does better on
+  // the whole, but can take a line merged with a black cell for the line
+  // alone; the step-only quad is the fallback when its read fails.
+  std::array<Point2, 4> step_only = inner;
+  bool have_fallback = false;
+  if (cell_px < kThinLineCells) {
+    std::array<Point2, 4> by_profile{};
+    if (refine_sides(inner, kClassifyByProfile, cell_px, by_profile)) {
+      inner = by_profile;
+      have_fallback = true;
+    }
+  }
+  // A square seen at up to about 82 degrees keeps its short sides above a
+  // tenth of its long ones (kMinSideRatio); slivers beyond that are not
+  // worth a read.
+  double shortest = std::numeric_limits<double>::infinity(), longest = 0;
+  for (int i = 0; i < 4; ++i) {
+    const double len = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+    shortest = std::min(shortest, len);
+    longest = std::max(longest, len);
+  }
+  F8_TRACE("  inner (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) sides %.1f..%.1f\n", inner[0].x, inner[0].y, inner[1].x, inner[1].y, inner[2].x, inner[2].y, inner[3].x, inner[3].y, shortest, longest);
+  if (shortest < kMinSideRatio * longest) return false;
+  // Whether cells are resolved is decided by their narrow side: a marker
+  // turned far shows cells of a pixel across beside cells of four. Its two
+  // short sides are opposite each other; one short side alone is no such
+  // marker, and says nothing of the cells. The width across a pair of
+  // sides is the area over their mean length: a short side that slopes
+  // (a marker turned far and seen off the axis) is longer than the marker
+  // is wide, by up to a half at 80 degrees.
+  std::array<double, 4> side_len{};
+  for (int i = 0; i < 4; ++i) side_len[static_cast<std::size_t>(i)] = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+  const double area = std::abs(twice_signed_area(inner.data(), inner.size())) / 2;
+  const double across = 2 * area / std::max(side_len[0] + side_len[2], side_len[1] + side_len[3]);
+  const CellSize cell_size{across / kInnerSide, cell_px};
+  Homography H;
+  if (!Homography::from_unit_square(inner, H)) return false;
+  int rotation = 0;
+  bool by_model = false;
+  if (const int sampled = decode(H, cell_size, det, rotation, nullptr); sampled != kRead) {
+    Homography step_H;
+    int step_sampled = kNoContrast;
+    if (have_fallback && Homography::from_unit_square(step_only, step_H) &&
+        (step_sampled = decode(step_H, cell_size, det, rotation, nullptr)) == kRead) {
+      H = step_H;
+      inner = step_only;
+    } else if (std::max(sampled, step_sampled) > kNoContrast &&
+               read_by_profile_fit(step_only, cell_px, cell_size, det, rotation, H, inner)) {
+      // read_by_profile_fit() has set H and inner to the fitted quad.
+    } else if (read_by_model(H, cell_size, std::max(sampled, step_sampled), det, rotation)) {
+      by_model = true;
+    } else {
+      return false;
+    }
+  }
+  if (cell_px < kThinLineCells && !by_model) {
+    // Measure again knowing which cells are white, then read again.
+    std::array<Point2, 4> second{};
+    Homography H2;
+    Detection det2;
+    int rotation2 = 0;
+    if (refine_sides(inner, det.id, cell_px, second) && Homography::from_unit_square(second, H2) &&
+        decode(H2, cell_size, det2, rotation2, nullptr) == kRead) {
+      inner = second;
+      H = H2;
+      det = det2;
+      rotation = rotation2;
+    } else if (!refine_sides(coarse, kNoCode, cell_px, inner)) {
+      return false;  // (restores the first pass's edge points for the camera refit)
+    }
+  }
+
+  // With the code known, every edge of the printed pattern is a measurement.
+  if (cell_px >= kPatternCells && collect_pattern_edges(H, det.id, rotation, cell_px) >= kMinPatternEdges) {
+    return finish_by_pattern(rotation, det);
+  }
+
+  if (!config_.camera) return report(grid_map(H), rotation, det);
+  return refit_undistorted(rotation, det);
+}
+
+// Small cells, third try: the sides measured again by fitting each side's
+// profiles with the blurred line and the cells beyond it
+// (fit_edge_profile), then read.
+bool Frame8Detector::read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
+                         int& rotation, Homography& H, std::array<Point2, 4>& inner) {
+  if (cell_px >= kResolvedCells || cell_px < kMinCells) return false;
+  std::array<Point2, 4> fitted{};
+  Homography fitted_H;
+  if (!refine_sides(from, kFitProfile, cell_px, fitted) || !Homography::from_unit_square(fitted, fitted_H) ||
+      decode(fitted_H, cell_size, det, rotation, nullptr) != kRead) {
+    return false;
+  }
+  F8_TRACE("  read by profile fit: id %d\n", det.id);
+  H = fitted_H;
+  inner = fitted;
+  return true;
+}
+
+bool Frame8Detector::inside_detection(const Component& c, const std::vector<Detection>& found) const {
+  const double d = decimate_;
+  const Point2 centre{(c.x0 + c.x1 - 1) * 0.5 * d + (d - 1) / 2, (c.y0 + c.y1) * 0.5 * d + (d - 1) / 2};
+  for (const Detection& det : found) {
+    if (inside(det.corners, centre)) return true;
+  }
+  return false;
+}
+
+bool Frame8Detector::inside(const Quad& q, Point2 p) {
+  for (int i = 0; i < 4; ++i) {
+    if (cross(q[static_cast<std::size_t>(i)], q[static_cast<std::size_t>((i + 1) % 4)], p) < 0) return false;
+  }
+  return true;
+}
+
+// A marker has one hole, but a white cell enclosed by black neighbours (or
+// the line) is a small light square too, and may read as some code. Any
+// detection lying within a larger one is such a part of it, and is dropped.
+void Frame8Detector::remove_nested(std::vector<Detection>& out) {
+  auto area = [](const Quad& q) {
+    double a = 0;
+    for (int i = 0; i < 4; ++i) a += q[static_cast<std::size_t>(i)].x * q[static_cast<std::size_t>((i + 1) % 4)].y - q[static_cast<std::size_t>((i + 1) % 4)].x * q[static_cast<std::size_t>(i)].y;
+    return std::abs(a) / 2;
+  };
+  for (std::size_t i = out.size(); i-- > 0;) {
+    const Point2 centre = 0.25 * (out[i].corners[0] + out[i].corners[1] + out[i].corners[2] + out[i].corners[3]);
+    const double a = area(out[i].corners);
+    for (std::size_t j = 0; j < out.size(); ++j) {
+      // A cell is a seventh of the hole's side: its "marker" is tiny beside the real one.
+      if (j != i && a < 0.1 * area(out[j].corners) && inside(out[j].corners, centre)) {
+        out.erase(out.begin() + static_cast<std::ptrdiff_t>(i));
+        break;
+      }
+    }
+  }
+}
+
+}  // namespace markerd::frame8
+
+namespace markerd {
+
+std::unique_ptr<MarkerDetector> make_frame8_detector(const DetectorConfig& config) {
+  return std::make_unique<frame8::Frame8Detector>(config);
+}
+
+}  // namespace markerd

@@ -1,0 +1,193 @@
+#pragma once
+// The frame8 detector: the stages of docs/architecture.md ("The frame8
+// pipeline"), one file each in this directory, run by detector.cpp.
+//
+// Memory: every buffer is a member that grows to the largest frame seen and is
+// reused, so detect() allocates nothing in steady state.
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "frame8/common.hpp"
+#include "frame8_ring_model.hpp"
+#include "markerd/detector/detector.hpp"
+
+namespace markerd::frame8 {
+
+class Frame8Detector final : public MarkerDetector {
+ public:
+  explicit Frame8Detector(const DetectorConfig& config);
+
+  [[nodiscard]] Family family() const override { return Family::frame8; }
+
+  void detect(const GreyView& image, std::vector<Detection>& out) override;
+
+ private:
+  // Stage 1: segmentation (segmentation.cpp).
+  void make_working_image();
+  void sum_tiles(int tw, int th);
+  void threshold_and_runs();
+  void local_max_row(int y);
+  void light_row_bits(const std::uint8_t* row, int w);
+  void extract_runs(int y, int w, int words);
+  std::int32_t find(std::int32_t r);
+  void unite(std::int32_t a, std::int32_t b);
+  void label_components();
+
+  // Stage 2: quad fitting (quad_fit.cpp).
+  void consider_component(std::int32_t root, std::vector<Detection>& out);
+  void convex_hull();
+  bool max_area_quad(std::array<Point2, 4>& quad);
+
+  // Stage 3: edge refinement (edge_refinement.cpp).
+  int collect_edge_points(const std::array<Point2, 4>& q, int side, int id);
+  bool fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px, double& e) const;
+  bool refine_sides(const std::array<Point2, 4>& from, int id, double cell_px, std::array<Point2, 4>& inner);
+  bool refit_undistorted(int rotation, Detection& det);
+
+  // Stage 4: decoding (decode.cpp, decode_cells.cpp, short_edges.cpp).
+  int decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
+             const frame8::RingModel::Levels* model) const;
+  bool read_by_model(Homography& H, CellSize cell_size, int sampled, Detection& det, int& rotation);
+  CellSample sample_cell(const Homography& H, frame8::Cell cell, double cell_px) const;
+  void unmix_ring(const Homography& H, std::array<CellSample, 4>& corner,
+                  std::array<std::array<CellSample, 8>, 4>& cell) const;
+  static double edge_weight(const Homography& H, int edge);
+  bool fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const;
+  int white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white,
+                                  double& clarity) const;
+
+  // Stage 5: the whole pattern (pattern_fit.cpp).
+  bool locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset,
+                   double& strength) const;
+  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px);
+  bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
+  bool finish_by_pattern(int rotation, Detection& det);
+
+  // Stage 6: corners and pose (report.cpp).
+  bool report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const;
+
+  // The detector that runs them (detector.cpp).
+  bool refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
+  bool read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
+                           int& rotation, Homography& H, std::array<Point2, 4>& inner);
+  [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
+  static bool inside(const Quad& q, Point2 p);
+  static void remove_nested(std::vector<Detection>& out);
+
+  // What decode() made of a candidate: read, or the check that turned it
+  // down (traced in debug builds).
+  static constexpr int kRead = 0;
+  static constexpr int kNoContrast = 4;  // the last check before the code itself
+  static constexpr int kC1Contradicted = 9;
+  static int reject(int check) {
+    F8_TRACE("  rejected at check %d\n", check);
+    return check;
+  }
+
+  static constexpr int kMaxEdgePoints = 48;
+  // collect_edge_points() without a code: the step's centroid everywhere, or
+  // each point classified by its own profile.
+  static constexpr int kNoCode = -1;
+  static constexpr int kClassifyByProfile = -2;
+  // ... or the profiles fitted with a model of the blurred line and the
+  // cells beyond it (fit_edge_profile), in kProfileSegments sums per side.
+  static constexpr int kFitProfile = -3;
+  static constexpr std::size_t kProfileSegments = 4;
+  // The fit moves the measured edge at most this far (pixels), in steps of
+  // at most kProfileMaxStep, until a step is under kProfileConverged.
+  static constexpr double kProfileReach = 1.2;
+  static constexpr double kProfileMaxStep = 0.4;
+  static constexpr double kProfileConverged = 0.03;
+  static constexpr int kProfileIterations = 4;
+  // Keeps the levels' normal equations solvable where a basis barely shows
+  // (the outside, at the end of a short profile).
+  static constexpr double kProfileRidge = 1e-3;
+  // How much darker than the hole (grey levels) a fitted line must be.
+  static constexpr double kMinLineContrast = 8.0;
+  // Cells below this many pixels (the mean over the marker) are not read:
+  // beyond 3.3 m for the thesis's marker and camera. Clutter offers many
+  // such small holes, and what their rings read as is noise.
+  static constexpr double kMinCells = 1.2;
+  static constexpr double kTinyCells = 1.5;
+  // Below this many pixels per cell the black line (half a cell) is thin
+  // against a typical blur, and the edges are measured a second time.
+  static constexpr double kThinLineCells = 8.0;
+  // From this many pixels per cell, a cell is sampled at four points.
+  static constexpr double kResolvedCells = 3.0;
+  // From this many pixels per cell across, the line's darkness is checked.
+  static constexpr double kCheckedLineCells = 2.0;
+  // Perspective shortens one end of a far-turned marker below the cosine of
+  // its turn: 0.12 at 80 degrees, seen from 0.5 m; and a hole's short side
+  // of a few pixels is measured up to a pixel short.
+  static constexpr double kMinSideRatio = 0.08;
+  // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
+  static constexpr double kVotingEdge = 0.38;
+  // A side shorter than this fraction of its neighbours is a sliver's end.
+  static constexpr double kSliverEnd = 0.35;
+  // From this many pixels per cell, the corners come from the whole pattern.
+  static constexpr double kPatternCells = 1.0;
+  static constexpr int kMinPatternEdges = 16;
+  static constexpr int kMaxPatternEdges = 384;
+  // unmix_ring()'s Jacobi steps, and the most its neighbours may weigh
+  // against a cell's own share.
+  static constexpr int kUnmixSteps = 3;
+  // Opposite sides of a marker with cells under kResolvedCells: at most
+  // this ratio (1.06 for 30 px seen at a focal length of 500 px).
+  static constexpr double kMaxSmallSideRatio = 1.3;
+  static constexpr double kMaxNeighbourShare = 0.7;
+  // How many profile samples' worth the ring's grey levels weigh in a short
+  // edge's fit (fit_short_edge).
+  static constexpr double kLevelPrior = 4.0;
+  // How far beyond a short edge's end (in cells) its background is measured.
+  static constexpr double kOutsideGap = 1.75;
+  // The search for a short edge's cell boundaries: stretches from
+  // kMinStretch in kStretchSteps, shifts (cells) within kShiftSteps steps
+  // either way; the hole's short side, of a few pixels, is often measured
+  // a pixel short.
+  static constexpr double kMinStretch = 0.86;
+  static constexpr double kStretchStep = 0.06;
+  static constexpr int kStretchSteps = 10;
+  static constexpr double kShiftStep = 0.15;
+  static constexpr int kShiftSteps = 4;
+  // The most of a short edge's profile (its sum of squares about its mean)
+  // that the code's fit may leave unexplained.
+  static constexpr double kMaxUnexplained = 0.1;
+  // How dark (soft level, -1 = black) the ring model must find the line.
+  static constexpr double kClearLine = 0.5;
+
+  DetectorConfig config_;
+  // The blur an edge profile sees: the lens, the pixel's area and the
+  // bilinear sampling of the profile (a quarter pixel squared on average).
+  double profile_sigma_ = 0.7;
+  GreyView full_{};
+  GreyView work_{};
+  int decimate_ = 1;
+  std::vector<std::uint8_t> decimated_;
+  std::vector<std::uint32_t> tile_sum_;
+  std::vector<std::uint32_t> tile_row_sum_;
+  std::vector<std::uint8_t> tile_threshold_;
+  std::vector<std::uint8_t> pixel_threshold_;
+  std::vector<std::uint8_t> column_max_, local_max_;
+  std::vector<std::uint64_t> light_bits_;
+  std::array<std::array<float, 64>, kProfileSegments> segment_profile_{};
+  std::array<Point2, kProfileSegments> segment_base_{};
+  std::array<int, kProfileSegments> segment_count_{};
+  std::vector<Run> runs_;
+  std::vector<std::int32_t> row_first_;
+  std::vector<Component> components_;
+  std::vector<std::int32_t> roots_;
+  std::vector<std::int32_t> line_min_, line_max_;
+  std::vector<Point2> points_, hull_, hull_twice_;
+  std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
+  std::array<int, 4> edge_count_{};
+  std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};
+  int pattern_count_ = 0;
+  frame8::RingModel ring_model_;
+  frame8::RingModel::Levels levels_;
+};
+
+}  // namespace markerd::frame8

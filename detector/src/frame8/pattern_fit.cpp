@@ -1,0 +1,200 @@
+// Stage 5, the whole pattern: with the code known, every edge of the printed
+// pattern measured, and one grid-to-image map fitted to all of them.
+
+#include "frame8/detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
+
+namespace markerd::frame8 {
+
+// The edge along `axis_normal` through grid point g0: searched across the
+// edge within +-half (grid units) through the homography. A step is
+// light-to-dark along the normal and located at its gradient centroid; a
+// dip (the half-cell line between the hole and a white cell) at the
+// centroid of its depth, the line's centre. Returns false when nothing
+// clear is there.
+bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset, double& strength) const {
+  constexpr int kSamples = 17;
+  std::array<float, kSamples> v{};
+  for (int i = 0; i < kSamples; ++i) {
+    const double s = -half + 2 * half * i / (kSamples - 1);
+    const Point2 p = grid_point(H, g0.x + s * normal.x, g0.y + s * normal.y);
+    if (!sample(full_, p.x, p.y, v[static_cast<std::size_t>(i)])) return false;
+  }
+  const double ds = 2 * half / (kSamples - 1);
+  double sum = 0, moment = 0, peak = 0;
+  if (dip) {
+    const double ref = std::min(v.front(), v.back());
+    for (int i = 0; i < kSamples; ++i) peak = std::max(peak, ref - v[static_cast<std::size_t>(i)]);
+    const double floor = 0.1 * peak;
+    for (int i = 0; i < kSamples; ++i) {
+      const double depth = ref - v[static_cast<std::size_t>(i)] - floor;
+      if (depth <= 0) continue;
+      sum += depth;
+      moment += depth * (-half + i * ds);
+    }
+  } else {
+    for (int i = 0; i + 1 < kSamples; ++i) peak = std::max(peak, static_cast<double>(v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)]));
+    const double floor = 0.1 * peak;
+    for (int i = 0; i + 1 < kSamples; ++i) {
+      const double drop = v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)] - floor;
+      if (drop <= 0) continue;
+      sum += drop;
+      moment += drop * (-half + (i + 0.5) * ds);
+    }
+    peak *= (kSamples - 1) / (2 * half);  // per grid unit, comparable with a dip's depth
+    peak = std::min(peak, static_cast<double>(v.front() - v.back()));
+  }
+  if (sum <= 0 || peak < 12) return false;
+  offset = moment / sum;
+  strength = peak;
+  return true;
+}
+
+// Collects the pattern's edges for the code `id` read with `rotation`:
+// the hole's edge (a step where the ring cell beyond is black, the line's
+// centre where it is white) and every boundary between ring cells of
+// different colours. The outer edge is left out: what lies beyond it is
+// unknown.
+int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px) {
+  const auto cells = frame8::ring_cells(id);
+  // White at a grid point of the quad: turned back into the marker's own
+  // grid, where the marker's corner j sits at the quad's corner j + rotation.
+  auto white_at = [&](Point2 g) {
+    for (int r = 0; r < rotation; ++r) g = {g.y, frame8::grid - g.x};
+    const int col = std::clamp(static_cast<int>(g.x), 0, frame8::grid - 1);
+    const int row = std::clamp(static_cast<int>(g.y), 0, frame8::grid - 1);
+    return cells[static_cast<std::size_t>(row * frame8::grid + col)] == 1;
+  };
+  static constexpr std::array<Point2, 4> kOutward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
+  // Points per cell along an edge: about one per 1.5 px.
+  const int per_cell = std::clamp(static_cast<int>(cell_px / 1.5), 1, 4);
+  pattern_count_ = 0;
+  auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis) {
+    if (pattern_count_ >= kMaxPatternEdges) return;
+    double off = 0, strength = 0;
+    if (!locate_edge(H, g, normal, half, dip, off, strength)) return;
+    const Point2 p = grid_point(H, g.x + off * normal.x, g.y + off * normal.y);
+    pattern_edges_[static_cast<std::size_t>(pattern_count_++)] = {p.x, p.y, strength, axis, axis == 1 ? g.y : g.x};
+  };
+  for (int side = 0; side < 4; ++side) {
+    const int axis = side % 2 == 0 ? 1 : 0;  // the coordinate that is constant along the side
+    const Point2 outward = kOutward[static_cast<std::size_t>(side)];
+    // The hole's edge, beside ring cells 1..8 of the side.
+    for (int k = 1; k <= 8; ++k) {
+      for (int j = 0; j < per_cell; ++j) {
+        const double along = k + (j + 0.5) / per_cell;
+        if (along < kInnerLo + 0.2 || along > frame8::grid - kInnerLo - 0.2) continue;  // clear of the line's corners
+        const double frac = along - k;
+        if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
+        if (white_at(side_point(side, along, 0.5))) {
+          add(side_point(side, along, 1.25), outward, 0.65, true, axis);
+        } else {
+          add(side_point(side, along, kInnerLo), outward, 0.45, false, axis);
+        }
+      }
+    }
+    // Boundaries between neighbouring ring cells of different colours, across the ring.
+    for (int boundary = 1; boundary < frame8::grid; ++boundary) {
+      const bool before_white = white_at(side_point(side, boundary - 0.5, 0.5));
+      if (before_white == white_at(side_point(side, boundary + 0.5, 0.5))) continue;
+      // The normal points from the white cell to the black one.
+      const Point2 forward = side_point(side, boundary + 1, 0) - side_point(side, boundary, 0);
+      const Point2 normal = before_white ? forward : Point2{-forward.x, -forward.y};
+      for (int j = 0; j < per_cell; ++j) {
+        const double in = 0.15 + 0.7 * (j + 0.5) / per_cell;  // within the ring's width, clear of its edges
+        add(side_point(side, boundary, in), normal, 0.45, false, 1 - axis);
+      }
+    }
+  }
+  return pattern_count_;
+}
+
+// Fits the map from grid coordinates to the image (or, with a camera, to
+// undistorted normalized coordinates) to the pattern's edges: each edge
+// point must lie on its grid line. The constraint is linear in the inverse
+// map, solved as a 9x9 eigenproblem and reweighted towards grid-unit
+// residuals, with one round of outlier rejection.
+bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
+  const int n = pattern_count_;
+  double mx = 0, my = 0, sw = 0;
+  for (int i = 0; i < n; ++i) {
+    mx += pattern_edges_[static_cast<std::size_t>(i)].x;
+    my += pattern_edges_[static_cast<std::size_t>(i)].y;
+  }
+  mx /= n;
+  my /= n;
+  for (int i = 0; i < n; ++i) {
+    sw += std::abs(pattern_edges_[static_cast<std::size_t>(i)].x - mx) + std::abs(pattern_edges_[static_cast<std::size_t>(i)].y - my);
+  }
+  const double scale = sw > 0 ? n / sw : 1.0;  // points normalised to a spread of about 1
+  Eigen::Matrix<double, 3, 3> G;  // normalised image -> grid (homogeneous)
+  std::array<double, kMaxPatternEdges> weight{};
+  for (int i = 0; i < n; ++i) weight[static_cast<std::size_t>(i)] = pattern_edges_[static_cast<std::size_t>(i)].w;
+  bool have = false;
+  for (int iter = 0; iter < 3; ++iter) {
+    Eigen::Matrix<double, 9, 9> ata = Eigen::Matrix<double, 9, 9>::Zero();
+    int used = 0;
+    for (int i = 0; i < n; ++i) {
+      const PatternEdge& e = pattern_edges_[static_cast<std::size_t>(i)];
+      double w = weight[static_cast<std::size_t>(i)];
+      if (w <= 0) continue;
+      const Eigen::Vector3d p((e.x - mx) * scale, (e.y - my) * scale, 1);
+      if (have) {
+        const double denom = G.row(2).dot(p);
+        w /= denom * denom;  // algebraic to grid-unit residuals
+      }
+      Eigen::Matrix<double, 9, 1> row = Eigen::Matrix<double, 9, 1>::Zero();
+      row.segment<3>(e.axis * 3) = p;
+      row.segment<3>(6) = -e.value * p;
+      ata.noalias() += w * row * row.transpose();
+      ++used;
+    }
+    if (used < kMinPatternEdges) return false;
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 9, 9>> eig(ata);
+    if (eig.info() != Eigen::Success) return false;
+    const Eigen::Matrix<double, 9, 1> g = eig.eigenvectors().col(0);
+    G << g(0), g(1), g(2), g(3), g(4), g(5), g(6), g(7), g(8);
+    have = true;
+    if (iter == 1) {
+      // Drop edges a fifth of a cell off the fit: a cell that is not what
+      // the code says (an occluder, a covered edge).
+      for (int i = 0; i < n; ++i) {
+        const PatternEdge& e = pattern_edges_[static_cast<std::size_t>(i)];
+        const Eigen::Vector3d p((e.x - mx) * scale, (e.y - my) * scale, 1);
+        const Eigen::Vector3d q = G * p;
+        if (std::abs(q(e.axis) / q(2) - e.value) > 0.2) weight[static_cast<std::size_t>(i)] = 0;
+      }
+    }
+  }
+  Eigen::Matrix3d denorm;
+  denorm << 1 / scale, 0, mx, 0, 1 / scale, my, 0, 0, 1;
+  Eigen::FullPivLU<Eigen::Matrix3d> lu(G);
+  if (!lu.isInvertible()) return false;
+  grid_to_image = denorm * lu.inverse();
+  return true;
+}
+
+// Corners (and, with a camera, the pose) from the pattern's edges.
+bool Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
+  if (config_.camera) {
+    for (int i = 0; i < pattern_count_; ++i) {
+      auto& e = pattern_edges_[static_cast<std::size_t>(i)];
+      const Point2 p = config_.camera->pixel_to_normalized({e.x, e.y});
+      e.x = p.x;
+      e.y = p.y;
+    }
+  }
+  Eigen::Matrix3d M;
+  return fit_grid_map(M) && report(M, rotation, det);
+}
+
+}  // namespace markerd::frame8

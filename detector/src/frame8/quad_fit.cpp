@@ -1,0 +1,141 @@
+// Stage 2, quad fitting: each enclosed light component's convex hull and its
+// largest inscribed quadrilateral; what is not a quad is dropped.
+
+#include "frame8/detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+namespace markerd::frame8 {
+
+void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
+  const Component& c = components_[static_cast<std::size_t>(root)];
+  if (c.touches_border) return;
+  const double d = decimate_;
+  const int bw = c.x1 - c.x0, bh = c.y1 - c.y0 + 1;
+  const double min_side = config_.frame8.min_hole_side_px / d;
+  // The threshold's local-maximum test takes the blurred pixel on each
+  // side of a hole: a hole turned far (75 degrees, 6 px across) comes out
+  // 4 px wide, so the narrow side may be that much short, when the long
+  // side has cells large enough to read the code along it.
+  const int narrow = std::min(bw, bh), wide = std::max(bw, bh);
+  if (narrow < min_side && (narrow < min_side - 2 / d || wide < 3 * min_side)) return;
+  if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return;
+  if (c.area < 0.2 * bw * bh) return;
+  F8_TRACE("component at %d,%d size %dx%d area %ld\n", c.x0, c.y0, bw, bh, static_cast<long>(c.area));
+
+  // Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
+  // extreme boundary x of the rows touching it: the component's outline.
+  line_min_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::max());
+  line_max_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::min());
+  for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
+    const Run& run = runs_[static_cast<std::size_t>(r)];
+    const auto k = static_cast<std::size_t>(run.y - c.y0);
+    for (std::size_t kk = k; kk <= k + 1; ++kk) {
+      line_min_[kk] = std::min(line_min_[kk], run.x0);
+      line_max_[kk] = std::max(line_max_[kk], run.x1);
+    }
+  }
+  // Andrew's monotone chain over points already sorted by (y, x).
+  hull_.clear();
+  points_.clear();
+  for (int k = 0; k <= bh; ++k) {
+    const double y = c.y0 + k - 0.5;
+    points_.push_back({line_min_[static_cast<std::size_t>(k)] - 0.5, y});
+    if (line_max_[static_cast<std::size_t>(k)] != line_min_[static_cast<std::size_t>(k)]) {
+      points_.push_back({line_max_[static_cast<std::size_t>(k)] - 0.5, y});
+    }
+  }
+  convex_hull();
+  std::array<Point2, 4> quad{};
+  if (!max_area_quad(quad)) return;
+
+  // The hull must be a quad, and the component must fill most of it.
+  const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
+  double quad_area = twice_signed_area(quad.data(), quad.size());
+  if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
+  quad_area = std::abs(quad_area) / 2;
+  F8_TRACE("  quad area %.1f hull %.1f\n", quad_area, hull_area);
+  // Pixel staircases make a small hull bigger than the quad by up to about
+  // a third of a pixel along the perimeter; beyond that it is not a quad.
+  double perimeter = 0;
+  for (int i = 0; i < 4; ++i) {
+    perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
+  }
+  if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter || c.area < 0.8 * quad_area) return;
+  for (int i = 0; i < 4; ++i) {
+    const Point2 a = quad[static_cast<std::size_t>(i)];
+    const Point2 b = quad[static_cast<std::size_t>((i + 1) % 4)];
+    const Point2 p = quad[static_cast<std::size_t>((i + 3) % 4)];
+    const double la = distance(a, b), lp = distance(a, p);
+    if (la < min_side * 0.5) return;
+    const double cosang = ((b.x - a.x) * (p.x - a.x) + (b.y - a.y) * (p.y - a.y)) / (la * lp);
+    if (std::abs(cosang) > 0.94) return;  // a corner sharper than 20 degrees or flatter than 160
+  }
+  for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+
+  Detection det;
+  F8_TRACE("  candidate quad (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f)\n", quad[0].x, quad[0].y, quad[1].x,
+           quad[1].y, quad[2].x, quad[2].y, quad[3].x, quad[3].y);
+  if (refine_and_decode(quad, det)) {
+    F8_TRACE("  reported id %d\n", det.id);
+    out.push_back(det);
+  }
+}
+
+// Largest-area quadrilateral on the vertices of a convex polygon (hull_),
+// by rotating the two free vertices monotonically for each diagonal.
+bool Frame8Detector::max_area_quad(std::array<Point2, 4>& quad) {
+  const int n = static_cast<int>(hull_.size());
+  if (n < 4) return false;
+  // Indices run up to 2n - 1: the hull twice over instead of i % n, whose
+  // division would cost more than the cross products of this O(n^2) walk.
+  hull_twice_.assign(hull_.begin(), hull_.end());
+  hull_twice_.insert(hull_twice_.end(), hull_.begin(), hull_.end());
+  auto at = [&](int i) { return hull_twice_[static_cast<std::size_t>(i)]; };
+  double best = 0;
+  for (int i = 0; i < n; ++i) {
+    int k = i + 1;
+    int l = i + 3;
+    for (int j = i + 2; j < i + n - 1; ++j) {
+      if (k >= j) k = j - 1;
+      while (k + 1 < j && std::abs(cross(at(i), at(k + 1), at(j))) >= std::abs(cross(at(i), at(k), at(j)))) ++k;
+      if (l <= j) l = j + 1;
+      while (l + 1 < i + n && std::abs(cross(at(j), at(l + 1), at(i))) >= std::abs(cross(at(j), at(l), at(i)))) ++l;
+      const double area = std::abs(cross(at(i), at(k), at(j))) + std::abs(cross(at(j), at(l), at(i)));
+      if (area > best) {
+        best = area;
+        quad = {at(i), at(k), at(j), at(l)};
+      }
+    }
+  }
+  return best > 0;
+}
+
+void Frame8Detector::convex_hull() {
+  const int n = static_cast<int>(points_.size());
+  hull_.resize(static_cast<std::size_t>(2 * n));
+  int k = 0;
+  // Points are sorted by (y, x); build both chains.
+  for (int i = 0; i < n; ++i) {
+    while (k >= 2 && cross(hull_[static_cast<std::size_t>(k - 2)], hull_[static_cast<std::size_t>(k - 1)],
+                           points_[static_cast<std::size_t>(i)]) <= 0) {
+      --k;
+    }
+    hull_[static_cast<std::size_t>(k++)] = points_[static_cast<std::size_t>(i)];
+  }
+  for (int i = n - 2, t = k + 1; i >= 0; --i) {
+    while (k >= t && cross(hull_[static_cast<std::size_t>(k - 2)], hull_[static_cast<std::size_t>(k - 1)],
+                           points_[static_cast<std::size_t>(i)]) <= 0) {
+      --k;
+    }
+    hull_[static_cast<std::size_t>(k++)] = points_[static_cast<std::size_t>(i)];
+  }
+  hull_.resize(static_cast<std::size_t>(std::max(0, k - 1)));
+}
+
+}  // namespace markerd::frame8

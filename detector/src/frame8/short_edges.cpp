@@ -1,0 +1,203 @@
+// Stage 4d, short-edge orientation: the corners of a marker turned far, from
+// the profiles of its two short edges.
+
+#include "frame8/detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include "normal_table.hpp"
+
+namespace markerd::frame8 {
+
+bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const {
+  constexpr int kPerCell = 4;
+  constexpr int kSamples = (frame8::grid + 2) * kPerCell + 1;  // from a cell outside to a cell beyond
+  static constexpr std::array<double, 3> kAcross{0.3, 0.5, 0.7};
+  std::array<double, kSamples> level{}, inv_sigma{};
+  for (int i = 0; i < kSamples; ++i) {
+    const double t = -1.0 + static_cast<double>(i) / kPerCell;
+    float sum = 0;
+    for (const double in : kAcross) {
+      const Point2 p = grid_point(H, side_point(side, t, in));
+      float v = 0;
+      if (!sample(full_, p.x, p.y, v)) return false;
+      sum += v;
+    }
+    level[static_cast<std::size_t>(i)] = sum / static_cast<double>(kAcross.size());
+    const double px = distance(grid_point(H, side_point(side, t - 0.5, 0.5)), grid_point(H, side_point(side, t + 0.5, 0.5)));
+    inv_sigma[static_cast<std::size_t>(i)] = px / profile_sigma_;
+  }
+  // The background beyond each end, measured a little further out, where
+  // the corner's blur has faded: the corner and a free outside level would
+  // otherwise trade their shares of the end samples.
+  std::array<double, 2> outside{};
+  for (int end = 0; end < 2; ++end) {
+    const Point2 p = grid_point(H, side_point(side, end ? frame8::grid + kOutsideGap : -kOutsideGap, 0.5));
+    float v = 0;
+    if (!sample(full_, p.x, p.y, v)) return false;
+    outside[static_cast<std::size_t>(end)] = v;
+  }
+  double mean = 0, yy = 0;
+  for (const double y : level) {
+    mean += y;
+    yy += y * y;
+  }
+  mean /= kSamples;
+  fit.spread = yy - kSamples * mean * mean;
+
+  // Each sample is a blend of six parts: the black data cells, the white
+  // ones, the first corner, the last corner, the outside before and the
+  // outside after. For cell boundaries placed by a stretch and a shift
+  // about the edge's middle (the quad's short sides are measured to a
+  // fraction of a cell only), the parts' moments over the profile; any
+  // model that colours the parts is a linear map of them.
+  using Vector6 = Eigen::Matrix<double, 6, 1>;
+  struct Moments {
+    Eigen::Matrix<double, 6, 6> gram;
+    Vector6 cross;
+  };
+  const detail::NormalTable& table = detail::normal_table();
+  auto moments = [&](double stretch, double shift, Moments& m) {
+    m.gram.setZero();
+    m.cross.setZero();
+    for (int i = 0; i < kSamples; ++i) {
+      const double t = -1.0 + static_cast<double>(i) / kPerCell;
+      const double is = inv_sigma[static_cast<std::size_t>(i)];
+      Vector6 part = Vector6::Zero();
+      double below = 0, unused = 0;
+      table.at((5 + shift - 5 * stretch - t) * is, below, unused);
+      part(4) = below;
+      for (int c = 0; c < frame8::grid; ++c) {
+        double upto = 0;
+        table.at((5 + shift + stretch * (c - 4) - t) * is, upto, unused);
+        const int to = c == 0 ? 2 : c == frame8::grid - 1 ? 3 : ((id >> (8 - c)) & 1);
+        part(to) += upto - below;
+        below = upto;
+      }
+      part(5) = 1 - below;
+      m.gram.selfadjointView<Eigen::Lower>().rankUpdate(part);
+      m.cross += part * level[static_cast<std::size_t>(i)];
+    }
+    m.gram = m.gram.selfadjointView<Eigen::Lower>();
+  };
+  // Black, white and the outside levels are held near the ring's levels
+  // and the measured background by as much as a few samples would: no
+  // colouring fits by turning the contrast down or over, or by trading
+  // the corner for the background.
+  const Eigen::Vector4d prior(black, white, outside[0], outside[1]);
+  auto residual = [&](const Moments& m, const Eigen::Matrix<double, 6, 4>& model) {
+    Eigen::Matrix4d normal = model.transpose() * m.gram * model;
+    normal.diagonal().array() += kLevelPrior + kProfileRidge;
+    const Eigen::Vector4d rhs = model.transpose() * m.cross + kLevelPrior * prior;
+    const Eigen::Vector4d x = normal.ldlt().solve(rhs);
+    return std::max(yy + kLevelPrior * prior.squaredNorm() - x.dot(rhs), 0.0);
+  };
+  // The model of a colouring: 0 both corners black, 1 the first white, 2 the last white.
+  auto coloured = [](int colouring) {
+    Eigen::Matrix<double, 6, 4> model = Eigen::Matrix<double, 6, 4>::Zero();
+    model(0, 0) = model(1, 1) = model(4, 2) = model(5, 3) = 1;
+    model(2, colouring == 1 ? 1 : 0) = 1;
+    model(3, colouring == 2 ? 1 : 0) = 1;
+    return model;
+  };
+  // First the alignment, with the corners free: the eight data cells,
+  // known, place the boundaries without favouring any colouring.
+  auto free_corners = [&](const Moments& m) {
+    Eigen::Matrix<double, 6, 6> normal = m.gram;
+    normal.diagonal().array() += kProfileRidge;
+    Vector6 rhs = m.cross;
+    static constexpr std::array<int, 4> kHeld{0, 1, 4, 5};  // the parts the prior holds, in its order
+    for (int k = 0; k < 4; ++k) {
+      const int part = kHeld[static_cast<std::size_t>(k)];
+      normal(part, part) += kLevelPrior;
+      rhs(part) += kLevelPrior * prior(k);
+    }
+    const Vector6 x = normal.ldlt().solve(rhs);
+    return yy + kLevelPrior * prior.squaredNorm() - x.dot(rhs);
+  };
+  Moments m;
+  double best_stretch = 1, best_shift = 0, best = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < kStretchSteps; ++i) {
+    const double stretch = kMinStretch + i * kStretchStep;
+    for (int j = -kShiftSteps; j <= kShiftSteps; ++j) {
+      const double shift = j * kShiftStep;
+      moments(stretch, shift, m);
+      if (const double r = free_corners(m); r < best) {
+        best = r;
+        best_stretch = stretch;
+        best_shift = shift;
+      }
+    }
+  }
+  // Then each colouring at its best, near there.
+  fit.residual.fill(std::numeric_limits<double>::infinity());
+  for (int i = -1; i <= 1; ++i) {
+    for (int j = -1; j <= 1; ++j) {
+      moments(best_stretch + 0.5 * i * kStretchStep, best_shift + 0.5 * j * kShiftStep, m);
+      for (int colouring = 0; colouring < 3; ++colouring) {
+        const double r = residual(m, coloured(colouring));
+        if (r < fit.residual[static_cast<std::size_t>(colouring)]) {
+          fit.residual[static_cast<std::size_t>(colouring)] = r;
+          if (colouring > 0) fit.corner_worth[static_cast<std::size_t>(colouring - 1)] = m.gram(colouring + 1, colouring + 1);
+        }
+      }
+    }
+  }
+  F8_TRACE("   side %d: stretch %.2f shift %.2f residual %.0f %.0f %.0f\n", side, best_stretch, best_shift, fit.residual[0], fit.residual[1], fit.residual[2]);
+  return true;
+}
+
+// The white corner of a marker whose short edges are `side` and side + 2,
+// from their profiles (fit_short_edge), with `clarity` the margin to the
+// next best colouring in units of what a corner's colour is worth; -1
+// when the code leaves either profile unexplained. With only the two long
+// edges voting, the code has no redundancy left: the short edges are its
+// check.
+int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white, double& clarity) const {
+  std::array<ShortEdgeFit, 2> fit{};
+  if (!fit_short_edge(H, side, id, black, white, fit[0]) || !fit_short_edge(H, side + 2, id, black, white, fit[1])) return -1;
+  const double contrast = white - black;
+  // Residual and worth when corner k is the white one (k = 4: none is).
+  auto colouring = [&](int edge, int k) {
+    const int first = side + 2 * edge, last = (first + 1) % 4;
+    return k == first ? 1 : k == last ? 2 : 0;
+  };
+  std::array<double, 5> residual{}, worth{};
+  for (int k = 0; k < 5; ++k) {
+    for (int edge = 0; edge < 2; ++edge) {
+      const auto& f = fit[static_cast<std::size_t>(edge)];
+      const int c = colouring(edge, k);
+      residual[static_cast<std::size_t>(k)] += f.residual[static_cast<std::size_t>(c)];
+      if (c != 0) worth[static_cast<std::size_t>(k)] = f.corner_worth[static_cast<std::size_t>(c - 1)];
+    }
+  }
+  int best = 0;
+  for (int k = 1; k < 4; ++k) {
+    if (residual[static_cast<std::size_t>(k)] < residual[static_cast<std::size_t>(best)]) best = k;
+  }
+  clarity = std::numeric_limits<double>::infinity();
+  for (int k = 0; k < 5; ++k) {
+    if (k == best) continue;
+    const double expected = contrast * contrast * (worth[static_cast<std::size_t>(best)] + worth[static_cast<std::size_t>(k)]);
+    clarity = std::min(clarity, (residual[static_cast<std::size_t>(k)] - residual[static_cast<std::size_t>(best)]) / expected);
+  }
+  // Each edge's profile is the code's, to what the model misses of the
+  // optics: clutter's profiles fit the code no better than any other.
+  double unexplained = 0;
+  for (int edge = 0; edge < 2; ++edge) {
+    const auto& f = fit[static_cast<std::size_t>(edge)];
+    unexplained = std::max(unexplained, f.residual[static_cast<std::size_t>(colouring(edge, best))] / f.spread);
+  }
+  F8_TRACE("  short edges %d,%d: residual %.0f %.0f %.0f %.0f none %.0f, corner %d clarity %.2f unexplained %.3f\n", side, side + 2,
+           residual[0], residual[1], residual[2], residual[3], residual[4], best, clarity, unexplained);
+  if (!(unexplained < kMaxUnexplained)) return -1;
+  return best;
+}
+
+}  // namespace markerd::frame8
