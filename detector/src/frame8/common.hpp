@@ -16,13 +16,6 @@
 #include "markerd/detector/geometry.hpp"
 #include "markerd/detector/image.hpp"
 
-#ifdef FRAME8_DEBUG
-#include <cstdio>
-#define F8_TRACE(...) std::fprintf(stderr, __VA_ARGS__)
-#else
-#define F8_TRACE(...) ((void)0)
-#endif
-
 namespace markerd::frame8 {
 
 // Maps the unit square (0,0) (1,0) (1,1) (0,1) onto a quad (Heckbert's closed form).

@@ -164,12 +164,47 @@ void Frame8Detector::unmix_ring(const Homography& H, std::array<CellSample, 4>& 
   }
 }
 
-// How well an edge's cells are resolved along the edge, 0..1: a cell under
-// a pixel wide is blurred into its neighbours.
-double Frame8Detector::edge_weight(const Homography& H, int edge) {
-  const frame8::Cell a = frame8::data_cell(edge, 6), b = frame8::data_cell(edge, 1);
-  const double pitch = distance(grid_point(H, a.col + 0.5, a.row + 0.5), grid_point(H, b.col + 0.5, b.row + 0.5)) / 5.0;
-  return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
+// Reads the ring's cells: sampled in the image through H or, with `model`,
+// the ring model's levels. Under kResolvedCells the samples are unmixed.
+Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
+                                     RingRead& r) const {
+  auto level = [&](frame8::Cell c) {
+    if (!model) return sample_cell(H, c, cell_size.narrow);
+    const float v = model->cell[static_cast<std::size_t>(c.row * frame8::grid + c.col)];
+    return CellSample{v, v, v, true};
+  };
+  for (int k = 0; k < 4; ++k) {
+    r.corner[static_cast<std::size_t>(k)] = level(frame8::corner_cell(k));
+    if (!r.corner[static_cast<std::size_t>(k)].valid) return Rejection::corner_off_image;
+  }
+  int valid_cells = 0;
+  for (int e = 0; e < 4; ++e) {
+    for (int b = 0; b < 8; ++b) {
+      auto& c = r.cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+      c = level(frame8::data_cell(e, b));
+      valid_cells += c.valid;
+    }
+  }
+  if (valid_cells < 24) return Rejection::cells_off_image;
+  // A square's opposite sides differ in the image by the ratio of their
+  // depths, which for a marker of a few dozen pixels is a few percent at
+  // any focal length: clutter's slivers and trapezoids differ by far more,
+  // and with small cells, unmixed (unmix_ring), can read as a code.
+  if (cell_size.mean < kMinCells) return Rejection::cells_too_small;
+  if (cell_size.mean < kResolvedCells) {
+    std::array<Point2, 4> outer{};
+    for (int k = 0; k < 4; ++k) {
+      outer[static_cast<std::size_t>(k)] =
+          grid_point(H, (k == 1 || k == 2) ? frame8::grid : 0, k >= 2 ? frame8::grid : 0);
+    }
+    for (int k = 0; k < 2; ++k) {
+      const double a = distance(outer[static_cast<std::size_t>(k)], outer[static_cast<std::size_t>(k + 1)]);
+      const double b = distance(outer[static_cast<std::size_t>(k + 2)], outer[static_cast<std::size_t>((k + 3) % 4)]);
+      if (std::max(a, b) > kMaxSmallSideRatio * std::min(a, b)) return Rejection::sides_unequal;
+    }
+  }
+  if (!model && cell_size.narrow < kResolvedCells) unmix_ring(H, r.corner, r.cell);
+  return Rejection::none;
 }
 
 }  // namespace markerd::frame8

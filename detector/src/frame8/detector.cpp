@@ -91,16 +91,34 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   remove_nested(out);
 }
 
-bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
+// One light component: its quad (stage 2), then refined and read.
+void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
+  const Component& c = components_[static_cast<std::size_t>(root)];
+  std::array<Point2, 4> quad{};
+  if (fit_quad(c, quad) != Rejection::none) return;
+  const double d = decimate_;
+  for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+  Detection det;
+  if (refine_and_decode(quad, det) == Rejection::none) out.push_back(det);
+}
+
+// Stages 3 to 6 for one coarse quad (full-resolution pixels): the sides
+// refined, the ring read (by several measurements where cells are small),
+// the corners and the pose. Rejection::none when `det` holds a detection;
+// otherwise the first read's rejection, or the stage that failed before it.
+Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(coarse[static_cast<std::size_t>(i)], coarse[static_cast<std::size_t>((i + 1) % 4)]);
   }
   double cell_px = perimeter / 4 / kInnerSide;
-  if (perimeter / 4 < config_.frame8.min_hole_side_px) return false;
+  if (perimeter / 4 < config_.frame8.min_hole_side_px) return Rejection::small_hole;
 
   std::array<Point2, 4> inner{};
-  if (!refine_sides(coarse, kNoCode, cell_px, inner)) return false;
+  if (const Rejection why = refine_sides(coarse, EdgeMode::step, std::nullopt, cell_px, inner);
+      why != Rejection::none) {
+    return why;
+  }
   // The coarse quad lies inside the hole; the refined one gives the scale.
   perimeter = 0;
   for (int i = 0; i < 4; ++i) {
@@ -114,7 +132,7 @@ bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Dete
   bool have_fallback = false;
   if (cell_px < kThinLineCells) {
     std::array<Point2, 4> by_profile{};
-    if (refine_sides(inner, kClassifyByProfile, cell_px, by_profile)) {
+    if (refine_sides(inner, EdgeMode::classify_by_profile, std::nullopt, cell_px, by_profile) == Rejection::none) {
       inner = by_profile;
       have_fallback = true;
     }
@@ -128,8 +146,7 @@ bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Dete
     shortest = std::min(shortest, len);
     longest = std::max(longest, len);
   }
-  F8_TRACE("  inner (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) sides %.1f..%.1f\n", inner[0].x, inner[0].y, inner[1].x, inner[1].y, inner[2].x, inner[2].y, inner[3].x, inner[3].y, shortest, longest);
-  if (shortest < kMinSideRatio * longest) return false;
+  if (shortest < kMinSideRatio * longest) return Rejection::sliver;
   // Whether cells are resolved is decided by their narrow side: a marker
   // turned far shows cells of a pixel across beside cells of four. Its two
   // short sides are opposite each other; one short side alone is no such
@@ -138,29 +155,36 @@ bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Dete
   // (a marker turned far and seen off the axis) is longer than the marker
   // is wide, by up to a half at 80 degrees.
   std::array<double, 4> side_len{};
-  for (int i = 0; i < 4; ++i) side_len[static_cast<std::size_t>(i)] = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+  for (int i = 0; i < 4; ++i) {
+    side_len[static_cast<std::size_t>(i)] =
+        distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
+  }
   const double area = std::abs(twice_signed_area(inner.data(), inner.size())) / 2;
   const double across = 2 * area / std::max(side_len[0] + side_len[2], side_len[1] + side_len[3]);
   const CellSize cell_size{across / kInnerSide, cell_px};
   Homography H;
-  if (!Homography::from_unit_square(inner, H)) return false;
+  if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
   int rotation = 0;
   bool by_model = false;
-  if (const int sampled = decode(H, cell_size, det, rotation, nullptr); sampled != kRead) {
+  if (const Rejection sampled = decode(H, cell_size, det, rotation, nullptr); sampled != Rejection::none) {
+    // The step-only quad, where the profile classification moved the sides.
+    bool read = false;
+    bool worth_it = worth_remeasuring(sampled);
     Homography step_H;
-    int step_sampled = kNoContrast;
-    if (have_fallback && Homography::from_unit_square(step_only, step_H) &&
-        (step_sampled = decode(step_H, cell_size, det, rotation, nullptr)) == kRead) {
-      H = step_H;
-      inner = step_only;
-    } else if (std::max(sampled, step_sampled) > kNoContrast &&
-               read_by_profile_fit(step_only, cell_px, cell_size, det, rotation, H, inner)) {
-      // read_by_profile_fit() has set H and inner to the fitted quad.
-    } else if (read_by_model(H, cell_size, std::max(sampled, step_sampled), det, rotation)) {
-      by_model = true;
-    } else {
-      return false;
+    if (have_fallback && Homography::from_unit_square(step_only, step_H)) {
+      const Rejection step_sampled = decode(step_H, cell_size, det, rotation, nullptr);
+      if (step_sampled == Rejection::none) {
+        H = step_H;
+        inner = step_only;
+        read = true;
+      }
+      worth_it = worth_it || worth_remeasuring(step_sampled);
     }
+    // Then the sides measured by the profile fit (which sets H and inner
+    // when it reads), then the ring model.
+    if (!read && worth_it) read = read_by_profile_fit(step_only, cell_px, cell_size, det, rotation, H, inner);
+    if (!read) read = by_model = read_by_model(H, cell_size, worth_it, det, rotation);
+    if (!read) return sampled;
   }
   if (cell_px < kThinLineCells && !by_model) {
     // Measure again knowing which cells are white, then read again.
@@ -168,14 +192,16 @@ bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Dete
     Homography H2;
     Detection det2;
     int rotation2 = 0;
-    if (refine_sides(inner, det.id, cell_px, second) && Homography::from_unit_square(second, H2) &&
-        decode(H2, cell_size, det2, rotation2, nullptr) == kRead) {
+    if (refine_sides(inner, EdgeMode::step, det.id, cell_px, second) == Rejection::none &&
+        Homography::from_unit_square(second, H2) &&
+        decode(H2, cell_size, det2, rotation2, nullptr) == Rejection::none) {
       inner = second;
       H = H2;
       det = det2;
       rotation = rotation2;
-    } else if (!refine_sides(coarse, kNoCode, cell_px, inner)) {
-      return false;  // (restores the first pass's edge points for the camera refit)
+    } else if (const Rejection why = refine_sides(coarse, EdgeMode::step, std::nullopt, cell_px, inner);
+               why != Rejection::none) {
+      return why;  // (restores the first pass's edge points for the camera refit)
     }
   }
 
@@ -191,16 +217,16 @@ bool Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Dete
 // Small cells, third try: the sides measured again by fitting each side's
 // profiles with the blurred line and the cells beyond it
 // (fit_edge_profile), then read.
-bool Frame8Detector::read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
-                         int& rotation, Homography& H, std::array<Point2, 4>& inner) {
+bool Frame8Detector::read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size,
+                                         Detection& det, int& rotation, Homography& H, std::array<Point2, 4>& inner) {
   if (cell_px >= kResolvedCells || cell_px < kMinCells) return false;
   std::array<Point2, 4> fitted{};
   Homography fitted_H;
-  if (!refine_sides(from, kFitProfile, cell_px, fitted) || !Homography::from_unit_square(fitted, fitted_H) ||
-      decode(fitted_H, cell_size, det, rotation, nullptr) != kRead) {
+  if (refine_sides(from, EdgeMode::fit_profile, std::nullopt, cell_px, fitted) != Rejection::none ||
+      !Homography::from_unit_square(fitted, fitted_H) ||
+      decode(fitted_H, cell_size, det, rotation, nullptr) != Rejection::none) {
     return false;
   }
-  F8_TRACE("  read by profile fit: id %d\n", det.id);
   H = fitted_H;
   inner = fitted;
   return true;

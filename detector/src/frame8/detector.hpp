@@ -7,11 +7,14 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
 
 #include "frame8/common.hpp"
+#include "frame8/rejection.hpp"
+#include "frame8/ring_read.hpp"
 #include "frame8_ring_model.hpp"
 #include "markerd/detector/detector.hpp"
 
@@ -38,24 +41,46 @@ class Frame8Detector final : public MarkerDetector {
   void label_components();
 
   // Stage 2: quad fitting (quad_fit.cpp).
-  void consider_component(std::int32_t root, std::vector<Detection>& out);
+  Rejection fit_quad(const Component& c, std::array<Point2, 4>& quad);
   void convex_hull();
   bool max_area_quad(std::array<Point2, 4>& quad);
 
   // Stage 3: edge refinement (edge_refinement.cpp).
-  int collect_edge_points(const std::array<Point2, 4>& q, int side, int id);
+  // How collect_edge_points() places each point: at the centroid of the
+  // light-to-dark step; or, without a code, each point classified by its own
+  // profile (the line alone or merged with a black cell); or the profiles
+  // fitted with a model of the blurred line and the cells beyond it
+  // (fit_edge_profile), summed over kProfileSegments segments per side.
+  // With the code read (`id`), the step points also know the cell beyond.
+  enum class EdgeMode : std::uint8_t { step, classify_by_profile, fit_profile };
+  int collect_edge_points(const std::array<Point2, 4>& q, int side, EdgeMode mode, std::optional<int> id);
   bool fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px, double& e) const;
-  bool refine_sides(const std::array<Point2, 4>& from, int id, double cell_px, std::array<Point2, 4>& inner);
-  bool refit_undistorted(int rotation, Detection& det);
+  Rejection refine_sides(const std::array<Point2, 4>& from, EdgeMode mode, std::optional<int> id, double cell_px,
+                         std::array<Point2, 4>& inner);
+  Rejection refit_undistorted(int rotation, Detection& det);
 
-  // Stage 4: decoding (decode.cpp, decode_cells.cpp, short_edges.cpp).
-  int decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
-             const frame8::RingModel::Levels* model) const;
-  bool read_by_model(Homography& H, CellSize cell_size, int sampled, Detection& det, int& rotation);
+  // Stage 4: decoding (decode.cpp), through 4a to 4e.
+  Rejection decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
+                   const frame8::RingModel::Levels* model) const;
+  bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
+  // 4a: the cells (decode_cells.cpp).
+  Rejection read_cells(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
+                       RingRead& r) const;
   CellSample sample_cell(const Homography& H, frame8::Cell cell, double cell_px) const;
   void unmix_ring(const Homography& H, std::array<CellSample, 4>& corner,
                   std::array<std::array<CellSample, 8>, 4>& cell) const;
+  // 4b: the grey model (decode_grey_model.cpp).
+  Rejection fit_grey_model(CellSize cell_size, RingRead& r) const;
+  // 4c: orientation (decode_orientation.cpp, short_edges.cpp).
+  Rejection read_corners(RingRead& r) const;
+  Rejection settle_orientation(const Homography& H, RingRead& r) const;
+  // 4d: the bit votes (decode_votes.cpp).
   static double edge_weight(const Homography& H, int edge);
+  static void weigh_edges(const Homography& H, RingRead& r);
+  static Rejection vote_bits(RingRead& r);
+  // 4e: structural checks (decode_checks.cpp).
+  Rejection check_structure(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
+                            RingRead& r) const;
   bool fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const;
   int white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white,
                                   double& clarity) const;
@@ -65,37 +90,21 @@ class Frame8Detector final : public MarkerDetector {
                    double& strength) const;
   int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px);
   bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
-  bool finish_by_pattern(int rotation, Detection& det);
+  Rejection finish_by_pattern(int rotation, Detection& det);
 
-  // Stage 6: corners and pose (report.cpp).
-  bool report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const;
+  // Stage 6: corners and pose (corners_and_pose.cpp).
+  Rejection report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const;
 
   // The detector that runs them (detector.cpp).
-  bool refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
+  void consider_component(std::int32_t root, std::vector<Detection>& out);
+  Rejection refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
   bool read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
                            int& rotation, Homography& H, std::array<Point2, 4>& inner);
   [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
   static bool inside(const Quad& q, Point2 p);
   static void remove_nested(std::vector<Detection>& out);
 
-  // What decode() made of a candidate: read, or the check that turned it
-  // down (traced in debug builds).
-  static constexpr int kRead = 0;
-  static constexpr int kNoContrast = 4;  // the last check before the code itself
-  static constexpr int kC1Contradicted = 9;
-  static int reject(int check) {
-    F8_TRACE("  rejected at check %d\n", check);
-    return check;
-  }
-
   static constexpr int kMaxEdgePoints = 48;
-  // collect_edge_points() without a code: the step's centroid everywhere, or
-  // each point classified by its own profile.
-  static constexpr int kNoCode = -1;
-  static constexpr int kClassifyByProfile = -2;
-  // ... or the profiles fitted with a model of the blurred line and the
-  // cells beyond it (fit_edge_profile), in kProfileSegments sums per side.
-  static constexpr int kFitProfile = -3;
   static constexpr std::size_t kProfileSegments = 4;
   // The fit moves the measured edge at most this far (pixels), in steps of
   // at most kProfileMaxStep, until a step is under kProfileConverged.
@@ -124,8 +133,6 @@ class Frame8Detector final : public MarkerDetector {
   // its turn: 0.12 at 80 degrees, seen from 0.5 m; and a hole's short side
   // of a few pixels is measured up to a pixel short.
   static constexpr double kMinSideRatio = 0.08;
-  // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
-  static constexpr double kVotingEdge = 0.38;
   // A side shorter than this fraction of its neighbours is a sliver's end.
   static constexpr double kSliverEnd = 0.35;
   // From this many pixels per cell, the corners come from the whole pattern.

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <optional>
 #include <vector>
 
 #include "normal_table.hpp"
@@ -16,14 +17,15 @@
 namespace markerd::frame8 {
 
 // Finds the hole-to-line edge along side i of the quad; fills
-// edge_points_[i]. Without a code (id < 0), every point takes the centroid
-// of the light-to-dark step. With the code read once, each point knows the
+// edge_points_[i]. Without a code (EdgeMode::step, no id), every point takes
+// the centroid of the light-to-dark step. With the code read once, each point knows the
 // colour of the cell beyond the line: where it is white and the line is
 // thin against the blur, the step is cut short by the white cell and its
 // centroid falls inside the hole; the blurred line is then a symmetric dip
 // instead, whose centroid is the line's centre, a quarter cell outside the
 // edge.
-int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side, int id) {
+int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side, EdgeMode mode,
+                                        std::optional<int> id) {
   const Point2 a = q[static_cast<std::size_t>(side)];
   const Point2 b = q[static_cast<std::size_t>((side + 1) % 4)];
   const double len = distance(a, b);
@@ -60,7 +62,7 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
   constexpr double step = 0.5;
   EdgePoint* pts = edge_points_[static_cast<std::size_t>(side)].data();
   int used = 0;
-  const bool fitting = id == kFitProfile && !sliver_end;
+  const bool fitting = mode == EdgeMode::fit_profile && !sliver_end;
   const double side_cell = 0.5 * (cell_a + cell_b);
   int fit_steps = 0;
   double fit_reach_in = 0;
@@ -76,18 +78,19 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
     const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
     const double cell_px = (1 - t) * cell_a + t * cell_b;
     bool white_beyond = false;
-    const bool by_profile = id == kClassifyByProfile || id == kFitProfile;
-    if (id >= 0) {
+    const bool by_profile = mode == EdgeMode::classify_by_profile || mode == EdgeMode::fit_profile;
+    if (id) {
       // Cells along a side follow the reading order, the same on every side.
       const double along = 0.5 + kInnerSide * t;
       const double frac = along - std::floor(along);
       if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
       const int bit = 7 - std::clamp(static_cast<int>(along), 0, 7);
-      white_beyond = (id >> bit) & 1;
+      white_beyond = (*id >> bit) & 1;
     }
     // Inward as far as the coarse quad may be off; outward past the line's
     // far side (half a cell) and its blur.
-    const bool near = id != kNoCode;  // the quad is refined already: a tight window
+    // The quad is refined already (a mode past the first step, or a code read): a tight window.
+    const bool near = mode != EdgeMode::step || id.has_value();
     const double reach_in = fitting ? kProfileReach + 1.0
                             : near  ? std::max(1.0, 0.5 * cell_px)
                                     : std::clamp(1.2 * cell_px, 1.5, 2.0 + decimate_);
@@ -173,7 +176,6 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
       double e = 0;
       if (!fit_edge_profile(prof.data(), fit_steps, -fit_reach_in, step, side_cell, e)) continue;
       const Point2 base = (1.0 / m) * segment_base_[seg];
-      F8_TRACE("    fitted side %d segment %zu -> (%.2f,%.2f)\n", side, seg, base.x + e * nx, base.y + e * ny);
       pts[used++] = {base.x + e * nx, base.y + e * ny, static_cast<double>(m)};
     }
   }
@@ -252,34 +254,33 @@ bool Frame8Detector::fit_edge_profile(const float* profile, int n, double s0, do
 }
 
 // Refines the four sides from a quad; the inner corners in `inner`.
-bool Frame8Detector::refine_sides(const std::array<Point2, 4>& from, int id, double cell_px, std::array<Point2, 4>& inner) {
+Rejection Frame8Detector::refine_sides(const std::array<Point2, 4>& from, EdgeMode mode, std::optional<int> id,
+                                       double cell_px, std::array<Point2, 4>& inner) {
   std::array<Line, 4> lines{};
   for (int side = 0; side < 4; ++side) {
     auto& n = edge_count_[static_cast<std::size_t>(side)];
-    n = collect_edge_points(from, side, id);
-    F8_TRACE("  side %d: %d edge points\n", side, n);
-    if (n < 3) return false;
+    n = collect_edge_points(from, side, mode, id);
+    if (n < 3) return Rejection::few_edge_points;
     if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px),
                   lines[static_cast<std::size_t>(side)])) {
-      return false;
+      return Rejection::no_edge_line;
     }
   }
   for (int i = 0; i < 4; ++i) {
     if (!intersect(lines[static_cast<std::size_t>((i + 3) % 4)], lines[static_cast<std::size_t>(i)],
                    inner[static_cast<std::size_t>(i)])) {
-      return false;
+      return Rejection::parallel_sides;
     }
     if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) > 2.0 * cell_px + 2 * decimate_) {
-      F8_TRACE("  corner %d moved %.1f px\n", i, distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]));
-      return false;
+      return Rejection::corner_moved;
     }
   }
-  return true;
+  return Rejection::none;
 }
 
 // With a camera: fit the same edge points in undistorted normalized
 // coordinates (straight lines there), then map back through the lens.
-bool Frame8Detector::refit_undistorted(int rotation, Detection& det) {
+Rejection Frame8Detector::refit_undistorted(int rotation, Detection& det) {
   const CameraModel& cam = *config_.camera;
   std::array<Line, 4> lines{};
   for (int side = 0; side < 4; ++side) {
@@ -293,18 +294,19 @@ bool Frame8Detector::refit_undistorted(int rotation, Detection& det) {
     }
     // Outliers were dropped in pixel space already; no second rejection.
     if (!fit_line(pts.data(), n, std::numeric_limits<double>::infinity(), lines[static_cast<std::size_t>(side)])) {
-      return false;
+      return Rejection::no_edge_line;
     }
   }
   std::array<Point2, 4> inner_n{};
   for (int i = 0; i < 4; ++i) {
     if (!intersect(lines[static_cast<std::size_t>((i + 3) % 4)], lines[static_cast<std::size_t>(i)],
                    inner_n[static_cast<std::size_t>(i)])) {
-      return false;
+      return Rejection::parallel_sides;
     }
   }
   Homography Hn;
-  return Homography::from_unit_square(inner_n, Hn) && report(grid_map(Hn), rotation, det);
+  if (!Homography::from_unit_square(inner_n, Hn)) return Rejection::degenerate_quad;
+  return report(grid_map(Hn), rotation, det);
 }
 
 }  // namespace markerd::frame8

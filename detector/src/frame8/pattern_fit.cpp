@@ -184,7 +184,7 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
 }
 
 // Corners (and, with a camera, the pose) from the pattern's edges.
-bool Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
+Rejection Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
   if (config_.camera) {
     for (int i = 0; i < pattern_count_; ++i) {
       auto& e = pattern_edges_[static_cast<std::size_t>(i)];
@@ -194,7 +194,8 @@ bool Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
     }
   }
   Eigen::Matrix3d M;
-  return fit_grid_map(M) && report(M, rotation, det);
+  if (!fit_grid_map(M)) return Rejection::pattern_fit_failed;
+  return report(M, rotation, det);
 }
 
 }  // namespace markerd::frame8

@@ -12,9 +12,10 @@
 
 namespace markerd::frame8 {
 
-void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
-  const Component& c = components_[static_cast<std::size_t>(root)];
-  if (c.touches_border) return;
+// The quad of a light component, in working-image coordinates, clockwise on
+// screen; or why the component is none.
+Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& quad) {
+  if (c.touches_border) return Rejection::touches_border;
   const double d = decimate_;
   const int bw = c.x1 - c.x0, bh = c.y1 - c.y0 + 1;
   const double min_side = config_.frame8.min_hole_side_px / d;
@@ -23,10 +24,9 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   // 4 px wide, so the narrow side may be that much short, when the long
   // side has cells large enough to read the code along it.
   const int narrow = std::min(bw, bh), wide = std::max(bw, bh);
-  if (narrow < min_side && (narrow < min_side - 2 / d || wide < 3 * min_side)) return;
-  if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return;
-  if (c.area < 0.2 * bw * bh) return;
-  F8_TRACE("component at %d,%d size %dx%d area %ld\n", c.x0, c.y0, bw, bh, static_cast<long>(c.area));
+  if (narrow < min_side && (narrow < min_side - 2 / d || wide < 3 * min_side)) return Rejection::box_size;
+  if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return Rejection::box_size;
+  if (c.area < 0.2 * bw * bh) return Rejection::sparse_component;
 
   // Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
   // extreme boundary x of the rows touching it: the component's outline.
@@ -51,40 +51,32 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
     }
   }
   convex_hull();
-  std::array<Point2, 4> quad{};
-  if (!max_area_quad(quad)) return;
+  if (!max_area_quad(quad)) return Rejection::not_a_quad;
 
   // The hull must be a quad, and the component must fill most of it.
   const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
   double quad_area = twice_signed_area(quad.data(), quad.size());
   if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
   quad_area = std::abs(quad_area) / 2;
-  F8_TRACE("  quad area %.1f hull %.1f\n", quad_area, hull_area);
   // Pixel staircases make a small hull bigger than the quad by up to about
   // a third of a pixel along the perimeter; beyond that it is not a quad.
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
   }
-  if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter || c.area < 0.8 * quad_area) return;
+  if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter) return Rejection::not_a_quad;
+  if (c.area < 0.8 * quad_area) return Rejection::sparse_component;
   for (int i = 0; i < 4; ++i) {
     const Point2 a = quad[static_cast<std::size_t>(i)];
     const Point2 b = quad[static_cast<std::size_t>((i + 1) % 4)];
     const Point2 p = quad[static_cast<std::size_t>((i + 3) % 4)];
     const double la = distance(a, b), lp = distance(a, p);
-    if (la < min_side * 0.5) return;
+    if (la < min_side * 0.5) return Rejection::short_quad_side;
     const double cosang = ((b.x - a.x) * (p.x - a.x) + (b.y - a.y) * (p.y - a.y)) / (la * lp);
-    if (std::abs(cosang) > 0.94) return;  // a corner sharper than 20 degrees or flatter than 160
+    // A corner sharper than 20 degrees or flatter than 160.
+    if (std::abs(cosang) > 0.94) return Rejection::sharp_corner;
   }
-  for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
-
-  Detection det;
-  F8_TRACE("  candidate quad (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f) (%.1f,%.1f)\n", quad[0].x, quad[0].y, quad[1].x,
-           quad[1].y, quad[2].x, quad[2].y, quad[3].x, quad[3].y);
-  if (refine_and_decode(quad, det)) {
-    F8_TRACE("  reported id %d\n", det.id);
-    out.push_back(det);
-  }
+  return Rejection::none;
 }
 
 // Largest-area quadrilateral on the vertices of a convex polygon (hull_),

@@ -149,7 +149,6 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
       }
     }
   }
-  F8_TRACE("   side %d: stretch %.2f shift %.2f residual %.0f %.0f %.0f\n", side, best_stretch, best_shift, fit.residual[0], fit.residual[1], fit.residual[2]);
   return true;
 }
 
@@ -194,8 +193,6 @@ int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, i
     const auto& f = fit[static_cast<std::size_t>(edge)];
     unexplained = std::max(unexplained, f.residual[static_cast<std::size_t>(colouring(edge, best))] / f.spread);
   }
-  F8_TRACE("  short edges %d,%d: residual %.0f %.0f %.0f %.0f none %.0f, corner %d clarity %.2f unexplained %.3f\n", side, side + 2,
-           residual[0], residual[1], residual[2], residual[3], residual[4], best, clarity, unexplained);
   if (!(unexplained < kMaxUnexplained)) return -1;
   return best;
 }

@@ -19,7 +19,7 @@ namespace markerd::frame8 {
 // camera) or to undistorted normalized coordinates (with one), and the
 // pose with a camera. Corner j of the marker is quad corner
 // (j + rotation) % 4.
-bool Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const {
+Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const {
   static constexpr std::array<Point2, 4> kInnerGrid{{{kInnerLo, kInnerLo},
                                                      {frame8::grid - kInnerLo, kInnerLo},
                                                      {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
@@ -40,12 +40,12 @@ bool Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotation, 
   det.corners = outq;
   if (config_.camera) {
     det.pose = estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
-    if (!det.pose) return false;
+    if (!det.pose) return Rejection::no_pose;
   }
   const Point2 top = det.corners[1] - det.corners[0];
   const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));
   det.quarter_turns = ((quarter % 4) + 4) % 4;
-  return true;
+  return Rejection::none;
 }
 
 }  // namespace markerd::frame8

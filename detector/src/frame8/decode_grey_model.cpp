@@ -1,0 +1,59 @@
+// Stage 4b, the grey model: the ring's black and white levels from its own
+// cells (2-means seeded by the corners), and the contrast between them.
+
+#include "frame8/detector.hpp"
+
+namespace markerd::frame8 {
+
+Rejection Frame8Detector::fit_grey_model(CellSize cell_size, RingRead& r) const {
+  // Seeded by the corners: three black, one white.
+  const auto& corner = r.corner;
+  int white_corner = 0;
+  for (int k = 1; k < 4; ++k) {
+    if (corner[static_cast<std::size_t>(k)].mean > corner[static_cast<std::size_t>(white_corner)].mean) {
+      white_corner = k;
+    }
+  }
+  double black = 0;
+  for (int k = 0; k < 4; ++k) {
+    if (k != white_corner) black += corner[static_cast<std::size_t>(k)].mean;
+  }
+  black /= 3;
+  double white = corner[static_cast<std::size_t>(white_corner)].mean;
+  for (int iter = 0; iter < 3; ++iter) {
+    const double thr = 0.5 * (black + white);
+    double sb = 0, sw = 0;
+    int nb = 0, nw = 0;
+    auto add = [&](const CellSample& c) {
+      if (!c.valid) return;
+      if (c.mean < thr) {
+        sb += c.mean;
+        ++nb;
+      } else {
+        sw += c.mean;
+        ++nw;
+      }
+    };
+    for (const auto& c : corner) add(c);
+    for (const auto& edge : r.cell) {
+      for (const auto& c : edge) add(c);
+    }
+    if (nb == 0 || nw == 0) return Rejection::one_grey_level;
+    black = sb / nb;
+    white = sw / nw;
+  }
+  r.white_corner = white_corner;
+  r.black = black;
+  r.white = white;
+  r.contrast = white - black;
+  // Under the threshold's own offset a few times over, or 20 grey levels,
+  // the ring is no printed black and white: clutter mostly ends here.
+  if (r.contrast < 3.0 * config_.frame8.threshold_offset || r.contrast < 20) return Rejection::no_contrast;
+  r.thr = 0.5 * (black + white);
+  // Blur takes up to half the contrast of a lone cell under two pixels wide:
+  // there a weaker read still counts as a vote.
+  r.confident = cell_size.narrow >= kResolvedCells ? 0.3 : 0.1;
+  return Rejection::none;
+}
+
+}  // namespace markerd::frame8

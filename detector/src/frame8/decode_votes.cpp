@@ -1,0 +1,79 @@
+// Stage 4d, the bit votes: each bit decided over the four edges, each edge
+// weighted by how well its cells are resolved; one wrong edge per bit is
+// corrected, a second rejects the candidate.
+
+#include "frame8/detector.hpp"
+
+namespace markerd::frame8 {
+
+// How well an edge's cells are resolved along the edge, 0..1: a cell under
+// a pixel wide is blurred into its neighbours.
+double Frame8Detector::edge_weight(const Homography& H, int edge) {
+  const frame8::Cell a = frame8::data_cell(edge, 6), b = frame8::data_cell(edge, 1);
+  const double pitch = distance(grid_point(H, a.col + 0.5, a.row + 0.5), grid_point(H, b.col + 0.5, b.row + 0.5)) / 5.0;
+  return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
+}
+
+// The edges' weights in the votes. The two short edges of a marker turned
+// far have cells of about a pixel along them, blurred into each other, while
+// its two long edges read cleanly: then the short ones have no vote, and
+// their corners are read from their profiles once the code is known
+// (short_edges.cpp). Only for that shape: a lone short edge is no turned
+// marker, and must keep its say.
+void Frame8Detector::weigh_edges(const Homography& H, RingRead& r) {
+  // The edge_weight() an edge needs to vote when others are resolved (cells of 1.2 px).
+  constexpr double kVotingEdge = 0.38;
+  auto& weight = r.weight;
+  for (int e = 0; e < 4; ++e) weight[static_cast<std::size_t>(e)] = edge_weight(H, e);
+  r.short_side = -1;
+  for (int e = 0; e < 2; ++e) {
+    const auto s0 = static_cast<std::size_t>(e), s1 = static_cast<std::size_t>(e + 2);
+    const auto l0 = static_cast<std::size_t>(e + 1), l1 = static_cast<std::size_t>((e + 3) % 4);
+    if (weight[s0] < kVotingEdge && weight[s1] < kVotingEdge && weight[l0] >= 1.0 && weight[l1] >= 1.0) {
+      weight[s0] = weight[s1] = 0.0;
+      r.short_side = e;
+    }
+  }
+}
+
+Rejection Frame8Detector::vote_bits(RingRead& r) {
+  r.id = 0;
+  r.corrected = 0;
+  r.erased = 0;
+  r.outvoted = {};
+  r.margin = 1.0;
+  for (int b = 0; b < 8; ++b) {
+    double sum = 0, wsum = 0;
+    for (int e = 0; e < 4; ++e) {
+      const auto& c = r.cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+      if (!c.valid) continue;
+      sum += r.weight[static_cast<std::size_t>(e)] * r.soft(c.mean);
+      wsum += r.weight[static_cast<std::size_t>(e)];
+    }
+    if (wsum <= 0) return Rejection::bit_without_vote;
+    const bool bit = sum > 0;
+    int agree = 0, dissent = 0;
+    for (int e = 0; e < 4; ++e) {
+      const auto& c = r.cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
+      if (r.weight[static_cast<std::size_t>(e)] == 0.0) continue;  // an edge without a vote
+      if (!r.clear(c)) {
+        ++r.erased;
+        continue;  // an erasure, not a vote
+      }
+      if ((r.soft(c.mean) > 0) == bit) {
+        ++agree;
+      } else {
+        ++dissent;
+        ++r.outvoted[static_cast<std::size_t>(e)];
+      }
+    }
+    // At most one wrong edge per bit position is correctable; a second is detected.
+    if (dissent > 1 || agree < 1 || agree <= dissent) return Rejection::bit_uncorrectable;
+    r.corrected += dissent;
+    r.margin = std::min(r.margin, std::abs(sum) / wsum);
+    if (bit) r.id |= 1 << b;
+  }
+  return Rejection::none;
+}
+
+}  // namespace markerd::frame8

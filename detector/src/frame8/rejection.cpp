@@ -1,0 +1,113 @@
+#include "frame8/rejection.hpp"
+
+namespace markerd::frame8 {
+
+Stage stage_of(Rejection r) {
+  switch (r) {
+    case Rejection::none: return Stage::corners_and_pose;
+    case Rejection::touches_border: return Stage::quad_fit;
+    case Rejection::box_size: return Stage::quad_fit;
+    case Rejection::sparse_component: return Stage::quad_fit;
+    case Rejection::not_a_quad: return Stage::quad_fit;
+    case Rejection::short_quad_side: return Stage::quad_fit;
+    case Rejection::sharp_corner: return Stage::quad_fit;
+    case Rejection::small_hole: return Stage::edge_refinement;
+    case Rejection::few_edge_points: return Stage::edge_refinement;
+    case Rejection::no_edge_line: return Stage::edge_refinement;
+    case Rejection::parallel_sides: return Stage::edge_refinement;
+    case Rejection::corner_moved: return Stage::edge_refinement;
+    case Rejection::sliver: return Stage::edge_refinement;
+    case Rejection::degenerate_quad: return Stage::edge_refinement;
+    case Rejection::corner_off_image: return Stage::cells;
+    case Rejection::cells_off_image: return Stage::cells;
+    case Rejection::cells_too_small: return Stage::cells;
+    case Rejection::sides_unequal: return Stage::cells;
+    case Rejection::one_grey_level: return Stage::grey_model;
+    case Rejection::no_contrast: return Stage::grey_model;
+    case Rejection::white_corner_count: return Stage::orientation;
+    case Rejection::white_corner_unclear: return Stage::orientation;
+    case Rejection::short_edges_unexplained: return Stage::orientation;
+    case Rejection::c1_contradicted: return Stage::orientation;
+    case Rejection::bit_without_vote: return Stage::bit_votes;
+    case Rejection::bit_uncorrectable: return Stage::bit_votes;
+    case Rejection::many_erasures: return Stage::structure;
+    case Rejection::low_margin: return Stage::structure;
+    case Rejection::covered_edge_unclear: return Stage::structure;
+    case Rejection::tiny_cells_corrected: return Stage::structure;
+    case Rejection::uniform_id: return Stage::structure;
+    case Rejection::second_leniency: return Stage::structure;
+    case Rejection::unclear_orientation_small: return Stage::structure;
+    case Rejection::model_line_light: return Stage::structure;
+    case Rejection::line_missing: return Stage::structure;
+    case Rejection::line_corner_light: return Stage::structure;
+    case Rejection::line_not_dark: return Stage::structure;
+    case Rejection::line_not_ink: return Stage::structure;
+    case Rejection::pattern_fit_failed: return Stage::pattern_fit;
+    case Rejection::no_pose: return Stage::corners_and_pose;
+  }
+  return Stage::corners_and_pose;
+}
+
+const char* stage_name(Stage s) {
+  switch (s) {
+    case Stage::segmentation: return "1 segmentation";
+    case Stage::quad_fit: return "2 quad fit";
+    case Stage::edge_refinement: return "3 edge refinement";
+    case Stage::cells: return "4a cells";
+    case Stage::grey_model: return "4b grey model";
+    case Stage::orientation: return "4c orientation";
+    case Stage::bit_votes: return "4d bit votes";
+    case Stage::structure: return "4e structure";
+    case Stage::pattern_fit: return "5 pattern fit";
+    case Stage::corners_and_pose: return "6 corners and pose";
+  }
+  return "?";
+}
+
+const char* rejection_name(Rejection r) {
+  switch (r) {
+    case Rejection::none: return "none";
+    case Rejection::touches_border: return "touches_border";
+    case Rejection::box_size: return "box_size";
+    case Rejection::sparse_component: return "sparse_component";
+    case Rejection::not_a_quad: return "not_a_quad";
+    case Rejection::short_quad_side: return "short_quad_side";
+    case Rejection::sharp_corner: return "sharp_corner";
+    case Rejection::small_hole: return "small_hole";
+    case Rejection::few_edge_points: return "few_edge_points";
+    case Rejection::no_edge_line: return "no_edge_line";
+    case Rejection::parallel_sides: return "parallel_sides";
+    case Rejection::corner_moved: return "corner_moved";
+    case Rejection::sliver: return "sliver";
+    case Rejection::degenerate_quad: return "degenerate_quad";
+    case Rejection::corner_off_image: return "corner_off_image";
+    case Rejection::cells_off_image: return "cells_off_image";
+    case Rejection::cells_too_small: return "cells_too_small";
+    case Rejection::sides_unequal: return "sides_unequal";
+    case Rejection::one_grey_level: return "one_grey_level";
+    case Rejection::no_contrast: return "no_contrast";
+    case Rejection::white_corner_count: return "white_corner_count";
+    case Rejection::white_corner_unclear: return "white_corner_unclear";
+    case Rejection::short_edges_unexplained: return "short_edges_unexplained";
+    case Rejection::c1_contradicted: return "c1_contradicted";
+    case Rejection::bit_without_vote: return "bit_without_vote";
+    case Rejection::bit_uncorrectable: return "bit_uncorrectable";
+    case Rejection::many_erasures: return "many_erasures";
+    case Rejection::low_margin: return "low_margin";
+    case Rejection::covered_edge_unclear: return "covered_edge_unclear";
+    case Rejection::tiny_cells_corrected: return "tiny_cells_corrected";
+    case Rejection::uniform_id: return "uniform_id";
+    case Rejection::second_leniency: return "second_leniency";
+    case Rejection::unclear_orientation_small: return "unclear_orientation_small";
+    case Rejection::model_line_light: return "model_line_light";
+    case Rejection::line_missing: return "line_missing";
+    case Rejection::line_corner_light: return "line_corner_light";
+    case Rejection::line_not_dark: return "line_not_dark";
+    case Rejection::line_not_ink: return "line_not_ink";
+    case Rejection::pattern_fit_failed: return "pattern_fit_failed";
+    case Rejection::no_pose: return "no_pose";
+  }
+  return "?";
+}
+
+}  // namespace markerd::frame8
