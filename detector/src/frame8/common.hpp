@@ -188,6 +188,22 @@ struct CellSize {
   double mean;
 };
 
+// The cell sizes (pixels per cell) at which stages change how they work.
+// Cells below kMinCells (the mean over the marker) are not read: beyond
+// 3.3 m for the thesis's marker and camera. Clutter offers many such small
+// holes, and what their rings read as is noise.
+constexpr double kMinCells = 1.2;
+// From kResolvedCells, a cell is sampled at four points and is subject to
+// the stricter checks; below it the samples are unmixed.
+constexpr double kResolvedCells = 3.0;
+// Below kThinLineCells the black line (half a cell) is thin against a
+// typical blur, and the edges are measured a second time.
+constexpr double kThinLineCells = 8.0;
+
+// Keeps the levels' normal equations of the profile fits solvable where a
+// basis barely shows (the outside, at the end of a short profile).
+constexpr double kProfileRidge = 1e-3;
+
 // Stage 1's output: light pixels of the working image as row runs, joined
 // into components.
 struct Run {

@@ -24,7 +24,8 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
                                                      {frame8::grid - kInnerLo, kInnerLo},
                                                      {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
                                                      {kInnerLo, frame8::grid - kInnerLo}}};
-  static constexpr std::array<Point2, 4> kOuterGrid{{{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
+  static constexpr std::array<Point2, 4> kOuterGrid{
+      {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
   Quad in{}, outq{};
   std::array<Eigen::Vector2d, 4> model_order{};
   for (int j = 0; j < 4; ++j) {
@@ -39,7 +40,8 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
   det.inner_corners = in;
   det.corners = outq;
   if (config_.camera) {
-    det.pose = estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
+    det.pose =
+        estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
     if (!det.pose) return Rejection::no_pose;
   }
   const Point2 top = det.corners[1] - det.corners[0];

@@ -42,6 +42,13 @@ CellSample Frame8Detector::sample_cell(const Homography& H, frame8::Cell cell, d
   return out;
 }
 
+// unmix_ring()'s Jacobi steps: each spreads a correction one cell along the
+// ring, and three reach the neighbours' neighbours, all the blur touches.
+constexpr int kUnmixSteps = 3;
+// The most a cell's neighbours may weigh against its own share: beyond it
+// the Jacobi steps diverge.
+constexpr double kMaxNeighbourShare = 0.7;
+
 // Under about three pixels a cell, the blur mixes a ring cell's centre
 // sample with what surrounds it: its neighbours along the ring, the black
 // line and the hole inward, the background outward. A white cell between
@@ -163,6 +170,10 @@ void Frame8Detector::unmix_ring(const Homography& H, std::array<CellSample, 4>& 
     ring[i]->mean = ring[i]->lo = ring[i]->hi = v;
   }
 }
+
+// Opposite sides of a marker with cells under kResolvedCells: at most
+// this ratio (1.06 for 30 px seen at a focal length of 500 px).
+constexpr double kMaxSmallSideRatio = 1.3;
 
 // Reads the ring's cells: sampled in the image through H or, with `model`,
 // the ring model's levels. Under kResolvedCells the samples are unmixed.

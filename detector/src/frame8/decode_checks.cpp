@@ -5,6 +5,15 @@
 
 namespace markerd::frame8 {
 
+// Cells under this many pixels with two bits outvoted are as likely a dark
+// blob in clutter (see the check).
+constexpr double kTinyCells = 1.5;
+// From this many pixels per cell across, the line's darkness is checked:
+// narrower, the blur lifts it towards the cells beside it.
+constexpr double kCheckedLineCells = 2.0;
+// How dark (soft level, -1 = black) the ring model must find the line.
+constexpr double kClearLine = 0.5;
+
 Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_size,
                                           const frame8::RingModel::Levels* model, RingRead& r) const {
   // A code whose weakest bit is read this clearly (soft units) may lean on
@@ -32,10 +41,12 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
     if (!config_.frame8.uniform_ids || cell_size.narrow < kResolvedCells) return Rejection::uniform_id;
   }
   // A covered edge is one leniency already: it does not get a second.
-  if (r.orientation_clarity < config_.frame8.min_margin && (r.margin < kClearCode || r.corrected >= 4)) return Rejection::second_leniency;
+  if (r.orientation_clarity < config_.frame8.min_margin && (r.margin < kClearCode || r.corrected >= 4))
+    return Rejection::second_leniency;
   // Nor below about three pixels a cell, where a covered strip cannot be
   // told from a checkered surround lighting two corners.
-  if (r.orientation_clarity < config_.frame8.min_margin && cell_size.narrow < kResolvedCells) return Rejection::unclear_orientation_small;
+  if (r.orientation_clarity < config_.frame8.min_margin && cell_size.narrow < kResolvedCells)
+    return Rejection::unclear_orientation_small;
   r.margin = std::min(r.margin, std::max(r.orientation_clarity, 0.0));
 
   // The line must be there on every side: across it, from the hole's edge
@@ -51,7 +62,8 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
       if (r.soft(model->line[static_cast<std::size_t>(side)]) > -kClearLine) return Rejection::model_line_light;
       continue;
     }
-    const double line_px = distance(grid_point(H, side_point(side, 5, kInnerLo)), grid_point(H, side_point(side, 5, frame8::line_outer)));
+    const double line_px =
+        distance(grid_point(H, side_point(side, 5, kInnerLo)), grid_point(H, side_point(side, 5, frame8::line_outer)));
     const double line_ceiling = std::clamp(0.8 - 0.9 * (line_px - 0.6), -r.confident, 0.8);
     int dark = 0, total = 0;
     for (int k = 0; k < 7; ++k) {

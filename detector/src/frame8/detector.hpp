@@ -104,67 +104,16 @@ class Frame8Detector final : public MarkerDetector {
   static bool inside(const Quad& q, Point2 p);
   static void remove_nested(std::vector<Detection>& out);
 
+  // Edge points per side: about one per 1.5 px along a side of up to 72 px;
+  // longer sides need no more to place a line.
   static constexpr int kMaxEdgePoints = 48;
+  // The profile fit's sums per side (EdgeMode::fit_profile): a few fits
+  // instead of one per point, each on less noise.
   static constexpr std::size_t kProfileSegments = 4;
-  // The fit moves the measured edge at most this far (pixels), in steps of
-  // at most kProfileMaxStep, until a step is under kProfileConverged.
-  static constexpr double kProfileReach = 1.2;
-  static constexpr double kProfileMaxStep = 0.4;
-  static constexpr double kProfileConverged = 0.03;
-  static constexpr int kProfileIterations = 4;
-  // Keeps the levels' normal equations solvable where a basis barely shows
-  // (the outside, at the end of a short profile).
-  static constexpr double kProfileRidge = 1e-3;
-  // How much darker than the hole (grey levels) a fitted line must be.
-  static constexpr double kMinLineContrast = 8.0;
-  // Cells below this many pixels (the mean over the marker) are not read:
-  // beyond 3.3 m for the thesis's marker and camera. Clutter offers many
-  // such small holes, and what their rings read as is noise.
-  static constexpr double kMinCells = 1.2;
-  static constexpr double kTinyCells = 1.5;
-  // Below this many pixels per cell the black line (half a cell) is thin
-  // against a typical blur, and the edges are measured a second time.
-  static constexpr double kThinLineCells = 8.0;
-  // From this many pixels per cell, a cell is sampled at four points.
-  static constexpr double kResolvedCells = 3.0;
-  // From this many pixels per cell across, the line's darkness is checked.
-  static constexpr double kCheckedLineCells = 2.0;
-  // Perspective shortens one end of a far-turned marker below the cosine of
-  // its turn: 0.12 at 80 degrees, seen from 0.5 m; and a hole's short side
-  // of a few pixels is measured up to a pixel short.
-  static constexpr double kMinSideRatio = 0.08;
-  // A side shorter than this fraction of its neighbours is a sliver's end.
-  static constexpr double kSliverEnd = 0.35;
-  // From this many pixels per cell, the corners come from the whole pattern.
-  static constexpr double kPatternCells = 1.0;
+  // The whole pattern's edges: at most 4 points per cell edge, and under 16
+  // the 8 parameters of the map are not worth fitting.
   static constexpr int kMinPatternEdges = 16;
   static constexpr int kMaxPatternEdges = 384;
-  // unmix_ring()'s Jacobi steps, and the most its neighbours may weigh
-  // against a cell's own share.
-  static constexpr int kUnmixSteps = 3;
-  // Opposite sides of a marker with cells under kResolvedCells: at most
-  // this ratio (1.06 for 30 px seen at a focal length of 500 px).
-  static constexpr double kMaxSmallSideRatio = 1.3;
-  static constexpr double kMaxNeighbourShare = 0.7;
-  // How many profile samples' worth the ring's grey levels weigh in a short
-  // edge's fit (fit_short_edge).
-  static constexpr double kLevelPrior = 4.0;
-  // How far beyond a short edge's end (in cells) its background is measured.
-  static constexpr double kOutsideGap = 1.75;
-  // The search for a short edge's cell boundaries: stretches from
-  // kMinStretch in kStretchSteps, shifts (cells) within kShiftSteps steps
-  // either way; the hole's short side, of a few pixels, is often measured
-  // a pixel short.
-  static constexpr double kMinStretch = 0.86;
-  static constexpr double kStretchStep = 0.06;
-  static constexpr int kStretchSteps = 10;
-  static constexpr double kShiftStep = 0.15;
-  static constexpr int kShiftSteps = 4;
-  // The most of a short edge's profile (its sum of squares about its mean)
-  // that the code's fit may leave unexplained.
-  static constexpr double kMaxUnexplained = 0.1;
-  // How dark (soft level, -1 = black) the ring model must find the line.
-  static constexpr double kClearLine = 0.5;
 
   DetectorConfig config_;
   // The blur an edge profile sees: the lens, the pixel's area and the

@@ -16,6 +16,12 @@
 
 namespace markerd::frame8 {
 
+// A side shorter than this fraction of its neighbours is a sliver's end.
+constexpr double kSliverEnd = 0.35;
+// The profile fit moves the measured edge at most this far (pixels): the
+// step's centroid is off by a fraction of a cell, under a pixel here.
+constexpr double kProfileReach = 1.2;
+
 // Finds the hole-to-line edge along side i of the quad; fills
 // edge_points_[i]. Without a code (EdgeMode::step, no id), every point takes
 // the centroid of the light-to-dark step. With the code read once, each point knows the
@@ -110,7 +116,8 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
       // for them is free, and the sum of profiles is the profile of their
       // mean. A few fits instead of one per point, each on less noise.
       const auto seg = static_cast<std::size_t>(k * kProfileSegments / count);
-      for (int i = 0; i < n_steps; ++i) segment_profile_[seg][static_cast<std::size_t>(i)] += profile[static_cast<std::size_t>(i)];
+      for (int i = 0; i < n_steps; ++i)
+        segment_profile_[seg][static_cast<std::size_t>(i)] += profile[static_cast<std::size_t>(i)];
       segment_base_[seg] = segment_base_[seg] + Point2{px, py};
       ++segment_count_[seg];
       fit_steps = n_steps;
@@ -182,6 +189,18 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
   return used;
 }
 
+// Gauss-Newton on the edge profile: steps of at most kProfileMaxStep (the
+// model is linear in the edge only over a fraction of the blur), until a step
+// is under kProfileConverged (a fiftieth of a cell at the smallest cells
+// read), in at most kProfileIterations steps (from within a pixel of the
+// answer, it converges in two or three).
+constexpr double kProfileMaxStep = 0.4;
+constexpr double kProfileConverged = 0.03;
+constexpr int kProfileIterations = 4;
+// How much darker than the hole (grey levels) a fitted line must be: about
+// four times the sensor noise, so that noise alone does not make a line.
+constexpr double kMinLineContrast = 8.0;
+
 // The edge in a profile across a side, sampled outward from s0 every
 // `step` pixels: the offset e at which the hole (level H) meets the line
 // (half a cell, level L), followed by the ring cell (a cell, level B:
@@ -191,7 +210,8 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
 // are small (the line alone is then a dip barely darker than its blur,
 // cut short by the cell), and classifying each profile as one case or the
 // other fails below about two pixels a cell; this model needs neither.
-bool Frame8Detector::fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px, double& e) const {
+bool Frame8Detector::fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px,
+                                      double& e) const {
   const double inv_sigma = 1.0 / profile_sigma_;
   const double w = 0.5 * cell_px, c = cell_px;
   const detail::NormalTable& table = detail::normal_table();
@@ -212,7 +232,8 @@ bool Frame8Detector::fit_edge_profile(const float* profile, int n, double s0, do
       table.at(-x * inv_sigma, f0, d0);
       table.at((w - x) * inv_sigma, f1, d1);
       table.at((w + c - x) * inv_sigma, f2, d2);
-      const double j[5] = {1.0, f1 - f0, f2 - f1, 1.0 - f2, inv_sigma * (p[1] * (d1 - d0) + p[2] * (d2 - d1) - p[3] * d2)};
+      const double j[5] = {1.0, f1 - f0, f2 - f1, 1.0 - f2,
+                           inv_sigma * (p[1] * (d1 - d0) + p[2] * (d2 - d1) - p[3] * d2)};
       const double r = profile[i] - (p[0] + p[1] * j[1] + p[2] * j[2] + p[3] * j[3]);
       for (int u = 0; u < k; ++u) {
         g[u] += r * j[u];
@@ -271,7 +292,8 @@ Rejection Frame8Detector::refine_sides(const std::array<Point2, 4>& from, EdgeMo
                    inner[static_cast<std::size_t>(i)])) {
       return Rejection::parallel_sides;
     }
-    if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) > 2.0 * cell_px + 2 * decimate_) {
+    if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) >
+        2.0 * cell_px + 2 * decimate_) {
       return Rejection::corner_moved;
     }
   }
@@ -288,7 +310,8 @@ Rejection Frame8Detector::refit_undistorted(int rotation, Detection& det) {
     const int n = edge_count_[static_cast<std::size_t>(side)];
     for (int i = 0; i < n; ++i) {
       if (pts[static_cast<std::size_t>(i)].w <= 0) continue;
-      const Point2 p = cam.pixel_to_normalized({pts[static_cast<std::size_t>(i)].x, pts[static_cast<std::size_t>(i)].y});
+      const Point2 p =
+          cam.pixel_to_normalized({pts[static_cast<std::size_t>(i)].x, pts[static_cast<std::size_t>(i)].y});
       pts[static_cast<std::size_t>(i)].x = p.x;
       pts[static_cast<std::size_t>(i)].y = p.y;
     }

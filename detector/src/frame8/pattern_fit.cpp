@@ -21,7 +21,8 @@ namespace markerd::frame8 {
 // dip (the half-cell line between the hole and a white cell) at the
 // centroid of its depth, the line's centre. Returns false when nothing
 // clear is there.
-bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset, double& strength) const {
+bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset,
+                                 double& strength) const {
   constexpr int kSamples = 17;
   std::array<float, kSamples> v{};
   for (int i = 0; i < kSamples; ++i) {
@@ -42,7 +43,8 @@ bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, 
       moment += depth * (-half + i * ds);
     }
   } else {
-    for (int i = 0; i + 1 < kSamples; ++i) peak = std::max(peak, static_cast<double>(v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)]));
+    for (int i = 0; i + 1 < kSamples; ++i)
+      peak = std::max(peak, static_cast<double>(v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)]));
     const double floor = 0.1 * peak;
     for (int i = 0; i + 1 < kSamples; ++i) {
       const double drop = v[static_cast<std::size_t>(i)] - v[static_cast<std::size_t>(i + 1)] - floor;
@@ -133,7 +135,8 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
   mx /= n;
   my /= n;
   for (int i = 0; i < n; ++i) {
-    sw += std::abs(pattern_edges_[static_cast<std::size_t>(i)].x - mx) + std::abs(pattern_edges_[static_cast<std::size_t>(i)].y - my);
+    sw += std::abs(pattern_edges_[static_cast<std::size_t>(i)].x - mx) +
+          std::abs(pattern_edges_[static_cast<std::size_t>(i)].y - my);
   }
   const double scale = sw > 0 ? n / sw : 1.0;  // points normalised to a spread of about 1
   Eigen::Matrix<double, 3, 3> G;  // normalised image -> grid (homogeneous)

@@ -223,7 +223,8 @@ void Frame8Detector::light_row_bits(const std::uint8_t* row, int w) {
   }
 #endif
   for (; x < w; ++x) {
-    if (row[x] >= std::max(thr[x], lmax[x])) light_bits_[static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1} << (x & 63);
+    if (row[x] >= std::max(thr[x], lmax[x]))
+      light_bits_[static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1} << (x & 63);
   }
 }
 

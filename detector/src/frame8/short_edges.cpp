@@ -15,7 +15,30 @@
 
 namespace markerd::frame8 {
 
-bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const {
+// How many profile samples' worth the ring's grey levels weigh in a short
+// edge's fit: enough that no colouring fits by turning the contrast down.
+constexpr double kLevelPrior = 4.0;
+// How far beyond a short edge's end (in cells) its background is measured:
+// where the corner's blur has faded.
+constexpr double kOutsideGap = 1.75;
+// The search for a short edge's cell boundaries: stretches from
+// kMinStretch in kStretchSteps, shifts (cells) within kShiftSteps steps
+// either way; the hole's short side, of a few pixels, is often measured
+// a pixel short.
+constexpr double kMinStretch = 0.86;
+constexpr double kStretchStep = 0.06;
+constexpr int kStretchSteps = 10;
+constexpr double kShiftStep = 0.15;
+constexpr int kShiftSteps = 4;
+// The most of a short edge's profile (its sum of squares about its mean)
+// that the code's fit may leave unexplained: the optics the model misses
+// leave a few percent; clutter fits the code no better than any other.
+constexpr double kMaxUnexplained = 0.1;
+
+// The profile of a short edge fitted with the code's cells and each
+// colouring of its corners (ShortEdgeFit).
+bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, double black, double white,
+                                    ShortEdgeFit& fit) const {
   constexpr int kPerCell = 4;
   constexpr int kSamples = (frame8::grid + 2) * kPerCell + 1;  // from a cell outside to a cell beyond
   static constexpr std::array<double, 3> kAcross{0.3, 0.5, 0.7};
@@ -30,7 +53,8 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
       sum += v;
     }
     level[static_cast<std::size_t>(i)] = sum / static_cast<double>(kAcross.size());
-    const double px = distance(grid_point(H, side_point(side, t - 0.5, 0.5)), grid_point(H, side_point(side, t + 0.5, 0.5)));
+    const double px =
+        distance(grid_point(H, side_point(side, t - 0.5, 0.5)), grid_point(H, side_point(side, t + 0.5, 0.5)));
     inv_sigma[static_cast<std::size_t>(i)] = px / profile_sigma_;
   }
   // The background beyond each end, measured a little further out, where
@@ -144,7 +168,8 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
         const double r = residual(m, coloured(colouring));
         if (r < fit.residual[static_cast<std::size_t>(colouring)]) {
           fit.residual[static_cast<std::size_t>(colouring)] = r;
-          if (colouring > 0) fit.corner_worth[static_cast<std::size_t>(colouring - 1)] = m.gram(colouring + 1, colouring + 1);
+          if (colouring > 0)
+            fit.corner_worth[static_cast<std::size_t>(colouring - 1)] = m.gram(colouring + 1, colouring + 1);
         }
       }
     }
@@ -158,9 +183,11 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
 // when the code leaves either profile unexplained. With only the two long
 // edges voting, the code has no redundancy left: the short edges are its
 // check.
-int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white, double& clarity) const {
+int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, int id, double black, double white,
+                                                double& clarity) const {
   std::array<ShortEdgeFit, 2> fit{};
-  if (!fit_short_edge(H, side, id, black, white, fit[0]) || !fit_short_edge(H, side + 2, id, black, white, fit[1])) return -1;
+  if (!fit_short_edge(H, side, id, black, white, fit[0]) || !fit_short_edge(H, side + 2, id, black, white, fit[1]))
+    return -1;
   const double contrast = white - black;
   // Residual and worth when corner k is the white one (k = 4: none is).
   auto colouring = [&](int edge, int k) {
@@ -183,8 +210,10 @@ int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, i
   clarity = std::numeric_limits<double>::infinity();
   for (int k = 0; k < 5; ++k) {
     if (k == best) continue;
-    const double expected = contrast * contrast * (worth[static_cast<std::size_t>(best)] + worth[static_cast<std::size_t>(k)]);
-    clarity = std::min(clarity, (residual[static_cast<std::size_t>(k)] - residual[static_cast<std::size_t>(best)]) / expected);
+    const double expected =
+        contrast * contrast * (worth[static_cast<std::size_t>(best)] + worth[static_cast<std::size_t>(k)]);
+    clarity = std::min(clarity,
+                       (residual[static_cast<std::size_t>(k)] - residual[static_cast<std::size_t>(best)]) / expected);
   }
   // Each edge's profile is the code's, to what the model misses of the
   // optics: clutter's profiles fit the code no better than any other.
