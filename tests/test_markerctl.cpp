@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
@@ -19,6 +20,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <random>
 #include <regex>
+#include <set>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -527,6 +529,54 @@ TEST_F(Markerctl, VerboseReportsImagesWithoutDetections) {
   EXPECT_EQ(lines.front()["file"], path("far.png"));
   EXPECT_EQ(lines.front()["detections"], 0);
   EXPECT_TRUE(lines.front().contains("time_ms"));
+}
+
+TEST_F(Markerctl, DebugWritesTheThresholdTheCandidatesAndWhyEachWasRejected) {
+  // The marker among clutter: the clutter's light shapes are candidates that
+  // the detector turns down, each at some stage.
+  const json truth =
+      render("scene.png", {"--id", "77", "--dist", "0.7", "--yaw", "20", "--noise", "2", "--blur", "0.6"});
+  const Outcome plain = run({"detect", path("scene.png")});
+  ASSERT_EQ(plain.code, 0) << plain.describe();
+  const Outcome r = run({"detect", "--debug", path("debug"), path("scene.png")});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_NE(r.err.find(path("debug") + "/0000-"), std::string::npos) << r.describe();
+
+  // The same detections as without the option.
+  auto without_time = [](std::vector<json> lines) {
+    for (auto& j : lines) j.erase("time_ms");
+    return lines;
+  };
+  EXPECT_EQ(without_time(r.json_lines()), without_time(plain.json_lines())) << r.describe();
+  ASSERT_NE(detection_at(r.json_lines(), truth), nullptr) << r.describe();
+
+  EXPECT_EQ(png_size(path("debug/0000-threshold.png")), std::make_pair(640, 480));
+  EXPECT_EQ(png_size(path("debug/0000-candidates.png")), std::make_pair(640, 480));
+  const json report = json::parse(read_file(path("debug/0000-candidates.json")));
+  ASSERT_TRUE(report["candidates"].is_array()) << report.dump();
+  int detected = 0, rejected = 0;
+  std::set<std::string> stages;
+  for (const json& c : report["candidates"]) {
+    ASSERT_EQ(c["corners"].size(), 4u) << c.dump();
+    if (c["result"] == "detected") {
+      ++detected;
+      EXPECT_EQ(c["id"], 77) << c.dump();
+    } else if (c["result"] == "rejected") {
+      ++rejected;
+      // "4b grey model", "no_contrast": a stage of docs/architecture.md and a named reason.
+      const std::string stage = c["stage"], reason = c["reason"];
+      EXPECT_TRUE(!stage.empty() && std::isdigit(static_cast<unsigned char>(stage[0]))) << c.dump();
+      EXPECT_FALSE(reason.empty()) << c.dump();
+      stages.insert(stage);
+    }
+  }
+  EXPECT_EQ(detected, 1) << report.dump();
+  EXPECT_GT(rejected, 0) << report.dump();
+  EXPECT_GT(stages.size(), 1u) << report.dump();
+
+  const Outcome aruco = run({"detect", "--family", "aruco4x4_50", "--debug", path("debug"), path("scene.png")});
+  EXPECT_EQ(aruco.code, 2) << aruco.describe();
+  EXPECT_NE(aruco.err.find("--debug"), std::string::npos) << aruco.describe();
 }
 
 TEST_F(Markerctl, RenderAcceptsUnitsAndNegativeValues) {

@@ -26,6 +26,7 @@ struct DetectOptions {
   int threshold_offset = markerd::Frame8Options{}.threshold_offset;
   double min_margin = markerd::Frame8Options{}.min_margin;
   bool uniform_ids = false;
+  std::string debug_dir;
   bool verbose = false;
   std::vector<std::string> images;
 };
@@ -74,6 +75,10 @@ int run_detect(const DetectOptions& o) {
   config.frame8.threshold_offset = o.threshold_offset;
   config.frame8.min_margin = o.min_margin;
   config.frame8.uniform_ids = o.uniform_ids;
+  if (!o.debug_dir.empty() && family != markerd::Family::frame8) {
+    throw usage_error("--debug", "only the frame8 detector has a debug output");
+  }
+  config.frame8.debug_dir = o.debug_dir;
   if (!o.camera.empty()) {
     config.marker_size_m = parse_length_m(o.size, BareUnit::metre, "--size");
     if (!(config.marker_size_m > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
@@ -90,6 +95,7 @@ int run_detect(const DetectOptions& o) {
   std::vector<markerd::Detection> detections;
   markerd::daemon::ImageFileReader reader;
   markerd::GreyImage grey;
+  int debug_frame = 0;  // the detector numbers its debug output by detect() call
   for (const std::string& path : o.images) {
     try {
       // The size the header declares is checked before anything is decoded.
@@ -116,6 +122,9 @@ int run_detect(const DetectOptions& o) {
     } catch (const markerd::DetectorError& e) {
       report(fmt::format("{}: {}", path, e.what()));
       continue;
+    }
+    if (!o.debug_dir.empty()) {
+      std::cerr << fmt::format("markerctl: {}: debug output {}/{:04}-*\n", path, o.debug_dir, debug_frame++);
     }
     for (const auto& d : detections) std::cout << json_line(detection_json(path, d, time_ms)) << '\n';
     if (o.verbose && detections.empty()) {
@@ -152,7 +161,11 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
       "orientation ignored), at most 64 megapixels (checked in the header before decoding).\n"
       "A file that cannot be read or does not decode whole (truncated, corrupt) is reported on stderr\n"
       "and skipped; the others are still processed and the exit status is then 1. The camera model\n"
-      "must have the images' size.");
+      "must have the images' size.\n"
+      "--debug DIR (frame8) writes, per image, DIR/NNNN-threshold.png (the light pixels segmentation\n"
+      "saw), DIR/NNNN-candidates.png (every candidate quad: green read, red rejected, with its index)\n"
+      "and DIR/NNNN-candidates.json (per candidate: corners, and the stage and reason that rejected it);\n"
+      "stderr names each image's NNNN. For when a marker is not found; it slows detection down.");
   app->add_option("--family", o->family, "Marker family: " + family_names())->type_name("NAME")->capture_default_str();
   app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON), for the pose")->type_name("FILE");
   app->add_option("--size", o->size, "Marker size for the pose (0.08, 8cm; frame8: outer edge)")->type_name("LENGTH");
@@ -167,6 +180,9 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
       ->check(CLI::Range(0.0, 1.0));
   app->add_flag("--uniform-ids", o->uniform_ids,
                 "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
+  app->add_option("--debug", o->debug_dir,
+                  "frame8: write the threshold image and the candidates, and why each was rejected, into DIR")
+      ->type_name("DIR");
   app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
   app->add_option("images", o->images, "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")
       ->type_name("IMAGE")

@@ -40,6 +40,7 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   // enough when the quad is right, and to turn away what has no line.
   if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, false, levels_)) return false;
   const Rejection unaligned = decode(H, cell_size, det, rotation, &levels_);
+  note_attempt(Read::ring_model, unaligned);
   if (unaligned == Rejection::none) return true;
   // A light cell beside C1 that the code says is dark is the mark of a
   // light patch in a checkered surround, not of a ring a fraction of a
@@ -48,6 +49,7 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return false;
   const Homography aligned = Homography::from_grid_map(M);
   const Rejection aligned_read = decode(aligned, cell_size, det, rotation, &levels_);
+  note_attempt(Read::aligned_ring_model, aligned_read);
   if (aligned_read != Rejection::none) return false;
   H = aligned;
   return true;

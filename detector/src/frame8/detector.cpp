@@ -37,7 +37,9 @@
 #include <cstdint>
 #include <limits>
 #include <vector>
+#include <filesystem>
 #include <memory>
+#include <system_error>
 
 #include <fmt/format.h>
 
@@ -57,6 +59,15 @@ Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
   if (!(config_.frame8.blur_sigma_px >= 0 && config_.frame8.blur_sigma_px <= Frame8Options::kMaxBlurSigmaPx)) {
     throw DetectorError(fmt::format("frame8: blur_sigma_px must be 0..{:g} pixels", Frame8Options::kMaxBlurSigmaPx));
   }
+  if (!config_.frame8.debug_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(config_.frame8.debug_dir, ec);
+    if (ec || !std::filesystem::is_directory(config_.frame8.debug_dir)) {
+      throw DetectorError(fmt::format("frame8: debug_dir {}: {}", config_.frame8.debug_dir,
+                                      ec ? ec.message() : "not a directory"));
+    }
+    debug_ = true;
+  }
   profile_sigma_ = std::sqrt(config_.frame8.blur_sigma_px * config_.frame8.blur_sigma_px + 1.0 / 12 + 1.0 / 8);
 }
 
@@ -69,6 +80,7 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   }
   if (image.width < 16 || image.height < 16) return;
   full_ = image;
+  if (debug_) debug_candidates_.clear();
   make_working_image();
   threshold_and_runs();
   label_components();
@@ -89,17 +101,36 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
     if (!inside_detection(components_[static_cast<std::size_t>(r)], out)) consider_component(r, out);
   }
   remove_nested(out);
+  if (debug_) write_debug(out);
 }
 
 // One light component: its quad (stage 2), then refined and read.
 void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
   const Component& c = components_[static_cast<std::size_t>(root)];
-  std::array<Point2, 4> quad{};
-  if (fit_quad(c, quad) != Rejection::none) return;
+  // The component's box stands for its quad until fit_quad() finds one.
+  std::array<Point2, 4> quad{{{c.x0 - 0.5, c.y0 - 0.5},
+                              {c.x1 - 0.5, c.y0 - 0.5},
+                              {c.x1 - 0.5, c.y1 + 0.5},
+                              {c.x0 - 0.5, c.y1 + 0.5}}};
+  const Rejection shape = fit_quad(c, quad);
+  // Components that fail on their box alone are not candidates: the debug
+  // output would list every speck of clutter.
+  if (shape == Rejection::touches_border || shape == Rejection::box_size) return;
   const double d = decimate_;
   for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+  if (debug_) debug_candidates_.push_back({quad, shape, -1, {}, {}});
+  if (shape != Rejection::none) return;
   Detection det;
-  if (refine_and_decode(quad, det) == Rejection::none) out.push_back(det);
+  const Rejection why = refine_and_decode(quad, det);
+  if (debug_) {
+    DebugCandidate& candidate = debug_candidates_.back();
+    candidate.why = why;
+    if (why == Rejection::none) {
+      candidate.id = det.id;
+      candidate.first_corner = det.corners[0];
+    }
+  }
+  if (why == Rejection::none) out.push_back(det);
 }
 
 // Perspective shortens one end of a far-turned marker below the cosine of
@@ -174,13 +205,16 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
   if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
   int rotation = 0;
   bool by_model = false;
-  if (const Rejection sampled = decode(H, cell_size, det, rotation, nullptr); sampled != Rejection::none) {
+  const Rejection sampled = decode(H, cell_size, det, rotation, nullptr);
+  note_attempt(Read::sampled, sampled);
+  if (sampled != Rejection::none) {
     // The step-only quad, where the profile classification moved the sides.
     bool read = false;
     bool worth_it = worth_remeasuring(sampled);
     Homography step_H;
     if (have_fallback && Homography::from_unit_square(step_only, step_H)) {
       const Rejection step_sampled = decode(step_H, cell_size, det, rotation, nullptr);
+      note_attempt(Read::step_only, step_sampled);
       if (step_sampled == Rejection::none) {
         H = step_H;
         inner = step_only;
@@ -200,9 +234,13 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     Homography H2;
     Detection det2;
     int rotation2 = 0;
-    if (refine_sides(inner, EdgeMode::step, det.id, cell_px, second) == Rejection::none &&
-        Homography::from_unit_square(second, H2) &&
-        decode(H2, cell_size, det2, rotation2, nullptr) == Rejection::none) {
+    Rejection second_read = refine_sides(inner, EdgeMode::step, det.id, cell_px, second);
+    if (second_read == Rejection::none && !Homography::from_unit_square(second, H2)) {
+      second_read = Rejection::degenerate_quad;
+    }
+    if (second_read == Rejection::none) second_read = decode(H2, cell_size, det2, rotation2, nullptr);
+    note_attempt(Read::second_pass, second_read);
+    if (second_read == Rejection::none) {
       inner = second;
       H = H2;
       det = det2;
@@ -230,11 +268,11 @@ bool Frame8Detector::read_by_profile_fit(const std::array<Point2, 4>& from, doub
   if (cell_px >= kResolvedCells || cell_px < kMinCells) return false;
   std::array<Point2, 4> fitted{};
   Homography fitted_H;
-  if (refine_sides(from, EdgeMode::fit_profile, std::nullopt, cell_px, fitted) != Rejection::none ||
-      !Homography::from_unit_square(fitted, fitted_H) ||
-      decode(fitted_H, cell_size, det, rotation, nullptr) != Rejection::none) {
-    return false;
-  }
+  Rejection fit = refine_sides(from, EdgeMode::fit_profile, std::nullopt, cell_px, fitted);
+  if (fit == Rejection::none && !Homography::from_unit_square(fitted, fitted_H)) fit = Rejection::degenerate_quad;
+  if (fit == Rejection::none) fit = decode(fitted_H, cell_size, det, rotation, nullptr);
+  note_attempt(Read::profile_fit, fit);
+  if (fit != Rejection::none) return false;
   H = fitted_H;
   inner = fitted;
   return true;

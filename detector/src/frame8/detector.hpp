@@ -8,6 +8,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -104,6 +105,22 @@ class Frame8Detector final : public MarkerDetector {
   static bool inside(const Quad& q, Point2 p);
   static void remove_nested(std::vector<Detection>& out);
 
+  // The debug output (debug.cpp), only with Frame8Options::debug_dir: per
+  // candidate its quad, what became of it and each read tried.
+  enum class Read : std::uint8_t { sampled, step_only, profile_fit, ring_model, aligned_ring_model, second_pass };
+  static const char* read_name(Read how);
+  struct DebugCandidate {
+    std::array<Point2, 4> quad{};  // full-resolution pixels
+    Rejection why = Rejection::none;
+    int id = -1;               // read: the id,
+    Point2 first_corner{};     // and its detection's first corner
+    std::vector<std::pair<Read, Rejection>> attempts;
+  };
+  void note_attempt(Read how, Rejection why) {
+    if (debug_ && !debug_candidates_.empty()) debug_candidates_.back().attempts.emplace_back(how, why);
+  }
+  void write_debug(const std::vector<Detection>& out);
+
   // Edge points per side: about one per 1.5 px along a side of up to 72 px;
   // longer sides need no more to place a line.
   static constexpr int kMaxEdgePoints = 48;
@@ -144,6 +161,9 @@ class Frame8Detector final : public MarkerDetector {
   int pattern_count_ = 0;
   frame8::RingModel ring_model_;
   frame8::RingModel::Levels levels_;
+  bool debug_ = false;
+  int debug_frame_ = 0;
+  std::vector<DebugCandidate> debug_candidates_;
 };
 
 }  // namespace markerd::frame8

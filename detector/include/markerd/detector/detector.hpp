@@ -7,6 +7,7 @@
 #include <memory>
 #include <optional>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "markerd/detector/camera_model.hpp"
@@ -55,6 +56,14 @@ struct Frame8Options {
   // The camera's blur as a Gaussian sigma in pixels, on top of each pixel's
   // own area, for that model; a focused lens is about 0.5 to 1.
   double blur_sigma_px = 0.6;
+  // Debug output, for when a marker is not found: empty is off. Otherwise a
+  // directory (created if missing) into which every detect() call n (from 0)
+  // writes NNNN-threshold.png (the working image's light pixels, white),
+  // NNNN-candidates.png (each candidate's quad on the image: green read,
+  // red rejected, with its index) and NNNN-candidates.json (per candidate
+  // its corners, and for a rejected one the stage and the reason, with
+  // every read tried). Slow and allocating: never in a measurement.
+  std::string debug_dir;
 };
 
 struct DetectorConfig {
