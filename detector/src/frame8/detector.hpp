@@ -30,6 +30,9 @@ class Frame8Detector final : public MarkerDetector {
   void detect(const GreyView& image, std::vector<Detection>& out) override;
 
  private:
+  // The stage tests (tests/test_frame8_stages.cpp) run single stages.
+  friend class Frame8StageTest;
+
   // Stage 1: segmentation (segmentation.cpp).
   void make_working_image();
   void sum_tiles(int tw, int th);

@@ -1,0 +1,229 @@
+// The frame8 detector's stages one at a time (detector/src/frame8/), where a
+// stage has a contract of its own: the quad fit on a synthetic contour, the
+// edge refinement and the decoding on a clean synthetic marker, and the
+// rejections' stages. The whole detector is tested in test_frame8.cpp.
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <numbers>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "frame8/detector.hpp"
+#include "markerd/detector/frame8.hpp"
+
+namespace markerd::frame8 {
+
+// A clean marker, axis-aligned: `cell` pixels a cell, its outer edge from
+// pixel `origin` (pixel centres at integers), ink 30 on paper 220.
+GreyImage clean_marker(int id, int cell = 10, int origin = 50, int size = 200) {
+  GreyImage img(size, size, 220);
+  const auto cells = frame8::ring_cells(id);
+  for (int y = 0; y < size; ++y) {
+    for (int x = 0; x < size; ++x) {
+      const double gx = static_cast<double>(x - origin) / cell + 0.5 / cell;
+      const double gy = static_cast<double>(y - origin) / cell + 0.5 / cell;
+      if (gx < 0 || gy < 0 || gx >= frame8::grid || gy >= frame8::grid) continue;
+      const int col = static_cast<int>(gx), row = static_cast<int>(gy);
+      const std::uint8_t ring = cells[static_cast<std::size_t>(row * frame8::grid + col)];
+      bool black = false;
+      if (ring != 2) {
+        black = ring == 0;
+      } else {
+        // Between the ring and the hole: the line, from 1.0 to 1.5 cells in.
+        const double in = std::min({gx, gy, frame8::grid - gx, frame8::grid - gy});
+        black = in < frame8::line_inner;
+      }
+      if (black) img.row(y)[x] = 30;
+    }
+  }
+  return img;
+}
+
+// The same image turned a quarter clockwise.
+GreyImage turned(const GreyImage& in) {
+  GreyImage out(in.height(), in.width());
+  for (int y = 0; y < in.height(); ++y) {
+    for (int x = 0; x < in.width(); ++x) out.row(x)[in.height() - 1 - y] = in.row(y)[x];
+  }
+  return out;
+}
+
+// The inner corners (the hole's) of clean_marker(): 1.5 cells in.
+std::array<Point2, 4> clean_inner(int cell = 10, int origin = 50) {
+  const double lo = origin - 0.5 + 1.5 * cell, hi = origin - 0.5 + 8.5 * cell;
+  return {{{lo, lo}, {hi, lo}, {hi, hi}, {lo, hi}}};
+}
+
+class Frame8StageTest : public ::testing::Test {
+ protected:
+  Frame8Detector detector_{DetectorConfig{}};
+
+  Rejection decode(const GreyImage& img, const std::array<Point2, 4>& inner, double cell_px, Detection& det,
+                   int& rotation) {
+    detector_.full_ = img.view();
+    Homography H;
+    if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
+    return detector_.decode(H, CellSize{cell_px, cell_px}, det, rotation, nullptr);
+  }
+
+  Rejection refine(const GreyImage& img, const std::array<Point2, 4>& coarse, double cell_px,
+                   std::array<Point2, 4>& inner) {
+    detector_.full_ = img.view();
+    detector_.decimate_ = 1;
+    return detector_.refine_sides(coarse, Frame8Detector::EdgeMode::step, std::nullopt, cell_px, inner);
+  }
+
+  // convex_hull() then max_area_quad() on contour points sorted by (y, x).
+  bool quad_of(const std::vector<Point2>& points, std::array<Point2, 4>& quad, double& hull_area) {
+    detector_.points_ = points;
+    detector_.convex_hull();
+    hull_area = std::abs(twice_signed_area(detector_.hull_.data(), detector_.hull_.size())) / 2;
+    return detector_.max_area_quad(quad);
+  }
+};
+
+// Where each row y crosses a convex polygon: the contour fit_quad() builds
+// from a component's runs, sorted by (y, x).
+std::vector<Point2> row_crossings(const std::vector<Point2>& polygon) {
+  double y0 = polygon[0].y, y1 = polygon[0].y;
+  for (const Point2& p : polygon) {
+    y0 = std::min(y0, p.y);
+    y1 = std::max(y1, p.y);
+  }
+  std::vector<Point2> out;
+  for (double y = std::ceil(y0); y <= y1; y += 1) {
+    double lo = 1e9, hi = -1e9;
+    for (std::size_t i = 0; i < polygon.size(); ++i) {
+      const Point2 a = polygon[i], b = polygon[(i + 1) % polygon.size()];
+      if ((a.y - y) * (b.y - y) > 0 || a.y == b.y) continue;
+      const double x = a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x);
+      lo = std::min(lo, x);
+      hi = std::max(hi, x);
+    }
+    if (lo > hi) continue;
+    out.push_back({lo, y});
+    if (hi > lo) out.push_back({hi, y});
+  }
+  return out;
+}
+
+std::vector<Point2> regular_polygon(int corners, double radius, double turn_deg) {
+  std::vector<Point2> out;
+  for (int k = 0; k < corners; ++k) {
+    const double a = (turn_deg + 360.0 * k / corners) * std::numbers::pi / 180;
+    out.push_back({100 + radius * std::cos(a), 100 + radius * std::sin(a)});
+  }
+  return out;
+}
+
+TEST_F(Frame8StageTest, QuadFitFindsTheCornersOfATurnedSquare) {
+  const std::vector<Point2> square = regular_polygon(4, 40, 20);
+  std::array<Point2, 4> quad{};
+  double hull_area = 0;
+  ASSERT_TRUE(quad_of(row_crossings(square), quad, hull_area));
+  // Each true corner has a quad corner within the row spacing.
+  for (const Point2& corner : square) {
+    double nearest = 1e9;
+    for (const Point2& q : quad) nearest = std::min(nearest, distance(q, corner));
+    EXPECT_LT(nearest, 1.0) << corner.x << "," << corner.y;
+  }
+  // The rows cut the square's corners off the hull a little: well within
+  // the 6% that fit_quad() allows a quad.
+  EXPECT_NEAR(std::abs(twice_signed_area(quad.data(), quad.size())) / 2, hull_area, 0.04 * hull_area);
+}
+
+TEST_F(Frame8StageTest, QuadFitLeavesAHexagonAThirdShort) {
+  // A hexagon's largest inscribed quad covers two thirds of it: fit_quad()
+  // turns away anything whose quad leaves more than a few percent uncovered.
+  std::array<Point2, 4> quad{};
+  double hull_area = 0;
+  ASSERT_TRUE(quad_of(row_crossings(regular_polygon(6, 40, 5)), quad, hull_area));
+  const double quad_area = std::abs(twice_signed_area(quad.data(), quad.size())) / 2;
+  EXPECT_NEAR(quad_area / hull_area, 2.0 / 3.0, 0.03);
+}
+
+TEST_F(Frame8StageTest, EdgeRefinementPutsTheSidesOnTheHolesEdge) {
+  const GreyImage img = clean_marker(165);
+  const std::array<Point2, 4> truth = clean_inner();
+  // The coarse quad of a thresholded hole: a pixel or so inside it, askew.
+  const std::array<Point2, 4> coarse{{{truth[0].x + 1.2, truth[0].y + 0.8},
+                                      {truth[1].x - 0.7, truth[1].y + 1.3},
+                                      {truth[2].x - 1.1, truth[2].y - 0.6},
+                                      {truth[3].x + 0.9, truth[3].y - 1.2}}};
+  std::array<Point2, 4> inner{};
+  ASSERT_EQ(refine(img, coarse, 10, inner), Rejection::none);
+  for (std::size_t k = 0; k < 4; ++k) {
+    EXPECT_LT(distance(inner[k], truth[k]), 0.05) << "corner " << k << " at " << inner[k].x << "," << inner[k].y;
+  }
+}
+
+TEST_F(Frame8StageTest, DecodingReadsACleanPatternInEachOrientation) {
+  for (const int id : {1, 77, 165, 254}) {
+    GreyImage img = clean_marker(id);
+    for (int quarter = 0; quarter < 4; ++quarter) {
+      Detection det;
+      int rotation = -1;
+      ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none) << "id " << id << " turn " << quarter;
+      EXPECT_EQ(det.id, id);
+      EXPECT_EQ(det.bits_corrected, 0);
+      EXPECT_GT(det.margin, 0.9);
+      // The image turned a quarter clockwise moves the marker's corner 0
+      // to the quad's corner 1: the quad's corner j is the marker's j - rotation.
+      EXPECT_EQ(rotation, quarter) << "id " << id;
+      img = turned(img);
+    }
+  }
+}
+
+TEST_F(Frame8StageTest, DecodingCorrectsOneEdgeAndRejectsTwo) {
+  const int id = 165;
+  GreyImage img = clean_marker(id);
+  // Flips the cell of `bit` on `edge` (paints it the other colour).
+  auto flip = [&](int edge, int bit) {
+    const frame8::Cell c = frame8::data_cell(edge, bit);
+    const std::uint8_t colour = ((id >> bit) & 1) ? 30 : 220;
+    for (int y = 50 + 10 * c.row; y < 60 + 10 * c.row; ++y) {
+      for (int x = 50 + 10 * c.col; x < 60 + 10 * c.col; ++x) img.row(y)[x] = colour;
+    }
+  };
+  flip(1, 3);
+  Detection det;
+  int rotation = 0;
+  ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none);
+  EXPECT_EQ(det.id, id);
+  EXPECT_EQ(det.bits_corrected, 1);
+  flip(2, 3);  // a second edge against the same bit: two dissenters
+  EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::bit_uncorrectable);
+}
+
+TEST_F(Frame8StageTest, DecodingRejectsAFlatRingAtTheGreyModel) {
+  const GreyImage flat(200, 200, 128);
+  Detection det;
+  int rotation = 0;
+  const Rejection why = decode(flat, clean_inner(), 10, det, rotation);
+  EXPECT_EQ(stage_of(why), Stage::grey_model) << rejection_name(why);
+}
+
+TEST(Frame8Rejection, EveryRejectionHasAStageAndADistinctName) {
+  std::set<std::string> names;
+  for (int r = 0; r <= static_cast<int>(Rejection::no_pose); ++r) {
+    const auto why = static_cast<Rejection>(r);
+    EXPECT_TRUE(names.insert(rejection_name(why)).second) << rejection_name(why);
+    EXPECT_NE(std::string(stage_name(stage_of(why))), "?") << rejection_name(why);
+  }
+  EXPECT_EQ(stage_of(Rejection::no_contrast), Stage::grey_model);
+  EXPECT_EQ(stage_of(Rejection::c1_contradicted), Stage::orientation);
+  // Another measurement is worth it past the grey model, or for a quad
+  // whose sides alone were off; not for cells too small or no contrast.
+  EXPECT_TRUE(worth_remeasuring(Rejection::sides_unequal));
+  EXPECT_TRUE(worth_remeasuring(Rejection::bit_uncorrectable));
+  EXPECT_FALSE(worth_remeasuring(Rejection::cells_too_small));
+  EXPECT_FALSE(worth_remeasuring(Rejection::no_contrast));
+}
+
+}  // namespace markerd::frame8
