@@ -59,7 +59,7 @@ constexpr double kMaxNeighbourShare = 0.7;
 // are sampled clear of the ring, the line is as dark as the black corners,
 // and the ring cells are unmixed by a few Jacobi steps.
 void Frame8Detector::unmix_ring(const Homography& H, std::array<CellSample, 4>& corner,
-                std::array<std::array<CellSample, 8>, 4>& cell) const {
+                                std::array<std::array<CellSample, 8>, 4>& cell) const {
   constexpr int kRing = 36;
   struct Mix {
     double self = 1, prev = 0, next = 0, line = 0, known = 0;  // known: hole and outside, sampled

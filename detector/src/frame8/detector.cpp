@@ -1,33 +1,13 @@
-// The frame8 detector.
-//
-// The thesis found the marker with Canny, contours and approxPolyDP and read
-// it by counting pixels per cell against a fixed 127 threshold. Here:
-//
-//  1. Segmentation on a (possibly decimated) working image: a pixel is dark
-//     when it lies a few grey levels under the mean of its neighbourhood (tile
-//     means, so the threshold follows light falloff and exposure). Light
-//     pixels are grouped into 4-connected components from row runs with
-//     union-find; the hole of a marker is a light component enclosed by the
-//     black line (8-connected dark, so a line one pixel thin on a diagonal
-//     still closes it).
-//  2. Each enclosed component's convex hull is fitted with its largest
-//     inscribed quadrilateral; components that are not quads are dropped.
-//  3. Each side of the quad is refined at full resolution: points along the
-//     side search the intensity profile across it for the light-to-dark step
-//     into the line, with sub-pixel peak interpolation, and a weighted total
-//     least-squares line is fitted (with one round of outlier rejection). The
-//     corners are the intersections. With a camera model the same edge points
-//     are fitted again in undistorted coordinates, so the corners and the pose
-//     are right under lens distortion.
-//  4. The ring is sampled at the centre of each cell (the thesis's own future
-//     work) through the homography of the refined quad; black and white levels
-//     come from the cells themselves (2-means seeded by the corners), each cell
-//     gives a soft vote, and every bit is decided over the four edges, each
-//     weighted by how well its cells are resolved. A bit with two confident
-//     dissenting edges is uncorrectable and rejects the candidate.
+// The frame8 detector that runs the stages (docs/architecture.md, "The frame8
+// pipeline"): 1 segmentation, 2 quad fitting, 3 edge refinement, 4 decoding
+// (4a cells, 4b grey model, 4c orientation, 4d bit votes, 4e structural
+// checks), 5 the whole pattern, 6 corners and pose; each in the file of its
+// name. Here: the order they run in, and the reads tried again on other
+// measurements of a quad whose first read fails.
 //
 // Memory: every buffer is a member that grows to the largest frame seen and is
-// reused, so detect() allocates nothing in steady state.
+// reused, so detect() allocates nothing in steady state (without the debug
+// output).
 
 #include "frame8/detector.hpp"
 
