@@ -30,7 +30,7 @@
 
 #include <fmt/format.h>
 
-#include "markerd/rig/gpio_recording.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 #include "markerd/rig/gpio_stepper.hpp"
 #include "markerd/rig/motion_profile.hpp"
 

@@ -10,7 +10,7 @@
 
 #include "markerd/rig/drive.hpp"
 #include "markerd/rig/gpio_lines.hpp"
-#include "markerd/rig/gpio_recording.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 
 namespace {
 

@@ -22,7 +22,7 @@
 #include <utility>
 #include <vector>
 
-#include "markerd/rig/gpio_recording.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 #include "markerd/rig/gpio_stepper.hpp"
 #include "markerd/rig/motion_profile.hpp"
 

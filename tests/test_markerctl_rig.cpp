@@ -30,7 +30,7 @@
 #include <vector>
 
 #include "markerd/rig/device_lock.hpp"
-#include "markerd/rig/modbus_drive_sim.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
 #include "modbus/peers.hpp"
 

@@ -16,7 +16,7 @@
 #include "markerd/rig/axis.hpp"
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/modbus_drive.hpp"
-#include "markerd/rig/modbus_drive_sim.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
 #include "modbus/peers.hpp"
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <unistd.h>
 
-#include "markerd/rig/modbus_drive_sim.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/rig_config.hpp"
 #include "modbus/peers.hpp"
 

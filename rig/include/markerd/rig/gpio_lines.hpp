@@ -1,8 +1,9 @@
 #pragma once
 // GPIO line access behind a small interface, so that the stepper does not
 // depend on one libgpiod API: Debian's libgpiod 1.6 backend now, a libgpiod 2
-// backend later, and a recording backend (gpio_recording.hpp) that stamps every
-// output edge and lets tests (and benchmarks) drive the inputs.
+// backend later, and a recording backend for the tests and benchmarks
+// (rig/testing/, markerd/rig/testing/gpio_recording.hpp) that stamps every
+// output edge and lets them drive the inputs.
 //
 // Values are logical: true = active. Active-low lines are inverted by the
 // backend, so the stepper never sees electrical levels.

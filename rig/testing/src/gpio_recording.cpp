@@ -1,4 +1,4 @@
-#include "markerd/rig/gpio_recording.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 
 #include <sys/eventfd.h>
 #include <unistd.h>

@@ -1,4 +1,4 @@
-#include "markerd/rig/modbus_drive_sim.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 
 #include <arpa/inet.h>
 #include <fmt/format.h>
