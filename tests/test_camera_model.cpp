@@ -20,6 +20,7 @@
 #include <opencv2/core.hpp>
 
 #include "markerd/detector/camera_model.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd {
 namespace {
@@ -28,28 +29,7 @@ namespace fs = std::filesystem;
 
 const fs::path kThesisFile = fs::path(MARKERD_SOURCE_DIR) / "config/cameras/thesis-640x480.yaml";
 
-// A directory of its own per test process, removed at the end.
-class TempDir {
- public:
-  TempDir() : path_(fs::temp_directory_path() / ("markerd-test-camera-" + std::to_string(::getpid()))) {
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] fs::path write(const std::string& name, const std::string& text) const {
-    const fs::path p = path_ / name;
-    std::ofstream(p) << text;
-    return p;
-  }
-  [[nodiscard]] const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
+using test_support::TempDir;
 
 const std::string kHeader = "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n";
 const std::string kGoodMatrix =

@@ -3,6 +3,7 @@
 #include <fstream>
 
 #include "markerd/base/config_table.hpp"
+#include "support/temp_dir.hpp"
 
 using markerd::ConfigError;
 using markerd::ConfigTable;
@@ -63,9 +64,8 @@ TEST(ConfigTable, SyntaxErrorsAndMissingFilesAreConfigErrors) {
   EXPECT_EQ(error_of([] { (void)ConfigTable::parse("a = \n", "x.toml"); }).rfind("x.toml:1:", 0), 0u);
   const auto missing = error_of([] { (void)ConfigTable::load_file("/nonexistent/rig.toml"); });
   EXPECT_EQ(missing.rfind("/nonexistent/rig.toml", 0), 0u) << missing;
-  const std::string path = testing::TempDir() + "/config_table.toml";
-  std::ofstream(path) << kText;
-  EXPECT_EQ(ConfigTable::load_file(path).table("rig").table("rail").required<std::string>("name"), "rail");
+  const markerd::test_support::TempDir dir;
+  EXPECT_EQ(ConfigTable::load_file(dir.write("config_table.toml", kText)).table("rig").table("rail").required<std::string>("name"), "rail");
 }
 
 TEST(ConfigTable, AnythingButARegularFileIsRefusedByName) {

@@ -16,6 +16,7 @@
 
 #include "detection_log_samples.hpp"
 #include "markerd/daemon/detection_record.hpp"
+#include "support/files.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -266,11 +267,9 @@ void collect_keys(const json& j, const std::string& prefix, std::set<std::string
 }
 
 std::string read_doc() {
-  std::ifstream in(std::filesystem::path(MARKERD_SOURCE_DIR) / "docs/detection-log.md");
-  EXPECT_TRUE(in) << "docs/detection-log.md";
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
+  std::string text = test_support::read_file(std::filesystem::path(MARKERD_SOURCE_DIR) / "docs/detection-log.md");
+  EXPECT_FALSE(text.empty()) << "docs/detection-log.md";
+  return text;
 }
 
 // The keys of the table under "### Keys": the first cell of each row, in backticks.

@@ -26,6 +26,7 @@
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/render.hpp"
 #include "markerd/base/config_table.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -59,13 +60,7 @@ bool same_pixels(const GreyView& view, const cv::Mat& expected) {
 
 class FileSourceTest : public testing::Test {
  protected:
-  void SetUp() override {
-    const auto* info = testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("markerd-file-source-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_ / "frames");
-  }
-  void TearDown() override { fs::remove_all(dir_); }
+  void SetUp() override { fs::create_directories(dir_ / "frames"); }
 
   fs::path frames() const { return dir_ / "frames"; }
 
@@ -107,7 +102,8 @@ class FileSourceTest : public testing::Test {
   }
   void done(Frame* frame) { pool_->release(*frame); }
 
-  fs::path dir_;
+  const test_support::TempDir temp_{"markerd-file-source"};
+  const fs::path dir_ = temp_.path();
   std::unique_ptr<CaptureSource> source_;
   std::unique_ptr<FramePool> pool_;
 };

@@ -16,6 +16,7 @@
 
 #include "image_fixtures.hpp"
 #include "markerd/daemon/capture/image_file.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -25,14 +26,6 @@ using test::Bytes;
 
 class ImageFile : public testing::Test {
  protected:
-  void SetUp() override {
-    const auto* info = testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("markerd-image-file-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-
   [[nodiscard]] fs::path path(const std::string& name) const { return dir_ / name; }
 
   // A colour scene with edges, gradients and noise, so that each format's
@@ -75,7 +68,8 @@ class ImageFile : public testing::Test {
     EXPECT_EQ(printed, "") << "a decoder printed on stderr for " << file;
   }
 
-  fs::path dir_;
+  const test_support::TempDir temp_{"markerd-image-file"};
+  const fs::path dir_ = temp_.path();
 };
 
 TEST_F(ImageFile, EveryFormatDecodesAsImreadDecodesIt) {

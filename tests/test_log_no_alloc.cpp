@@ -14,6 +14,7 @@
 #include "detection_log_samples.hpp"
 #include "markerd/daemon/detection_record.hpp"
 #include "markerd/daemon/log_writer.hpp"
+#include "support/temp_dir.hpp"
 
 #include "counting_new.hpp"
 
@@ -23,12 +24,11 @@ namespace {
 namespace fs = std::filesystem;
 
 TEST(LogNoAllocation, FormattingAndAppendingARecord) {
-  std::string dir_name = (fs::temp_directory_path() / "markerd-test-log-alloc-XXXXXX").string();
-  ASSERT_NE(::mkdtemp(dir_name.data()), nullptr);
+  const test_support::TempDir dir("markerd-test-log-alloc");
   {
     const samples::Stream stream;
     LogWriterConfig config;
-    config.directory = dir_name;
+    config.directory = dir.path();
     config.run_id = "alloc";
     config.max_bytes = 0;  // a rotation builds a path: allowed, but not per record
     config.fsync = FsyncPolicy::interval;
@@ -51,7 +51,6 @@ TEST(LogNoAllocation, FormattingAndAppendingARecord) {
     EXPECT_EQ(writer.stats().lines, 2008U);
     EXPECT_GT(bytes, 2000U * 1000U) << "records with detections, poses and truth";
   }
-  fs::remove_all(dir_name);
 }
 
 // The counter itself works: a string that grows is seen.

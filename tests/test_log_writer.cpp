@@ -25,6 +25,8 @@
 #include "detection_log_samples.hpp"
 #include "markerd/daemon/detection_record.hpp"
 #include "markerd/daemon/log_writer.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -32,35 +34,9 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (fs::temp_directory_path() / "markerd-test-log-XXXXXX").string();
-    if (::mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
-    path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ignored;
-    fs::remove_all(path_, ignored);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
-};
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-void write_file(const fs::path& path, const std::string& content) {
-  std::ofstream(path, std::ios::binary) << content;
-}
+using test_support::read_file;
+using test_support::TempDir;
+using test_support::write_file;
 
 // The files of a run, in index order.
 std::vector<fs::path> run_files(const fs::path& dir, const std::string& run) {

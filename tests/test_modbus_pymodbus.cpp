@@ -118,7 +118,7 @@ TEST(ModbusPymodbus, WritesAMoveInTheConfiguredWordOrderAndPulsesTheTrigger) {
   markerd::test::TempDir dir;
   const auto port_file = dir.path() / "port";
   const auto log = dir.path() / "writes.jsonl";
-  markerd::test::ChildProcess server({kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(),
+  markerd::test::PeerProcess server({kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(),
                                       "--port-file", port_file.string(), "--log", log.string(), "--target",
                                       std::to_string(kTarget), "--position", std::to_string(kPosition), "--start-coil",
                                       std::to_string(kStartCoil)},

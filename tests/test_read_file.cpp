@@ -7,6 +7,7 @@
 #include <string>
 
 #include "markerd/base/read_file.hpp"
+#include "support/temp_dir.hpp"
 
 using markerd::FileError;
 using markerd::read_regular_file;
@@ -22,36 +23,29 @@ std::string error_of(const std::filesystem::path& path, std::size_t max_bytes) {
   return "(no error)";
 }
 
-std::filesystem::path temp_path(const std::string& name) {
-  return std::filesystem::path(testing::TempDir()) / ("read_file_" + name + "_" + std::to_string(::getpid()));
-}
-
 }  // namespace
 
 TEST(ReadRegularFile, ReadsAWholeFile) {
-  const auto path = temp_path("whole");
+  const markerd::test_support::TempDir dir;
   std::string text(100000, 'x');
   text += "end";
-  std::ofstream(path) << text;
-  EXPECT_EQ(read_regular_file(path, 200000, "the plan"), text);
-  std::filesystem::remove(path);
+  EXPECT_EQ(read_regular_file(dir.write("whole", text), 200000, "the plan"), text);
 }
 
 TEST(ReadRegularFile, RefusesWhatIsNotARegularFileByKind) {
   EXPECT_EQ(error_of("/tmp", 1000), "/tmp: the plan is a directory, not a file");
   EXPECT_EQ(error_of("/dev/zero", 1000), "/dev/zero: the plan is a character device, not a file");
-  const auto fifo = temp_path("fifo");
+  const markerd::test_support::TempDir dir;
+  const auto fifo = dir / "fifo";
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   // Would block forever in open() or read() if the kind were not checked first.
   EXPECT_EQ(error_of(fifo, 1000), fifo.string() + ": the plan is a FIFO, not a file");
-  std::filesystem::remove(fifo);
 }
 
 TEST(ReadRegularFile, RefusesAFileOverTheLimitWithItsSize) {
-  const auto path = temp_path("large");
-  std::ofstream(path) << std::string(70 * 1024, 'x');
+  const markerd::test_support::TempDir dir;
+  const auto path = dir.write("large", std::string(70 * 1024, 'x'));
   EXPECT_EQ(error_of(path, 64 * 1024), path.string() + ": the plan is 70 KiB (71680 bytes), larger than the 64 KiB allowed");
-  std::filesystem::remove(path);
 }
 
 TEST(ReadRegularFile, NamesAMissingFileAndItsCause) {

@@ -26,6 +26,7 @@
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/print.hpp"
 #include "markerd/detector/render.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd {
 namespace {
@@ -560,17 +561,8 @@ std::string read_all(const std::filesystem::path& p) {
 
 // One scratch directory per process, removed at exit.
 std::filesystem::path temp_dir() {
-  struct Scratch {
-    std::filesystem::path dir =
-        std::filesystem::temp_directory_path() / ("markerd_test_render_" + std::to_string(::getpid()));
-    Scratch() { std::filesystem::create_directories(dir); }
-    ~Scratch() {
-      std::error_code ec;
-      std::filesystem::remove_all(dir, ec);
-    }
-  };
-  static const Scratch scratch;
-  return scratch.dir;
+  static const test_support::TempDir scratch{"markerd-test-render"};
+  return scratch.path();
 }
 
 std::uint32_t be32(const std::string& s, std::size_t at) {

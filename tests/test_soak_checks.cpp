@@ -19,6 +19,8 @@
 #include "markerd/sweep/plan.hpp"
 #include "markerd/sweep/records.hpp"
 #include "run_checks.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::soak {
 namespace {
@@ -38,14 +40,8 @@ std::string joined(const std::vector<std::string>& lines) {
 
 class SoakChecks : public testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("markerd-soak-checks-" + std::to_string(::getpid()) + "-" +
-                                        testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  fs::path dir_;
+  const test_support::TempDir temp_{"markerd-soak-checks"};
+  const fs::path dir_ = temp_.path();
 };
 
 TEST_F(SoakChecks, AWatchedFileKeepsWhatWasLoggedAndEveryLineParses) {
@@ -69,15 +65,9 @@ TEST_F(SoakChecks, AWatchedFileKeepsWhatWasLoggedAndEveryLineParses) {
   EXPECT_EQ(watch.totals().bad_lines, 2U);
 
   problems.clear();
-  std::string text;
-  {
-    std::ifstream in(file, std::ios::binary);
-    std::stringstream content;
-    content << in.rdbuf();
-    text = content.str();
-  }
+  std::string text = test_support::read_file(file);
   text[5] = '9';  // {"a":1} -> {"a":9}: a logged byte changed
-  std::ofstream(file, std::ios::binary | std::ios::trunc) << text;
+  test_support::write_file(file, text);
   watch.look(file, problems);
   ASSERT_GE(problems.size(), 1U);
   EXPECT_NE(problems[0].find("the 37 bytes already logged were changed"), std::string::npos) << problems[0];

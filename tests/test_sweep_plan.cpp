@@ -20,6 +20,8 @@
 #include "markerd/rig/motion_profile.hpp"
 #include "markerd/rig/rig_config.hpp"
 #include "markerd/sweep/plan.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
 
 using namespace markerd::sweep;
 using markerd::ConfigError;
@@ -124,10 +126,7 @@ TEST(SweepPlan, ShippedDemoPlanHoldsAllThree) {
 TEST(SweepPlan, TextIsKeptVerbatimAndParsesBackToTheSamePlan) {
   const auto path = kSourceDir / "config/plans/thesis.toml";
   const SweepPlan plan = load_plan(path);
-  std::ifstream file(path, std::ios::binary);
-  std::ostringstream text;
-  text << file.rdbuf();
-  EXPECT_EQ(plan.text, text.str());
+  EXPECT_EQ(plan.text, markerd::test_support::read_file(path));
   EXPECT_EQ(plan.source, path.string());
 
   const SweepPlan again = parse_plan(plan.text, plan.source);
@@ -158,11 +157,10 @@ TEST(SweepPlan, OnlyARegularFileOfAtMostTheLimitIsReadAsAPlan) {
   // /dev/zero never ends and a FIFO without a writer never answers: both are
   // refused at once, by what they are.
   EXPECT_EQ(error_of([] { (void)load_plan("/dev/zero"); }), "/dev/zero: the plan is a character device, not a file");
-  const auto fifo = std::filesystem::temp_directory_path() / ("markerd-plan-fifo-" + std::to_string(::getpid()));
-  std::filesystem::remove(fifo);
+  const markerd::test_support::TempDir dir("markerd-plan");
+  const auto fifo = dir / "fifo.toml";
   ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
   EXPECT_EQ(error_of([&] { (void)load_plan(fifo); }), fifo.string() + ": the plan is a FIFO, not a file");
-  std::filesystem::remove(fifo);
   EXPECT_THROW((void)load_plan(kSourceDir / "config/plans"), ConfigError);
 
   // One byte over the limit, in a file and as text (what markerd's sweep
@@ -174,14 +172,9 @@ TEST(SweepPlan, OnlyARegularFileOfAtMostTheLimitIsReadAsAPlan) {
   EXPECT_EQ(parse_plan(big).name, "big");  // at the limit: fine
   big.insert(0, " ");
   EXPECT_EQ(plan_error(big), "<string>: the plan is 128.0 KiB (131073 bytes), larger than the 128 KiB allowed");
-  const auto file = std::filesystem::temp_directory_path() / ("markerd-plan-big-" + std::to_string(::getpid()));
-  {
-    std::ofstream out(file);
-    out << big;
-  }
+  const auto file = dir.write("big.toml", big);
   EXPECT_EQ(error_of([&] { (void)load_plan(file); }),
             file.string() + ": the plan is 128.0 KiB (131073 bytes), larger than the 128 KiB allowed");
-  std::filesystem::remove(file);
 }
 
 TEST(SweepPlan, EveryNumberHasARangeThatMeansSomething) {

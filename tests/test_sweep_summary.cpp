@@ -13,10 +13,14 @@
 
 #include "markerd/sweep/report.hpp"
 #include "markerd/sweep/summary.hpp"
+#include "support/files.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace {
 
 namespace fs = std::filesystem;
+namespace test_support = markerd::test_support;
 using namespace markerd::sweep;
 
 FrameSample seen() {
@@ -389,38 +393,9 @@ TEST(SweepSummary, Table61MaxDistanceNotReachedWhenTheNearestFails) {
 // ---------------------------------------------------------------------------
 // write_report
 
-class TempDir {
- public:
-  TempDir()
-      : path_(fs::temp_directory_path() / ("markerd-test-report-" + std::to_string(::getpid()) + "-" +
-                                           ::testing::UnitTest::GetInstance()->current_test_info()->name())) {
-    fs::remove_all(path_);
-  }
-  ~TempDir() { fs::remove_all(path_); }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] const fs::path& path() const { return path_; }
+using test_support::TempDir;
 
- private:
-  fs::path path_;
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-bool on_path(const std::string& program) {
-  const char* path = std::getenv("PATH");
-  std::istringstream dirs(path ? path : "");
-  std::string dir;
-  while (std::getline(dirs, dir, ':')) {
-    if (!dir.empty() && ::access((fs::path(dir) / program).c_str(), X_OK) == 0) return true;
-  }
-  return false;
-}
+bool on_path(const std::string& program) { return test_support::find_program(program).has_value(); }
 
 RunRecords reported_run() {
   RunBuilder run = thesis_shaped_run();
@@ -445,7 +420,7 @@ TEST(SweepReport, WritesTheReportCsvsAndThreePlots) {
   const ReportFiles files = write_report({reported_run()}, options);
 
   EXPECT_EQ(files.report, options.output_directory / "report.md");
-  const std::string md = read_text(files.report);
+  const std::string md = test_support::read_file(files.report);
   EXPECT_NE(md.find("# Sweep report: 20261201T061500Z-thesis"), std::string::npos);
   EXPECT_NE(md.find("2026-12-01 06:15:00 UTC"), std::string::npos);
   EXPECT_NE(md.find("| Maximum detection distance | 120 cm | 70 cm |"), std::string::npos) << md;
@@ -460,14 +435,14 @@ TEST(SweepReport, WritesTheReportCsvsAndThreePlots) {
     EXPECT_NE(md.find(std::string("](") + name + ".svg)"), std::string::npos) << name;
     const fs::path svg = options.output_directory / (std::string(name) + ".svg");
     EXPECT_NE(std::find(files.plots.begin(), files.plots.end(), svg), files.plots.end()) << name;
-    EXPECT_NE(read_text(svg).find("<svg"), std::string::npos) << name;
+    EXPECT_NE(test_support::read_file(svg).find("<svg"), std::string::npos) << name;
     EXPECT_TRUE(fs::exists(options.output_directory / (std::string(name) + ".gp"))) << name;
   }
-  EXPECT_EQ(read_text(options.output_directory / "summary.csv"), points_csv(summarize(reported_run())));
-  EXPECT_EQ(read_text(options.output_directory / "translation.csv"), translation_csv(summarize(reported_run())));
+  EXPECT_EQ(test_support::read_file(options.output_directory / "summary.csv"), points_csv(summarize(reported_run())));
+  EXPECT_EQ(test_support::read_file(options.output_directory / "translation.csv"), translation_csv(summarize(reported_run())));
   // Thesis-shaped (a row and two columns of distance x angle): curves of rate
   // against angle, one per distance swept, not a heat map.
-  const std::string rate_map = read_text(options.output_directory / "rate-map.gp");
+  const std::string rate_map = test_support::read_file(options.output_directory / "rate-map.gp");
   EXPECT_NE(rate_map.find("'rate-map-1.dat' index 1 using 1:2"), std::string::npos) << rate_map;
   EXPECT_EQ(rate_map.find("boxxyerror"), std::string::npos) << rate_map;
 }
@@ -486,7 +461,7 @@ TEST(SweepReport, SideBySideHasAColumnAndACurvePerRun) {
   options.output_directory = dir.path();
   const ReportFiles files = write_report({reported_run(), block.records}, options);
 
-  const std::string md = read_text(files.report);
+  const std::string md = test_support::read_file(files.report);
   EXPECT_NE(md.find("# Sweep report: 20261201T061500Z-thesis, 20261202T061500Z-block"), std::string::npos);
   EXPECT_NE(md.find("| Maximum detection distance | 120 cm | 70 cm | 75 cm |"), std::string::npos) << md;
   EXPECT_NE(md.find("## Points: 20261202T061500Z-block"), std::string::npos);
@@ -494,11 +469,11 @@ TEST(SweepReport, SideBySideHasAColumnAndACurvePerRun) {
   EXPECT_TRUE(fs::exists(dir.path() / "translation-20261202T061500Z-block.csv"));
   EXPECT_EQ(files.csv.size(), 4u);
 
-  const std::string rate = read_text(dir.path() / "rate-vs-distance.gp");
+  const std::string rate = test_support::read_file(dir.path() / "rate-vs-distance.gp");
   EXPECT_NE(rate.find("'rate-vs-distance-1.dat' using 1:2"), std::string::npos) << rate;
   EXPECT_NE(rate.find("'rate-vs-distance-2.dat' using 1:2"), std::string::npos) << rate;
   EXPECT_NE(rate.find("90 with lines dt 2"), std::string::npos) << "the threshold, dashed: " << rate;
-  const std::string rate_map = read_text(dir.path() / "rate-map.gp");
+  const std::string rate_map = test_support::read_file(dir.path() / "rate-map.gp");
   EXPECT_NE(rate_map.find("'rate-map-2.dat' using 1:2:(0.125):(15):3 with boxxyerror"), std::string::npos) << rate_map;
   EXPECT_NE(rate_map.find("set multiplot layout 2,1"), std::string::npos);
 }
@@ -512,7 +487,7 @@ TEST(SweepReport, WithoutPlotsNeedsNoGnuplot) {
   const ReportFiles files = write_report({reported_run()}, options);
   EXPECT_TRUE(files.plots.empty());
   EXPECT_TRUE(fs::exists(files.report));
-  EXPECT_EQ(read_text(files.report).find(".svg"), std::string::npos);
+  EXPECT_EQ(test_support::read_file(files.report).find(".svg"), std::string::npos);
   EXPECT_FALSE(fs::exists(dir.path() / "rate-map.gp"));
 }
 

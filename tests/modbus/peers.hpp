@@ -1,24 +1,19 @@
 #pragma once
-// The real peers of the Modbus tests and benchmark: a temporary directory, a
-// child process that is always killed and reaped (socat, Debian's python),
-// and a socat pseudo-terminal pair standing in for an RS-485 line.
-// GoogleTest-free, so that bench/bench_modbus.cpp can use it too.
-
-#include <fcntl.h>
-#include <signal.h>
-#include <sys/prctl.h>
-#include <sys/wait.h>
-#include <unistd.h>
+// The real peers of the Modbus tests and benchmark: a child process that is
+// always terminated and reaped (socat, Debian's python), and a socat
+// pseudo-terminal pair standing in for an RS-485 line. GoogleTest-free, so
+// that bench/bench_modbus.cpp can use it too.
 
 #include <chrono>
-#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <stdexcept>
 #include <string>
 #include <thread>
-#include <utility>
 #include <vector>
+
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::test {
 
@@ -33,85 +28,26 @@ inline bool wait_for(const std::function<bool()>& condition,
   return true;
 }
 
-// A fresh directory under the system's temp directory, removed with
-// everything in it.
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (std::filesystem::temp_directory_path() / "markerd-modbus-XXXXXX").string();
-    if (::mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
-    path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ignored;
-    std::filesystem::remove_all(path_, ignored);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] const std::filesystem::path& path() const { return path_; }
+using test_support::TempDir;
 
- private:
-  std::filesystem::path path_;
-};
-
-// A child process with its output in `log`. The destructor terminates and
-// reaps it; should this process die first, the kernel sends the child
-// SIGTERM (PR_SET_PDEATHSIG), so no test leaves a peer behind.
-class ChildProcess {
+// A peer program (found in PATH when not named by its path) with its output
+// in `log`. The destructor terminates it (SIGTERM, then SIGKILL after 5 s)
+// and reaps it; should this process die first, the kernel kills it
+// (PR_SET_PDEATHSIG), so no test leaves a peer behind.
+class PeerProcess {
  public:
-  ChildProcess(std::vector<std::string> argv, const std::filesystem::path& log) {
-    std::vector<char*> args;
-    for (auto& a : argv) args.push_back(a.data());
-    args.push_back(nullptr);
-    const pid_t parent = ::getpid();
-    pid_ = ::fork();
-    if (pid_ < 0) throw std::runtime_error("fork failed");
-    if (pid_ == 0) {
-      // Only async-signal-safe calls between fork and exec.
-      ::prctl(PR_SET_PDEATHSIG, SIGTERM);
-      if (::getppid() != parent) ::_exit(127);
-      const int fd = ::open(log.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
-      if (fd >= 0) {
-        ::dup2(fd, STDOUT_FILENO);
-        ::dup2(fd, STDERR_FILENO);
-      }
-      ::execvp(args[0], args.data());
-      ::_exit(127);
-    }
+  PeerProcess(const std::vector<std::string>& argv, const std::filesystem::path& log) { process_.start(argv, log); }
+  ~PeerProcess() {
+    if (process_.running() && !process_.terminate(std::chrono::seconds(5))) (void)process_.kill9();
   }
-  ~ChildProcess() { terminate(); }
-  ChildProcess(const ChildProcess&) = delete;
-  ChildProcess& operator=(const ChildProcess&) = delete;
+  PeerProcess(const PeerProcess&) = delete;
+  PeerProcess& operator=(const PeerProcess&) = delete;
 
   // Still running (not exited)?
-  bool running() {
-    if (pid_ <= 0) return false;
-    int status = 0;
-    if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-      pid_ = -1;
-      return false;
-    }
-    return true;
-  }
-
-  void terminate() {
-    if (pid_ <= 0) return;
-    ::kill(pid_, SIGTERM);
-    int status = 0;
-    for (int i = 0; i < 500; ++i) {  // up to 5 s, then no more patience
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    ::kill(pid_, SIGKILL);
-    ::waitpid(pid_, &status, 0);
-    pid_ = -1;
-  }
+  bool running() { return process_.running() && !process_.exited(); }
 
  private:
-  pid_t pid_ = -1;
+  test_support::ChildProcess process_;
 };
 
 // Two pseudo-terminals joined by socat: bytes written to one end are read at
@@ -135,7 +71,7 @@ class SocatPtyPair {
 
  private:
   std::filesystem::path a_, b_;
-  ChildProcess socat_;
+  PeerProcess socat_;
 };
 
 }  // namespace markerd::test
