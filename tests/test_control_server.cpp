@@ -11,7 +11,6 @@
 #include <grp.h>
 #include <gtest/gtest.h>
 #include <poll.h>
-#include <spawn.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -34,14 +33,16 @@
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/control/control_server.hpp"
 #include "markerd/daemon/control/line_broadcast.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
 using namespace markerd::daemon;
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
-
-extern char** environ;
+using markerd::test_support::Outcome;
+using markerd::test_support::TempDir;
 
 namespace {
 
@@ -135,25 +136,6 @@ class RawClient {
   int fd_ = -1;
   std::string buffer_;
   bool ended_ = false;
-};
-
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (fs::temp_directory_path() / "markerd-control-XXXXXX").string();
-    if (::mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
-    path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] const fs::path& path() const { return path_; }
-
- private:
-  fs::path path_;
 };
 
 // Handlers of every kind a daemon registers.
@@ -1006,80 +988,17 @@ TEST_F(ControlServerTest, ArgumentsAreReadByNameTypeAndRangeWithErrorsThatNameTh
 
 // ---------------------------------------------------------------- markerctl
 
-struct Outcome {
-  int code = -1;
-  std::string out;
-  std::string err;
-  [[nodiscard]] std::string describe() const {
-    return "exit " + std::to_string(code) + "\n--- stdout\n" + out + "--- stderr\n" + err;
-  }
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
-// Runs the real markerctl (posix_spawn: this process has threads) with
-// MARKERD_SOCKET set to `socket_env` or unset, output through files; `uid`
-// runs it as that user.
-Outcome run_markerctl(const TempDir& dir, const std::vector<std::string>& args, std::optional<uid_t> uid = {},
+// Runs the real markerctl with MARKERD_SOCKET set to `socket_env` or unset;
+// `uid` runs it as that user.
+Outcome run_markerctl(const std::vector<std::string>& args, std::optional<uid_t> uid = {},
                       const std::optional<std::string>& socket_env = {}, std::chrono::seconds timeout = 60s) {
-  const fs::path out = dir.path() / "markerctl.stdout";
-  const fs::path err = dir.path() / "markerctl.stderr";
-  std::vector<std::string> strings{MARKERCTL_PATH};
-  strings.insert(strings.end(), args.begin(), args.end());
-  std::vector<char*> argv;
-  for (auto& s : strings) argv.push_back(s.data());
-  argv.push_back(nullptr);
-  std::vector<char*> envp;
-  for (char** e = environ; *e != nullptr; ++e) {
-    if (std::strncmp(*e, "MARKERD_SOCKET=", 15) != 0) envp.push_back(*e);
-  }
-  std::string socket_variable = "MARKERD_SOCKET=" + socket_env.value_or("");
-  if (socket_env) envp.push_back(socket_variable.data());
-  envp.push_back(nullptr);
-  Outcome outcome;
-  pid_t pid = -1;
-  if (uid) {
-    // setuid between fork and exec: only async-signal-safe calls there.
-    pid = ::fork();
-    if (pid == 0) {
-      const int o = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-      const int e = ::open(err.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-      if (o < 0 || e < 0 || ::dup2(o, 1) < 0 || ::dup2(e, 2) < 0) ::_exit(126);
-      if (::setgroups(0, nullptr) != 0 || ::setgid(*uid) != 0 || ::setuid(*uid) != 0) ::_exit(125);
-      ::execve(argv[0], argv.data(), envp.data());
-      ::_exit(127);
-    }
-  } else {
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (::posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), envp.data()) != 0) pid = -1;
-    posix_spawn_file_actions_destroy(&actions);
-  }
-  if (pid < 0) {
-    ADD_FAILURE() << "cannot start " << MARKERCTL_PATH;
-    return outcome;
-  }
-  int status = 0;
-  const auto deadline = Clock::now() + timeout;
-  while (::waitpid(pid, &status, WNOHANG) == 0) {
-    if (Clock::now() > deadline) {
-      ::kill(pid, SIGKILL);
-      ::waitpid(pid, &status, 0);
-      ADD_FAILURE() << "markerctl did not finish within " << timeout.count() << " s";
-      break;
-    }
-    std::this_thread::sleep_for(5ms);
-  }
-  outcome.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  outcome.out = read_text(out);
-  outcome.err = read_text(err);
+  std::vector<std::string> argv{MARKERCTL_PATH};
+  argv.insert(argv.end(), args.begin(), args.end());
+  markerd::test_support::ProcessOptions options;
+  options.environment = {socket_env ? "MARKERD_SOCKET=" + *socket_env : "MARKERD_SOCKET"};
+  options.user = uid;
+  const Outcome outcome = markerd::test_support::run_program(argv, options, timeout);
+  if (outcome.timed_out) ADD_FAILURE() << "markerctl did not finish within " << timeout.count() << " s";
   return outcome;
 }
 
@@ -1094,22 +1013,22 @@ class MarkerctlAgainstTheServer : public ControlServerTest {
 
 TEST_F(MarkerctlAgainstTheServer, CallSendsACommandWithArgumentsAndPrintsTheReply) {
   start();
-  Outcome r = run_markerctl(dir_, {"call", "add", R"({"a": 2, "b": 40})", "--socket", socket().string()});
+  Outcome r = run_markerctl({"call", "add", R"({"a": 2, "b": 40})", "--socket", socket().string()});
   ASSERT_EQ(r.code, 0) << r.describe();
   const json reply = json::parse(r.out);
   EXPECT_EQ(reply["ok"], true);
   EXPECT_EQ(reply["sum"], 42);
   EXPECT_EQ(r.err, "");
 
-  r = run_markerctl(dir_, {"call", "refuse", "--socket", socket().string()});
+  r = run_markerctl({"call", "refuse", "--socket", socket().string()});
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_EQ(json::parse(r.out)["ok"], false);
   EXPECT_EQ(r.err, "markerctl: call refuse: refused: not today\n");
 
-  r = run_markerctl(dir_, {"call", "add", "[1, 2]", "--socket", socket().string()});
+  r = run_markerctl({"call", "add", "[1, 2]", "--socket", socket().string()});
   EXPECT_EQ(r.code, 2) << r.describe();
   EXPECT_EQ(r.err, "markerctl: call: the arguments must be a JSON object, e.g. '{\"axis\": \"rail\"}', got '[1, 2]'\n");
-  r = run_markerctl(dir_, {"call", "add", "{a: 1}", "--socket", socket().string()});
+  r = run_markerctl({"call", "add", "{a: 1}", "--socket", socket().string()});
   EXPECT_EQ(r.code, 2) << r.describe();
   EXPECT_NE(r.err.find("markerctl: call: the arguments are not JSON:"), std::string::npos) << r.err;
 }
@@ -1120,10 +1039,10 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
     return json{{"version", "0.1.0"}, {"capture", {{"frames", 120}, {"source", "sim"}}}, {"rig", nullptr}};
   });
   server_->start();
-  Outcome r = run_markerctl(dir_, {"status", "--socket", socket().string()});
+  Outcome r = run_markerctl({"status", "--socket", socket().string()});
   ASSERT_EQ(r.code, 0) << r.describe();
   EXPECT_EQ(r.out, "capture:\n  frames: 120\n  source: sim\nrig: null\nversion: 0.1.0\n");
-  r = run_markerctl(dir_, {"status", "--json", "--socket", socket().string()});
+  r = run_markerctl({"status", "--json", "--socket", socket().string()});
   ASSERT_EQ(r.code, 0) << r.describe();
   const json status = json::parse(r.out);
   EXPECT_EQ(status["capture"]["frames"], 120);
@@ -1142,7 +1061,7 @@ TEST_F(MarkerctlAgainstTheServer, DetectionsFollowsTheStreamForCountLines) {
       std::this_thread::sleep_for(1ms);
     }
   });
-  const Outcome r = run_markerctl(dir_, {"detections", "--count", "25", "--socket", socket().string()});
+  const Outcome r = run_markerctl({"detections", "--count", "25", "--socket", socket().string()});
   stop = true;
   producer.join();
   ASSERT_EQ(r.code, 0) << r.describe();
@@ -1160,14 +1079,14 @@ TEST_F(MarkerctlAgainstTheServer, DetectionsFollowsTheStreamForCountLines) {
 }
 
 TEST_F(MarkerctlAgainstTheServer, ErrorsNameTheSocketAndTheGroupThatGrantsAccess) {
-  Outcome r = run_markerctl(dir_, {"status", "--socket", socket().string()});
+  Outcome r = run_markerctl({"status", "--socket", socket().string()});
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_EQ(r.err, "markerctl: status: cannot connect to " + socket().string() +
                        ": No such file or directory (is markerd running?)\n");
 
   // MARKERD_SOCKET is the default for --socket.
   start();
-  r = run_markerctl(dir_, {"call", "add", R"({"a": 1, "b": 2})"}, {}, socket().string());
+  r = run_markerctl({"call", "add", R"({"a": 1, "b": 2})"}, {}, socket().string());
   EXPECT_EQ(r.code, 0) << r.describe();
   EXPECT_EQ(json::parse(r.out)["sum"], 3);
 
@@ -1177,7 +1096,7 @@ TEST_F(MarkerctlAgainstTheServer, ErrorsNameTheSocketAndTheGroupThatGrantsAccess
   server_->stop();
   settings_.group = g->gr_name;
   start();
-  r = run_markerctl(dir_, {"status", "--socket", socket().string()}, uid_t{65534 - 1});  // not in nogroup
+  r = run_markerctl({"status", "--socket", socket().string()}, uid_t{65534 - 1});  // not in nogroup
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_EQ(r.err, "markerctl: status: cannot connect to " + socket().string() +
                        ": Permission denied (the socket is open to the group 'nogroup': add your user to it, e.g. "

@@ -26,6 +26,9 @@
 #include <vector>
 
 #include "image_fixtures.hpp"
+#include "support/files.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -34,36 +37,23 @@ namespace {
 
 const std::string thesis_camera_file = std::string(MARKERD_SOURCE_DIR) + "/config/cameras/thesis-640x480.yaml";
 
-struct Outcome {
-  int code = -1;
-  std::string out;
-  std::string err;
+using markerd::test_support::Outcome;
+using markerd::test_support::read_file;
 
-  // Every non-empty stdout line as JSON; a line that is not JSON fails the test.
-  [[nodiscard]] std::vector<json> json_lines() const {
-    std::vector<json> lines;
-    std::istringstream in(out);
-    std::string line;
-    while (std::getline(in, line)) {
-      if (line.empty()) continue;
-      try {
-        lines.push_back(json::parse(line));
-      } catch (const json::exception& e) {
-        ADD_FAILURE() << "stdout line is not JSON: " << line << " (" << e.what() << ")";
-      }
+// Every non-empty stdout line as JSON; a line that is not JSON fails the test.
+std::vector<json> json_lines(const Outcome& outcome) {
+  std::vector<json> lines;
+  std::istringstream in(outcome.out);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    try {
+      lines.push_back(json::parse(line));
+    } catch (const json::exception& e) {
+      ADD_FAILURE() << "stdout line is not JSON: " << line << " (" << e.what() << ")";
     }
-    return lines;
   }
-  [[nodiscard]] std::string describe() const {
-    return "exit " + std::to_string(code) + "\n--- stdout\n" + out + "--- stderr\n" + err;
-  }
-};
-
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream bytes;
-  bytes << in.rdbuf();
-  return bytes.str();
+  return lines;
 }
 
 // Width and height from a PNG's IHDR chunk (big-endian, at bytes 16 and 20).
@@ -102,47 +92,14 @@ const json* detection_at(const std::vector<json>& detections, const json& truth)
 
 class Markerctl : public ::testing::Test {
  protected:
-  void SetUp() override {
-    std::string pattern = (fs::path(::testing::TempDir()) / "markerctl-XXXXXX").string();
-    ASSERT_NE(mkdtemp(pattern.data()), nullptr) << "cannot create a temporary directory";
-    dir_ = pattern;
-  }
-  void TearDown() override {
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
-  }
-
   [[nodiscard]] std::string path(const std::string& name) const { return (dir_ / name).string(); }
 
-  // Runs markerctl with `args`; stdout and stderr go through files, so a
-  // chatty child cannot block on a full pipe.
-  Outcome run(const std::vector<std::string>& args) const {
-    const std::string out_path = path(".stdout"), err_path = path(".stderr");
-    const pid_t pid = fork();
-    if (pid == 0) {
-      const int out = open(out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      const int err = open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      if (out < 0 || err < 0 || dup2(out, 1) < 0 || dup2(err, 2) < 0) _exit(126);
-      std::vector<char*> argv;
-      std::string program = MARKERCTL_PATH;
-      argv.push_back(program.data());
-      std::vector<std::string> copies = args;
-      for (auto& a : copies) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      execv(program.c_str(), argv.data());
-      _exit(127);
-    }
-    Outcome r;
-    if (pid < 0) {
-      ADD_FAILURE() << "fork failed";
-      return r;
-    }
-    int status = 0;
-    while (waitpid(pid, &status, 0) < 0) {
-    }
-    r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    r.out = read_file(out_path);
-    r.err = read_file(err_path);
+  // Runs markerctl with `args`.
+  static Outcome run(const std::vector<std::string>& args) {
+    std::vector<std::string> argv{MARKERCTL_PATH};
+    argv.insert(argv.end(), args.begin(), args.end());
+    Outcome r = markerd::test_support::run_program(argv);
+    if (r.timed_out) ADD_FAILURE() << "markerctl did not finish: " << r.describe();
     return r;
   }
 
@@ -152,12 +109,12 @@ class Markerctl : public ::testing::Test {
     args.insert(args.end(), extra.begin(), extra.end());
     const Outcome r = run(args);
     EXPECT_EQ(r.code, 0) << r.describe();
-    const auto lines = r.json_lines();
+    const auto lines = json_lines(r);
     EXPECT_EQ(lines.size(), 1u) << r.describe();
     return lines.empty() ? json{} : lines.front();
   }
 
-  fs::path dir_;
+  const markerd::test_support::TempDir dir_{"markerctl"};
 };
 
 // ---------------------------------------------------------------- sweep check
@@ -373,7 +330,7 @@ TEST_P(RoundTrip, DetectFindsTheRenderedIdAtTheTrueCorners) {
 
   const Outcome r = run({"detect", "--family", c.family, path("frame.png")});
   ASSERT_EQ(r.code, 0) << r.describe();
-  const auto lines = r.json_lines();
+  const auto lines = json_lines(r);
   ASSERT_FALSE(lines.empty()) << r.describe();
   const json* found = detection_at(lines, truth);
   ASSERT_NE(found, nullptr) << r.describe();
@@ -401,10 +358,10 @@ TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
   for (const char* yaw : {"0", "30"}) {
     SCOPED_TRACE(std::string("yaw ") + yaw);
     const std::string file = path(std::string("yaw") + yaw + ".png");
-    const json truth = render(file.substr(dir_.string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
+    const json truth = render(file.substr(dir_.path().string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
     const Outcome r = run({"detect", "--camera", thesis_camera_file, "--size", "0.08", file});
     ASSERT_EQ(r.code, 0) << r.describe();
-    const auto lines = r.json_lines();
+    const auto lines = json_lines(r);
     const json* found = detection_at(lines, truth);
     ASSERT_NE(found, nullptr) << r.describe();
     const json& d = *found;
@@ -446,7 +403,7 @@ TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
   for (const char* name : {"missing.png", "corrupt.png", "empty.png"}) {
     EXPECT_NE(r.err.find(path(name) + ": "), std::string::npos) << name << "\n" << r.describe();
   }
-  const auto lines = r.json_lines();
+  const auto lines = json_lines(r);
   for (const auto& line : lines) EXPECT_EQ(line["file"], path("good.png")) << r.describe();
   const json* found = detection_at(lines, truth);
   ASSERT_NE(found, nullptr) << r.describe();
@@ -455,7 +412,7 @@ TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
   // A good file after a bad one is processed too.
   const Outcome last = run({"detect", path("corrupt.png"), path("good.png")});
   EXPECT_EQ(last.code, 1) << last.describe();
-  const auto last_lines = last.json_lines();
+  const auto last_lines = json_lines(last);
   EXPECT_NE(detection_at(last_lines, truth), nullptr) << last.describe();
 }
 
@@ -521,10 +478,10 @@ TEST_F(Markerctl, VerboseReportsImagesWithoutDetections) {
   render("far.png", {"--dist", "40", "--no-clutter"});
   const Outcome quiet = run({"detect", path("far.png")});
   EXPECT_EQ(quiet.code, 0) << quiet.describe();
-  EXPECT_TRUE(quiet.json_lines().empty()) << quiet.describe();
+  EXPECT_TRUE(json_lines(quiet).empty()) << quiet.describe();
   const Outcome verbose = run({"detect", "--verbose", path("far.png")});
   EXPECT_EQ(verbose.code, 0) << verbose.describe();
-  const auto lines = verbose.json_lines();
+  const auto lines = json_lines(verbose);
   ASSERT_EQ(lines.size(), 1u) << verbose.describe();
   EXPECT_EQ(lines.front()["file"], path("far.png"));
   EXPECT_EQ(lines.front()["detections"], 0);
@@ -606,7 +563,7 @@ TEST_F(Markerctl, EvaluateTinyGridPrintsATable) {
   const Outcome j = run(
       {"evaluate", "--family", "frame8", "--frames", "2", "--dist", "0.5", "--yaw-at", "none", "--json", "--quiet"});
   ASSERT_EQ(j.code, 0) << j.describe();
-  const auto lines = j.json_lines();
+  const auto lines = json_lines(j);
   ASSERT_EQ(lines.size(), 1u) << j.describe();
   EXPECT_EQ(lines.front()["family"], "frame8");
   EXPECT_EQ(lines.front()["frames"], 2);

@@ -7,7 +7,6 @@
 
 #include <fcntl.h>
 #include <gtest/gtest.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -28,23 +27,22 @@
 #include "markerd/daemon/control/control_server.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
 #include "markerd/rig/rig_config.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
 using namespace markerd::daemon;
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
-
-extern char** environ;
+using markerd::test_support::CapturedProcess;
+using markerd::test_support::Outcome;
 
 namespace {
 
 class RigCommands : public testing::Test {
  protected:
   void SetUp() override {
-    std::string pattern = (fs::temp_directory_path() / "markerd-rig-commands-XXXXXX").string();
-    ASSERT_NE(::mkdtemp(pattern.data()), nullptr);
-    dir_ = pattern;
     markerd::rig::RigConfig config = markerd::rig::load_rig_config(MARKERD_SOURCE_DIR "/config/rig-sim.toml");
     // The rail's homing from its start at 1200 mm takes 48 simulated
     // seconds, 2.4 s here. Its moves go at the homing's search velocity,
@@ -72,8 +70,6 @@ class RigCommands : public testing::Test {
     client_.reset();
     server_.reset();
     rig_.reset();
-    std::error_code ec;
-    fs::remove_all(dir_, ec);
   }
 
   json call(const json& request) { return client_->call(request); }
@@ -113,7 +109,8 @@ class RigCommands : public testing::Test {
     ASSERT_TRUE(s["rail"]["homed"].get<bool>() && s["turntable"]["homed"].get<bool>()) << s;
   }
 
-  fs::path dir_;
+  const markerd::test_support::TempDir temp_{"markerd-rig-commands"};
+  const fs::path dir_ = temp_.path();
   std::unique_ptr<markerd::rig::Rig> rig_;
   std::unique_ptr<ControlServer> server_;
   std::unique_ptr<ControlClient> client_;
@@ -300,68 +297,20 @@ TEST_F(RigCommands, EnableAndDisableOneAxisOrBoth) {
 
 // ---------------------------------------------------------------- markerctl rig without --config
 
-struct Outcome {
-  int code = -1;
-  std::string out;
-  std::string err;
-  [[nodiscard]] std::string describe() const {
-    return "exit " + std::to_string(code) + "\n--- stdout\n" + out + "--- stderr\n" + err;
-  }
-};
-
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
-
 class MarkerctlRigOnTheDaemon : public RigCommands {
  protected:
-  Outcome run(std::vector<std::string> args) { return finish(start(std::move(args))); }
+  Outcome run(std::vector<std::string> args) { return finish(*start(std::move(args))); }
 
-  // markerctl rig --socket ... ARGS, started; stdout and stderr to files.
-  pid_t start(std::vector<std::string> args) {
+  // markerctl rig --socket ... ARGS, started.
+  std::unique_ptr<CapturedProcess> start(std::vector<std::string> args) {
     args.insert(args.begin(), {MARKERCTL_PATH, "rig", "--socket", (dir_ / "control.sock").string()});
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    const fs::path out = dir_ / "stdout";
-    const fs::path err = dir_ / "stderr";
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 1, out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    pid_t pid = -1;
-    const int spawned = ::posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (spawned != 0) {
-      ADD_FAILURE() << "cannot start " << MARKERCTL_PATH << ": " << std::strerror(spawned);
-      return -1;
-    }
-    return pid;
+    return std::make_unique<CapturedProcess>(args);
   }
 
   // Waits for it (killing it after two minutes) and collects its output.
-  Outcome finish(pid_t pid) {
-    Outcome outcome;
-    if (pid < 0) return outcome;
-    const fs::path out = dir_ / "stdout";
-    const fs::path err = dir_ / "stderr";
-    int status = 0;
-    const auto deadline = Clock::now() + 120s;
-    while (::waitpid(pid, &status, WNOHANG) == 0) {
-      if (Clock::now() > deadline) {
-        ::kill(pid, SIGKILL);
-        ::waitpid(pid, &status, 0);
-        ADD_FAILURE() << "markerctl did not finish";
-        break;
-      }
-      std::this_thread::sleep_for(5ms);
-    }
-    outcome.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-    outcome.out = read_text(out);
-    outcome.err = read_text(err);
+  static Outcome finish(CapturedProcess& markerctl) {
+    Outcome outcome = markerctl.wait(120s);
+    if (outcome.timed_out) ADD_FAILURE() << "markerctl did not finish";
     return outcome;
   }
 };
@@ -425,11 +374,11 @@ TEST_F(MarkerctlRigOnTheDaemon, StatusHomeMoveJogAndStopGoThroughTheSocket) {
 
 TEST_F(MarkerctlRigOnTheDaemon, AnInterruptWhileWaitingStopsTheRig) {
   home_both();
-  const pid_t pid = start({"move", "--rail", "2400mm"});
+  const auto markerctl = start({"move", "--rail", "2400mm"});
   // Once the move is under way, Ctrl-C.
   wait_for([](const json& s) { return s["rail"]["position"].get<double>() > 50; });
-  ASSERT_EQ(::kill(pid, SIGINT), 0);
-  const Outcome r = finish(pid);
+  ASSERT_EQ(::kill(markerctl->pid(), SIGINT), 0);
+  const Outcome r = finish(*markerctl);
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_NE(r.err.find("markerctl: rig move: SIGINT: stopping the rig\n"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("markerctl: rig move: interrupted by SIGINT: rig stopped (rail at "), std::string::npos) << r.err;

@@ -29,6 +29,8 @@
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/base/config_table.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -324,17 +326,14 @@ TEST(V4l2Names, ControlNamesAsV4l2CtlPrintsThem) {
 class FakeDev : public testing::Test {
  protected:
   void SetUp() override {
-    dev_ = fs::temp_directory_path() / ("markerd-v4l2-" + std::to_string(::getpid()) + "-" +
-                                        testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dev_);
     fs::create_directories(dev_ / "v4l" / "by-id");
     fs::create_directories(dev_ / "v4l" / "by-path");
   }
-  void TearDown() override { fs::remove_all(dev_); }
 
   void touch(const std::string& name) const { std::ofstream(dev_ / name) << "not a camera"; }
 
-  fs::path dev_;
+  const test_support::TempDir temp_{"markerd-v4l2"};
+  const fs::path dev_ = temp_.path();
 };
 
 TEST_F(FakeDev, ResolvesPathsLinksAndBareNames) {
@@ -446,25 +445,22 @@ bool this_machine_has_video_nodes() {
 }
 
 #ifdef MARKERCTL_PATH
-// markerctl's output (stdout and stderr) and exit status.
-std::string markerctl(const std::string& arguments, int& exit_status) {
-  FILE* pipe = ::popen((std::string(MARKERCTL_PATH) + " " + arguments + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) throw std::runtime_error("popen markerctl");
-  std::string out;
-  std::array<char, 4096> chunk{};
-  std::size_t n = 0;
-  while ((n = std::fread(chunk.data(), 1, chunk.size(), pipe)) > 0) out.append(chunk.data(), n);
-  const int status = ::pclose(pipe);
-  exit_status = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return out;
+// markerctl's output (stdout and stderr, as a terminal shows them) and exit status.
+std::string markerctl(std::vector<std::string> arguments, int& exit_status) {
+  arguments.insert(arguments.begin(), MARKERCTL_PATH);
+  test_support::ProcessOptions options;
+  options.merge_output = true;
+  const test_support::Outcome outcome = test_support::run_program(arguments, options);
+  exit_status = outcome.code;
+  return outcome.out;
 }
 
 TEST(MarkerctlCameras, NamesWhatItCannotList) {
   int status = 0;
-  std::string out = markerctl("cameras /dev/null", status);
+  std::string out = markerctl({"cameras", "/dev/null"}, status);
   EXPECT_EQ(status, 1);
   EXPECT_TRUE(contains(out, "markerctl: cameras: /dev/null: not a V4L2 device (VIDIOC_QUERYCAP: "));
-  out = markerctl("cameras usb-Nobody_Cam-video-index0", status);
+  out = markerctl({"cameras", "usb-Nobody_Cam-video-index0"}, status);
   EXPECT_EQ(status, 1);
   EXPECT_TRUE(contains(out,
                        "markerctl: cameras: v4l2 usb-Nobody_Cam-video-index0: no such device: none of "
@@ -474,17 +470,17 @@ TEST(MarkerctlCameras, NamesWhatItCannotList) {
 TEST(MarkerctlCameras, SaysSoWhenThereIsNoCamera) {
   if (this_machine_has_video_nodes()) GTEST_SKIP() << "this machine has /dev/video* nodes";
   int status = 0;
-  EXPECT_EQ(markerctl("cameras", status),
+  EXPECT_EQ(markerctl({"cameras"}, status),
             "no V4L2 capture devices (no /dev/video* node that captures video)\nno libcamera cameras\n");
   EXPECT_EQ(status, 0);
-  EXPECT_EQ(markerctl("cameras --backend v4l2", status),
+  EXPECT_EQ(markerctl({"cameras", "--backend", "v4l2"}, status),
             "no V4L2 capture devices (no /dev/video* node that captures video)\n");
   EXPECT_EQ(status, 0);
-  EXPECT_EQ(markerctl("cameras --backend libcamera", status), "no libcamera cameras\n");
+  EXPECT_EQ(markerctl({"cameras", "--backend", "libcamera"}, status), "no libcamera cameras\n");
   EXPECT_EQ(status, 0);
-  EXPECT_EQ(markerctl("cameras --json", status), "");
+  EXPECT_EQ(markerctl({"cameras", "--json"}, status), "");
   EXPECT_EQ(status, 0);
-  EXPECT_EQ(markerctl("cameras --backend libcamera 'usb-1d6b:0104'", status),
+  EXPECT_EQ(markerctl({"cameras", "--backend", "libcamera", "usb-1d6b:0104"}, status),
             "markerctl: cameras: libcamera has no camera 'usb-1d6b:0104' (it has: none)\n");
   EXPECT_EQ(status, 1);
 }
