@@ -27,6 +27,10 @@
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
+#include "support/files.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -34,34 +38,19 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-void write_file(const fs::path& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-}
+using test_support::Outcome;
+using test_support::read_file;
+using test_support::write_file;
 
 class DaemonTest : public testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("markerd-daemon-" + std::to_string(::getpid()) + "-" + testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
     fs::create_directories(dir_ / "logs");
     fs::create_directories(dir_ / "state");
     // The example rig, with simulated time running 50 times faster than real
     // time, so that homing and moves take about a second.
-    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
-    const std::string scale = "time_scale = 1.0";
-    rig.replace(rig.find(scale), scale.size(), "time_scale = 50.0");
-    write_file(dir_ / "rig.toml", rig);
+    test_support::write_sim_rig_config(dir_ / "rig.toml", 50.0);
   }
-  void TearDown() override { fs::remove_all(dir_); }
 
   [[nodiscard]] std::string base_config() const {
     return fmt::format(R"(rig = "rig.toml"
@@ -118,7 +107,8 @@ directory = "state"
     return {error, fmt::format("{}:{}", path.string(), number)};
   }
 
-  fs::path dir_;
+  const test_support::TempDir temp_{"markerd-daemon"};
+  const fs::path dir_ = temp_.path();
 };
 
 TEST_F(DaemonTest, TheExampleConfigLoads) {
@@ -208,9 +198,7 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     // The rig file's own errors name the rig file.
-    std::string rig = read_file(dir_ / "rig.toml");
-    rig.replace(rig.find("max_velocity = 50.0"), 19, "max_velocity = -50.0");
-    write_file(dir_ / "rig.toml", rig);
+    test_support::TomlConfig::load(dir_ / "rig.toml").set("rig.rail.max_velocity", -50.0).write(dir_ / "rig.toml");
     const auto [error, where] = error_with("[marker]", "[marker]");
     EXPECT_NE(error.find((dir_ / "rig.toml").string() + ":"), std::string::npos) << error;
     EXPECT_NE(error.find("rig.rail.max_velocity: "), std::string::npos) << error;
@@ -429,47 +417,25 @@ TEST_F(DaemonTest, ReopeningTheLogAfterARenameStartsANewFile) {
 
 // The markerd binary's --check-config, what systemd's ExecStartPre runs:
 // exit 0 and a summary for a good file, 1 and the file:line:key for a bad one.
-struct Outcome {
-  int code = -1;
-  std::string out, err;
-};
-
-Outcome run_markerd(const fs::path& dir, const std::vector<std::string>& args) {
-  const fs::path out_path = dir / ".stdout", err_path = dir / ".stderr";
-  const pid_t pid = fork();
-  if (pid == 0) {
-    const int out = open(out_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    const int err = open(err_path.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (out < 0 || err < 0 || dup2(out, 1) < 0 || dup2(err, 2) < 0) _exit(126);
-    std::string program = MARKERD_PATH;
-    std::vector<std::string> copies = args;
-    std::vector<char*> argv{program.data()};
-    for (auto& a : copies) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    execv(program.c_str(), argv.data());
-    _exit(127);
-  }
-  Outcome r;
-  int status = 0;
-  while (waitpid(pid, &status, 0) < 0) {
-  }
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-  r.out = read_file(out_path);
-  r.err = read_file(err_path);
+Outcome run_markerd(const std::vector<std::string>& args) {
+  std::vector<std::string> argv{MARKERD_PATH};
+  argv.insert(argv.end(), args.begin(), args.end());
+  Outcome r = test_support::run_program(argv);
+  if (r.timed_out) ADD_FAILURE() << "markerd did not finish: " << r.describe();
   return r;
 }
 
 TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
   const fs::path path = dir_ / "markerd.toml";
   write_file(path, base_config());
-  const Outcome good = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  const Outcome good = run_markerd({"--check-config", "--config", path.string()});
   EXPECT_EQ(good.code, 0) << good.err;
   EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165", 0), 0U) << good.out;
 
   std::string text = base_config();
   text.replace(text.find("fps = 30"), 8, "fps = -1");
   write_file(path, text);
-  const Outcome bad = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  const Outcome bad = run_markerd({"--check-config", "--config", path.string()});
   EXPECT_EQ(bad.code, 1);
   EXPECT_NE(bad.err.find(path.string() + ":"), std::string::npos) << bad.err;
   EXPECT_NE(bad.err.find("camera.sim.fps: must be > 0 and <= 1000, got -1"), std::string::npos) << bad.err;
@@ -478,12 +444,12 @@ TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
   EXPECT_FALSE(fs::exists(dir_ / "control.sock"));
 
   // Run for real with the bad file: the same error, exit 1, nothing written.
-  const Outcome start = run_markerd(dir_, {"--config", path.string()});
+  const Outcome start = run_markerd({"--config", path.string()});
   EXPECT_EQ(start.code, 1);
   EXPECT_NE(start.err.find("camera.sim.fps: must be > 0 and <= 1000, got -1"), std::string::npos) << start.err;
   EXPECT_TRUE(fs::is_empty(dir_ / "logs"));
 
-  const Outcome usage = run_markerd(dir_, {"--no-such-option"});
+  const Outcome usage = run_markerd({"--no-such-option"});
   EXPECT_EQ(usage.code, 2);
 }
 
@@ -500,7 +466,7 @@ TEST_F(DaemonTest, CheckConfigPassesAConfigWithoutACameraModel) {
   text.replace(text.find(sim_table), sim_table.size(),
                fmt::format("[camera.file]\npath = \"{}/tests\"\n", MARKERD_SOURCE_DIR));
   write_file(path, text);
-  const Outcome outcome = run_markerd(dir_, {"--check-config", "--config", path.string()});
+  const Outcome outcome = run_markerd({"--check-config", "--config", path.string()});
   EXPECT_EQ(outcome.code, 0) << outcome.err;
   EXPECT_EQ(outcome.out.rfind(path.string() + ": ok (camera: file", 0), 0U) << outcome.out << outcome.err;
 }
@@ -517,7 +483,7 @@ TEST_F(DaemonTest, CheckConfigFindsWhatWouldKeepTheControlSocketFromStarting) {
     text.replace(at, control.size(), lines);
     write_file(path, text);
     const auto first = 1 + std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(at), '\n');
-    return std::pair(run_markerd(dir_, {"--check-config", "--config", path.string()}), first);
+    return std::pair(run_markerd({"--check-config", "--config", path.string()}), first);
   };
   {
     const auto [outcome, line] = check_with("socket = \"control.sock\"\ngroup = \"markerd-test-no-such-group\"");

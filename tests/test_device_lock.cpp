@@ -14,7 +14,9 @@
 #include <string>
 
 #include "markerd/rig/device_lock.hpp"
-#include "modbus/peers.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 using namespace markerd::rig;
 namespace fs = std::filesystem;
@@ -23,12 +25,7 @@ namespace {
 
 const fs::path kSourceDir = MARKERD_SOURCE_DIR;
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using markerd::test_support::read_file;
 
 std::string refusal(const std::vector<DeviceClaim>& claims, const fs::path& dir) {
   try {
@@ -72,16 +69,17 @@ TEST(DeviceClaims, OnePerDeviceOfEachShippedRig) {
 }
 
 TEST(DeviceClaims, TwoNamesOfOneSerialDeviceLockOneFile) {
-  markerd::test::TempDir dir;
+  markerd::test_support::TempDir dir;
   const fs::path device = dir.path() / "ttyUSB7";
   std::ofstream(device) << "";
   const fs::path by_id = dir.path() / "usb-FTDI_FT232R-if00-port0";
   fs::create_symlink(device, by_id);
-  std::string text = read_text(kSourceDir / "config/rig-modbus-rtu.toml");
-  text.replace(text.find("/dev/ttyUSB0"), 12, by_id.string());
-  text.replace(text.find("map = \"drives/"), 14, "map = \"" + (kSourceDir / "config/drives/").string());
-  text.replace(text.find("map = \"drives/"), 14, "map = \"" + (kSourceDir / "config/drives/").string());
-  std::ofstream(dir.path() / "rig.toml") << text;
+  const std::string map = (kSourceDir / "config/drives/generic.toml").string();
+  markerd::test_support::TomlConfig::load(kSourceDir / "config/rig-modbus-rtu.toml")
+      .set("rig.buses.rtu0.device", by_id.string())
+      .set("rig.rail.modbus.map", map)
+      .set("rig.turntable.modbus.map", map)
+      .write(dir.path() / "rig.toml");
   const auto claims = device_claims(load_rig_config(dir.path() / "rig.toml"));
   ASSERT_EQ(claims.size(), 1u);
   EXPECT_EQ(claims[0].device, fs::weakly_canonical(device).string());
@@ -93,13 +91,13 @@ TEST(DeviceClaims, TwoNamesOfOneSerialDeviceLockOneFile) {
 }
 
 TEST(DeviceLock, CreatesItsDirectoryAndRecordsTheHolder) {
-  markerd::test::TempDir dir;
+  markerd::test_support::TempDir dir;
   const fs::path locks = dir.path() / "run" / "markerd";
   DeviceLock lock({claim("gpio", "/dev/gpiochip0", "rail's GPIO chip gpiochip0")}, locks);
   EXPECT_EQ((fs::status(locks).permissions() & fs::perms::all) , fs::perms::all);
   ASSERT_EQ(lock.files().size(), 1u);
   EXPECT_EQ(lock.files()[0], locks / "gpio-dev_gpiochip0.lock");
-  const std::string record = read_text(lock.files()[0]);
+  const std::string record = read_file(lock.files()[0]);
   EXPECT_EQ(record.rfind(std::to_string(::getpid()) + "\n", 0), 0u) << record;
   EXPECT_NE(record.find("test_device_lock"), std::string::npos) << record;
 }
@@ -115,7 +113,7 @@ TEST(DeviceLock, TheDirectoryComesFromTheEnvironment) {
 }
 
 TEST(DeviceLock, AllOrNoneAndTheRefusalNamesTheHolder) {
-  markerd::test::TempDir dir;
+  markerd::test_support::TempDir dir;
   const DeviceClaim chip = claim("gpio", "/dev/gpiochip0", "rail's GPIO chip gpiochip0");
   const DeviceClaim serial = claim("serial", "/dev/ttyUSB0", "turntable's /dev/ttyUSB0");
   auto held = std::make_unique<DeviceLock>(std::vector<DeviceClaim>{serial}, dir.path());
@@ -132,7 +130,7 @@ TEST(DeviceLock, AllOrNoneAndTheRefusalNamesTheHolder) {
 
   // Released with its holder, and emptied of its record.
   held.reset();
-  EXPECT_EQ(read_text(dir.path() / "serial-dev_ttyUSB0.lock"), "");
+  EXPECT_EQ(read_file(dir.path() / "serial-dev_ttyUSB0.lock"), "");
   DeviceLock both({serial, chip}, dir.path());
   EXPECT_EQ(both.files().size(), 2u);
   // Moving a lock keeps it held.
@@ -142,7 +140,7 @@ TEST(DeviceLock, AllOrNoneAndTheRefusalNamesTheHolder) {
 }
 
 TEST(DeviceLock, AnotherProcessIsRefusedUntilTheHolderEnds) {
-  markerd::test::TempDir dir;
+  markerd::test_support::TempDir dir;
   const DeviceClaim sim = claim("sim", "/etc/rig.toml", "rail's simulated rig /etc/rig.toml");
   int locked[2], release[2];
   ASSERT_EQ(::pipe(locked), 0);

@@ -33,6 +33,10 @@
 #include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
 #include "modbus/peers.hpp"
+#include "support/files.hpp"
+#include "support/process.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 namespace fs = std::filesystem;
 using nlohmann::json;
@@ -42,80 +46,18 @@ namespace {
 
 const fs::path kSourceDir = MARKERD_SOURCE_DIR;
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
+using markerd::test_support::CapturedProcess;
+using markerd::test_support::exit_code;
+using markerd::test_support::Outcome;
+using markerd::test_support::read_file;
+
+// markerctl with `args`, started, its device locks in `lock_dir`.
+std::unique_ptr<CapturedProcess> start_markerctl(const std::vector<std::string>& args, const fs::path& lock_dir) {
+  std::vector<std::string> argv{MARKERCTL_PATH};
+  argv.insert(argv.end(), args.begin(), args.end());
+  return std::make_unique<CapturedProcess>(argv, markerd::test_support::ProcessOptions{
+                                                     {"MARKERD_LOCK_DIR=" + lock_dir.string()}, std::nullopt});
 }
-
-void replace_all(std::string& text, const std::string& from, const std::string& to) {
-  for (auto at = text.find(from); at != std::string::npos; at = text.find(from, at + to.size())) {
-    text.replace(at, from.size(), to);
-  }
-}
-
-struct Outcome {
-  int code = -1;
-  std::string out;
-  std::string err;
-  [[nodiscard]] std::string describe() const {
-    return "exit " + std::to_string(code) + "\n--- stdout\n" + out + "--- stderr\n" + err;
-  }
-};
-
-int exit_code(int status) { return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status); }
-
-// A markerctl started in the background; killed and reaped if the test
-// leaves it running.
-class Markerctl {
- public:
-  Markerctl(const std::vector<std::string>& args, const fs::path& dir, const fs::path& lock_dir, const std::string& tag)
-      : out_(dir / (tag + ".stdout")), err_(dir / (tag + ".stderr")) {
-    std::vector<std::string> argv{MARKERCTL_PATH};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const std::string lock_env = "MARKERD_LOCK_DIR=" + lock_dir.string();
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      const int out = ::open(out_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      const int err = ::open(err_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-      if (out < 0 || err < 0 || ::dup2(out, 1) < 0 || ::dup2(err, 2) < 0) ::_exit(126);
-      ::putenv(const_cast<char*>(lock_env.c_str()));
-      std::vector<char*> raw;
-      for (auto& a : argv) raw.push_back(a.data());
-      raw.push_back(nullptr);
-      ::execv(raw[0], raw.data());
-      ::_exit(127);
-    }
-  }
-  ~Markerctl() {
-    if (pid_ > 0 && !status_) {
-      ::kill(pid_, SIGKILL);
-      int ignored = 0;
-      ::waitpid(pid_, &ignored, 0);
-    }
-  }
-  Markerctl(const Markerctl&) = delete;
-  Markerctl& operator=(const Markerctl&) = delete;
-
-  [[nodiscard]] pid_t pid() const { return pid_; }
-  [[nodiscard]] std::string out() const { return read_text(out_); }
-
-  Outcome wait() {
-    if (!status_) {
-      int status = 0;
-      while (::waitpid(pid_, &status, 0) < 0) {
-      }
-      status_ = status;
-    }
-    return Outcome{exit_code(*status_), read_text(out_), read_text(err_)};
-  }
-
- private:
-  fs::path out_, err_;
-  pid_t pid_ = -1;
-  std::optional<int> status_;
-};
 
 class MarkerctlRig : public ::testing::Test {
  protected:
@@ -123,23 +65,18 @@ class MarkerctlRig : public ::testing::Test {
   [[nodiscard]] fs::path lock_dir() const { return temp_.path() / "locks"; }
 
   Outcome run(const std::vector<std::string>& args) {
-    Markerctl child(args, dir(), lock_dir(), fmt::format("run{}", ++runs_));
-    return child.wait();
+    Outcome outcome = start_markerctl(args, lock_dir())->wait();
+    if (outcome.timed_out) ADD_FAILURE() << "markerctl did not finish: " << outcome.describe();
+    return outcome;
   }
 
   // config/rig-sim.toml at `time_scale` simulated seconds per real second.
   std::string sim_config(double time_scale) {
-    std::string text = read_text(kSourceDir / "config/rig-sim.toml");
-    const std::string line = "time_scale = 1.0 ";
-    EXPECT_NE(text.find(line), std::string::npos);
-    replace_all(text, line, fmt::format("time_scale = {:.1f} ", time_scale));
-    const fs::path path = dir() / fmt::format("rig-sim-x{}.toml", time_scale);
-    std::ofstream(path) << text;
-    return path.string();
+    return markerd::test_support::write_sim_rig_config(dir() / fmt::format("rig-sim-x{}.toml", time_scale), time_scale)
+        .string();
   }
 
-  markerd::test::TempDir temp_;
-  int runs_ = 0;
+  const markerd::test_support::TempDir temp_{"markerd-markerctl-rig"};
 };
 
 // "rail: at 250.000 mm" -> 250
@@ -254,29 +191,29 @@ TEST_F(MarkerctlRig, MoveWithHomeHomesThenMovesBothAxes) {
 TEST_F(MarkerctlRig, ASecondProcessIsRefusedWhileTheFirstHoldsTheRig) {
   // Real time: the homing alone takes about 50 s, far longer than the test needs.
   const std::string config = sim_config(1);
-  Markerctl first({"rig", "--config", config, "move", "--home", "--rail", "2400mm"}, dir(), lock_dir(), "first");
+  const auto first = start_markerctl({"rig", "--config", config, "move", "--home", "--rail", "2400mm"}, lock_dir());
   // The first holds the lock once its record is in the lock file.
   const fs::path lock_file =
       markerd::rig::DeviceLock::file_for({"sim", fs::weakly_canonical(config).string(), ""}, lock_dir());
   std::string record;
   ASSERT_TRUE(markerd::test::wait_for(
       [&] {
-        record = read_text(lock_file);
-        return record.rfind(std::to_string(first.pid()) + "\n", 0) == 0;
+        record = read_file(lock_file);
+        return record.rfind(std::to_string(first->pid()) + "\n", 0) == 0;
       },
       30s))
       << lock_file << ": " << record;
-  ASSERT_TRUE(markerd::test::wait_for([&] { return first.out().find("rail: homing") != std::string::npos; }, 30s));
+  ASSERT_TRUE(markerd::test::wait_for([&] { return first->out().find("rail: homing") != std::string::npos; }, 30s));
 
   const Outcome second = run({"rig", "--config", config, "status"});
   EXPECT_EQ(second.code, 1) << second.describe();
-  EXPECT_NE(second.err.find("is in use by markerctl (pid " + std::to_string(first.pid()) + ": "), std::string::npos)
+  EXPECT_NE(second.err.find("is in use by markerctl (pid " + std::to_string(first->pid()) + ": "), std::string::npos)
       << second.describe();
   EXPECT_EQ(second.err.rfind("markerctl: rig status: rail's and turntable's simulated rig ", 0), 0u) << second.describe();
 
   // SIGINT: a controlled stop, the axes disabled, a non-zero exit.
-  ASSERT_EQ(::kill(first.pid(), SIGINT), 0);
-  const Outcome interrupted = first.wait();
+  ASSERT_EQ(::kill(first->pid(), SIGINT), 0);
+  const Outcome interrupted = first->wait();
   EXPECT_EQ(interrupted.code, 1) << interrupted.describe();
   EXPECT_NE(interrupted.err.find("markerctl: rig move: interrupted by SIGINT: stopped, axes disabled (rail at "),
             std::string::npos)
@@ -299,14 +236,9 @@ TEST_F(MarkerctlRig, AModbusTcpRigMovesBothAxes) {
   markerd::rig::ModbusDriveSim turntable({unit(500)}, markerd::rig::ModbusSimTcp{}, clock);
   rail.start();
   turntable.start();
-  std::string text = read_text(kSourceDir / "config/rig-modbus-tcp.toml");
-  replace_all(text, "host = \"192.168.10.21\"\nport = 502", fmt::format("host = \"127.0.0.1\"\nport = {}", rail.port()));
-  replace_all(text, "host = \"192.168.10.22\"\nport = 502",
-              fmt::format("host = \"127.0.0.1\"\nport = {}", turntable.port()));
-  replace_all(text, "response_timeout_ms = 100", "response_timeout_ms = 500");
-  replace_all(text, "map = \"drives/", "map = \"" + (kSourceDir / "config/drives/").string());
-  const std::string config = (dir() / "rig-modbus-tcp.toml").string();
-  std::ofstream(config) << text;
+  const std::string config =
+      markerd::test_support::write_modbus_tcp_rig_config(dir() / "rig-modbus-tcp.toml", rail.port(), turntable.port())
+          .string();
 
   const Outcome r = run({"rig", "--config", config, "move", "--home", "--rail", "100mm", "--turntable", "10deg"});
   ASSERT_EQ(r.code, 0) << r.describe();

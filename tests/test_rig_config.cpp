@@ -13,7 +13,9 @@
 
 #include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/rig_config.hpp"
-#include "modbus/peers.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 using namespace markerd::rig;
 using markerd::ConfigError;
@@ -66,13 +68,6 @@ home_switch_at = 0.0
 
 class RigConfigFile : public testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = std::filesystem::temp_directory_path() / fmt::format("markerd-rig-config-{}", ::getpid());
-    std::filesystem::create_directories(dir_);
-    path_ = dir_ / "rig.toml";
-  }
-  void TearDown() override { std::filesystem::remove_all(dir_); }
-
   RigConfig load(const std::string& text) {
     std::ofstream(path_) << text;
     return load_rig_config(path_);
@@ -100,8 +95,9 @@ class RigConfigFile : public testing::Test {
     return outcome;
   }
 
-  std::filesystem::path dir_;
-  std::filesystem::path path_;
+  const markerd::test_support::TempDir temp_{"markerd-rig-config"};
+  const std::filesystem::path dir_ = temp_.path();
+  const std::filesystem::path path_ = dir_ / "rig.toml";
 };
 
 }  // namespace
@@ -285,12 +281,7 @@ namespace {
 
 const std::filesystem::path kSourceDir = MARKERD_SOURCE_DIR;
 
-std::string read_text(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using markerd::test_support::read_file;
 
 void replace_once(std::string& text, const std::string& from, const std::string& to) {
   const auto at = text.find(from);
@@ -302,13 +293,11 @@ void replace_once(std::string& text, const std::string& from, const std::string&
 // relative map paths made absolute.
 class WrittenConfig : public testing::Test {
  protected:
-  void SetUp() override { dir_ = std::make_unique<markerd::test::TempDir>(); }
-
   std::filesystem::path write(std::string text) {
     while (text.find("map = \"drives/") != std::string::npos) {
       replace_once(text, "map = \"drives/", "map = \"" + (kSourceDir / "config/drives/").string());
     }
-    const auto path = dir_->path() / "rig.toml";
+    const auto path = dir_.path() / "rig.toml";
     std::ofstream(path) << text;
     return path;
   }
@@ -316,7 +305,7 @@ class WrittenConfig : public testing::Test {
   // The ConfigError of `text`, and "file:N" for the line holding `marker`.
   std::pair<std::string, std::string> error_at(const std::string& text, const std::string& marker) {
     const auto path = write(text);
-    std::string rewritten = read_text(path);
+    std::string rewritten = read_file(path);
     const auto at = rewritten.find(marker);
     EXPECT_NE(at, std::string::npos) << marker;
     const auto line = 1 + std::count(rewritten.begin(), rewritten.begin() + static_cast<std::ptrdiff_t>(at), '\n');
@@ -329,7 +318,7 @@ class WrittenConfig : public testing::Test {
     return {error, fmt::format("{}:{}", path.string(), line)};
   }
 
-  std::unique_ptr<markerd::test::TempDir> dir_;
+  const markerd::test_support::TempDir dir_{"markerd-rig-config"};
 };
 
 }  // namespace
@@ -398,15 +387,8 @@ TEST_F(WrittenConfig, TheModbusTcpRigHomesAndMovesBothAxes) {
   rail_drive.start();
   turntable_drive.start();
 
-  std::string text = read_text(kSourceDir / "config/rig-modbus-tcp.toml");
-  replace_once(text, "host = \"192.168.10.21\"\nport = 502", fmt::format("host = \"127.0.0.1\"\nport = {}", rail_drive.port()));
-  replace_once(text, "host = \"192.168.10.22\"\nport = 502",
-               fmt::format("host = \"127.0.0.1\"\nport = {}", turntable_drive.port()));
-  // Timeouts for a loaded machine running sanitizers.
-  while (text.find("response_timeout_ms = 100") != std::string::npos) {
-    replace_once(text, "response_timeout_ms = 100", "response_timeout_ms = 500");
-  }
-  const RigConfig config = load_rig_config(write(text));
+  const RigConfig config = load_rig_config(markerd::test_support::write_modbus_tcp_rig_config(
+      dir_.path() / "rig.toml", rail_drive.port(), turntable_drive.port()));
   const std::unique_ptr<Rig> rig = make_rig(config);
   ASSERT_EQ(rig->devices().buses.size(), 2u);
   EXPECT_EQ(rig->sim_clock(), nullptr) << "no simulated axis in this rig";
@@ -433,7 +415,7 @@ TEST_F(WrittenConfig, TheModbusTcpRigHomesAndMovesBothAxes) {
 }
 
 TEST_F(WrittenConfig, BusesAndModbusAxesAreCheckedTogether) {
-  const std::string rtu = read_text(kSourceDir / "config/rig-modbus-rtu.toml");
+  const std::string rtu = read_file(kSourceDir / "config/rig-modbus-rtu.toml");
   {
     std::string text = rtu;
     replace_once(text, "bus = \"rtu0\"\nunit_id = 2", "bus = \"rtu1\"\nunit_id = 2");
@@ -458,8 +440,8 @@ TEST_F(WrittenConfig, BusesAndModbusAxesAreCheckedTogether) {
   }
   {
     // A mistake in the drive's map is a config error too, naming the map's line.
-    const auto map = dir_->path() / "broken-map.toml";
-    std::string map_text = read_text(kSourceDir / "config/drives/generic.toml");
+    const auto map = dir_.path() / "broken-map.toml";
+    std::string map_text = read_file(kSourceDir / "config/drives/generic.toml");
     replace_once(map_text, "[velocity]\naddress = 0x0002", "[velocity]\naddress = 0x0002\nsacle = 2");
     std::ofstream(map) << map_text;
     std::string text = rtu;
@@ -472,7 +454,7 @@ TEST_F(WrittenConfig, BusesAndModbusAxesAreCheckedTogether) {
 }
 
 TEST_F(WrittenConfig, GpioAxesAreCheckedAgainstTheirLines) {
-  const std::string gpio = read_text(kSourceDir / "config/rig-gpio.toml");
+  const std::string gpio = read_file(kSourceDir / "config/rig-gpio.toml");
   {
     std::string text = gpio;
     replace_once(text, "max_velocity = 50.0 ", "max_velocity = 70.0 ");

@@ -31,6 +31,9 @@
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/summary.hpp"
 #include "support/child_process.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 namespace markerd {
 namespace {
@@ -43,7 +46,6 @@ using Clock = std::chrono::steady_clock;
 
 using test_support::describe_wait_status;
 using test_support::read_file;
-using test_support::write_file;
 
 // Five points (three distances facing the camera, two angles at 0.5 m), two
 // measurements of four frames each: ten steps.
@@ -100,47 +102,15 @@ struct Workspace {
   fs::path dir;
 
   explicit Workspace(fs::path directory) : dir(std::move(directory)) {
-    fs::remove_all(dir);
     fs::create_directories(dir / "logs");
     fs::create_directories(dir / "state");
     // The example rig, its simulated time 100 times faster than real time.
-    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
-    const std::string scale = "time_scale = 1.0";
-    rig.replace(rig.find(scale), scale.size(), "time_scale = 100.0");
-    write_file(dir / "rig.toml", rig);
-    write_file(config(), fmt::format(R"(rig = "rig.toml"
-
-[marker]
-family = "frame8"
-id = 165
-size_m = 0.08
-
-[camera]
-source = "sim"
-model = "{}/config/cameras/thesis-640x480.yaml"
-frame_timeout_ms = 500
-reopen_delay_ms = 100
-reopen_max_delay_ms = 200
-
-[camera.sim]
-fps = 30
-noise_sigma = 0.0
-supersample = 2
-
-[pipeline]
-policy = "lossless"
-
-[log]
-directory = "logs"
-fsync = "never"
-
-[control]
-socket = "control.sock"
-
-[sweep]
-directory = "state"
-)",
-                                     MARKERD_SOURCE_DIR));
+    test_support::write_sim_rig_config(dir / "rig.toml", 100.0);
+    // Without noise, frames at a point are identical and the summary deterministic.
+    test_support::TomlConfig::load(test_support::kSourceTree / "tests/data/markerd-sweep.toml")
+        .set("camera.model", (test_support::kSourceTree / "config/cameras/thesis-640x480.yaml").string())
+        .set("camera.sim.noise_sigma", 0.0)
+        .write(config());
   }
 
   [[nodiscard]] fs::path config() const { return dir / "markerd.toml"; }
@@ -209,13 +179,6 @@ std::size_t count_events(const sweep::RunRecords& records, std::string_view kind
 
 class SweepKillTest : public testing::Test {
  protected:
-  void SetUp() override {
-    root_ = fs::temp_directory_path() / ("markerd-kill-" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    fs::create_directories(root_);
-  }
-  void TearDown() override { fs::remove_all(root_); }
-
   static int failures() {
     return testing::UnitTest::GetInstance()->current_test_info()->result()->total_part_count();
   }
@@ -271,7 +234,8 @@ class SweepKillTest : public testing::Test {
     return records;
   }
 
-  fs::path root_;
+  const test_support::TempDir temp_{"markerd-kill"};
+  const fs::path root_ = temp_.path();
 };
 
 TEST_F(SweepKillTest, KilledAtRandomMomentsTheRunCompletesAsIfUninterrupted) {

@@ -26,6 +26,9 @@
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/runner.hpp"
 #include "markerd/sweep/summary.hpp"
+#include "support/files.hpp"
+#include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 namespace markerd {
 namespace {
@@ -35,17 +38,8 @@ namespace fs = std::filesystem;
 using daemon::Daemon;
 using sweep::RunState;
 
-std::string read_file(const fs::path& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-void write_file(const fs::path& path, const std::string& text) {
-  std::ofstream out(path);
-  out << text;
-}
+using test_support::read_file;
+using test_support::write_file;
 
 // Four points on the rail at angle 0, then two angles at 0.5 m; two
 // measurements of four frames each.
@@ -76,52 +70,15 @@ angle_deg = { from = 20, to = 40, step = 20 }
 class SweepRunTest : public testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("markerd-sweep-" + std::to_string(::getpid()) + "-" +
-                                        testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
     fs::create_directories(dir_ / "logs");
     fs::create_directories(dir_ / "state");
     // The example rig with simulated time 100 times faster than real time:
     // homing and the longest move take well under a second.
-    std::string rig = read_file(fs::path(MARKERD_SOURCE_DIR) / "config/rig-sim.toml");
-    const std::string scale = "time_scale = 1.0";
-    rig.replace(rig.find(scale), scale.size(), "time_scale = 100.0");
-    write_file(dir_ / "rig.toml", rig);
-    write_file(dir_ / "markerd.toml", fmt::format(R"(rig = "rig.toml"
-
-[marker]
-family = "frame8"
-id = 165
-size_m = 0.08
-
-[camera]
-source = "sim"
-model = "{}/config/cameras/thesis-640x480.yaml"
-frame_timeout_ms = 500
-reopen_delay_ms = 100
-reopen_max_delay_ms = 200
-
-[camera.sim]
-fps = 30
-noise_sigma = 2.0
-supersample = 2
-
-[pipeline]
-policy = "lossless"
-
-[log]
-directory = "logs"
-fsync = "never"
-
-[control]
-socket = "control.sock"
-
-[sweep]
-directory = "state"
-)",
-                                                  MARKERD_SOURCE_DIR));
+    test_support::write_sim_rig_config(dir_ / "rig.toml", 100.0);
+    test_support::TomlConfig::load(test_support::kSourceTree / "tests/data/markerd-sweep.toml")
+        .set("camera.model", (test_support::kSourceTree / "config/cameras/thesis-640x480.yaml").string())
+        .write(dir_ / "markerd.toml");
   }
-  void TearDown() override { fs::remove_all(dir_); }
 
   std::unique_ptr<Daemon> make_daemon() {
     auto d = std::make_unique<Daemon>(daemon::load_daemon_config(dir_ / "markerd.toml"));
@@ -166,7 +123,8 @@ directory = "state"
     return n;
   }
 
-  fs::path dir_;
+  const test_support::TempDir temp_{"markerd-sweep"};
+  const fs::path dir_ = temp_.path();
 };
 
 TEST_F(SweepRunTest, ASimulatedSweepMeasuresTheGroundTruth) {
