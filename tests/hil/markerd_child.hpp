@@ -31,6 +31,8 @@
 #include <thread>
 #include <vector>
 
+#include "support/files.hpp"
+
 namespace markerd::hil {
 
 using Clock = std::chrono::steady_clock;
@@ -57,12 +59,7 @@ inline double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }
 
-inline std::string read_file(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using test_support::read_file;
 
 // ---------------------------------------------------------------- markerd
 

@@ -42,6 +42,7 @@
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/detector.hpp"
+#include "support/files.hpp"
 #include "uvc_frames.hpp"
 #include "vivid_scene_feeder.hpp"
 
@@ -83,12 +84,7 @@ const char* env(const char* name) {
   return value != nullptr && *value != '\0' ? value : nullptr;
 }
 
-std::string read_text(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using test_support::read_file;
 
 std::int64_t ns(Clock::time_point t) {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(t.time_since_epoch()).count();
@@ -147,7 +143,7 @@ std::optional<std::string> find_uvcvideo_node() {
   for (fs::directory_iterator it("/sys/class/video4linux", ec), end; !ec && it != end; it.increment(ec)) {
     std::error_code e;
     const auto driver = fs::canonical(it->path() / "device" / "driver", e);
-    if (e || driver.filename() != "uvcvideo" || read_text(it->path() / "index") != "0\n") continue;
+    if (e || driver.filename() != "uvcvideo" || read_file(it->path() / "index") != "0\n") continue;
     const std::string node = "/dev/" + it->path().filename().string();
     if (fs::exists(node)) return node;
   }
@@ -196,7 +192,7 @@ class UvcHil : public testing::Test {
 
   void TearDown() override {
     if (HasFailure() && env("HIL_UVC_SERVER_LOG") != nullptr) {
-      std::cout << "---- " << env("HIL_UVC_SERVER_LOG") << "\n" << read_text(env("HIL_UVC_SERVER_LOG")) << "----\n";
+      std::cout << "---- " << env("HIL_UVC_SERVER_LOG") << "\n" << read_file(env("HIL_UVC_SERVER_LOG")) << "----\n";
     }
   }
 

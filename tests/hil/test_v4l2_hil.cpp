@@ -52,6 +52,7 @@
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd_child.hpp"
+#include "v4l2_node.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -59,8 +60,15 @@ namespace {
 using namespace std::chrono_literals;
 namespace fs = std::filesystem;
 
-constexpr int kWidth = 640;
-constexpr int kHeight = 480;
+using hil::errno_text;
+using hil::kHdmiInput;
+using hil::kHeight;
+using hil::kWidth;
+using hil::must;
+using hil::Node;
+using hil::timings_640x480p60;
+using hil::xioctl;
+
 // Generous: the guest is emulated (TCG) on a loaded 2-core host.
 constexpr auto kFrameTimeout = 5000ms;
 
@@ -86,34 +94,6 @@ std::optional<Vivid> vivid_from_env() {
                env("HIL_VIVID_PARAMS") != nullptr ? env("HIL_VIVID_PARAMS") : ""};
 }
 
-std::string errno_text(const std::string& what) { return what + ": " + std::strerror(errno); }
-
-int xioctl(int fd, unsigned long request, void* arg) {
-  int result = 0;
-  do {
-    result = ::ioctl(fd, request, arg);
-  } while (result == -1 && errno == EINTR);
-  return result;
-}
-
-void must(int fd, unsigned long request, void* arg, const std::string& what) {
-  if (xioctl(fd, request, arg) != 0) throw std::runtime_error(errno_text(what));
-}
-
-class Node {
- public:
-  explicit Node(const std::string& path) : fd_(::open(path.c_str(), O_RDWR | O_NONBLOCK | O_CLOEXEC)) {
-    if (fd_ < 0) throw std::runtime_error(errno_text("open " + path));
-  }
-  ~Node() { ::close(fd_); }
-  Node(const Node&) = delete;
-  Node& operator=(const Node&) = delete;
-  [[nodiscard]] int fd() const { return fd_; }
-
- private:
-  int fd_;
-};
-
 std::int32_t get_control(const std::string& node, std::uint32_t id) {
   Node n(node);
   v4l2_control control{id, 0};
@@ -135,27 +115,7 @@ std::uint32_t control_id(int fd, const std::string& name) {
   throw std::runtime_error("vivid has no control " + name);
 }
 
-// 640x480 progressive at 60 Hz (V4L2_DV_BT_DMT_640X480P60), on both HDMI ends.
-v4l2_dv_timings timings_640x480p60() {
-  v4l2_dv_timings t{};
-  t.type = V4L2_DV_BT_656_1120;
-  t.bt.width = kWidth;
-  t.bt.height = kHeight;
-  t.bt.pixelclock = 25175000;
-  t.bt.hfrontporch = 16;
-  t.bt.hsync = 96;
-  t.bt.hbackporch = 48;
-  t.bt.vfrontporch = 10;
-  t.bt.vsync = 2;
-  t.bt.vbackporch = 33;
-  t.bt.standards = V4L2_DV_BT_STD_DMT | V4L2_DV_BT_STD_CEA861;
-  t.bt.flags = V4L2_DV_FL_HAS_CEA861_VIC;
-  t.bt.cea861_vic = 1;
-  return t;
-}
-
 constexpr int kWebcamInput = 0;
-constexpr int kHdmiInput = 1;
 
 // Selects the capture node's input before the source opens it; the HDMI
 // input gets the timings the output sends.
