@@ -64,6 +64,7 @@ using hil::errno_text;
 using hil::kHdmiInput;
 using hil::kHeight;
 using hil::kWidth;
+using hil::LoopOutput;
 using hil::must;
 using hil::Node;
 using hil::timings_640x480p60;
@@ -156,51 +157,16 @@ std::optional<std::uint32_t> frame_number(const GreyView& image) {
 // runs dry makes the capture fall back to its test pattern.
 class LoopWriter {
  public:
-  LoopWriter(const std::string& output, std::uint32_t fourcc) : node_(output), fourcc_(fourcc) {
-    const int fd = node_.fd();
-    int index = 0;
-    must(fd, VIDIOC_S_OUTPUT, &index, "VIDIOC_S_OUTPUT");
-    auto timings = timings_640x480p60();
-    must(fd, VIDIOC_S_DV_TIMINGS, &timings, "output VIDIOC_S_DV_TIMINGS");
-    v4l2_format f{};
-    f.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    f.fmt.pix.width = kWidth;
-    f.fmt.pix.height = kHeight;
-    f.fmt.pix.pixelformat = fourcc;
-    f.fmt.pix.field = V4L2_FIELD_NONE;
-    must(fd, VIDIOC_S_FMT, &f, "output VIDIOC_S_FMT");
-    if (f.fmt.pix.pixelformat != fourcc || f.fmt.pix.width != kWidth || f.fmt.pix.height != kHeight) {
-      throw std::runtime_error("vivid's output refuses " + fourcc_text(fourcc) + " 640x480");
-    }
-    stride_ = f.fmt.pix.bytesperline;
-    size_ = f.fmt.pix.sizeimage;
-    v4l2_requestbuffers request{};
-    request.count = 8;
-    request.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    request.memory = V4L2_MEMORY_MMAP;
-    must(fd, VIDIOC_REQBUFS, &request, "output VIDIOC_REQBUFS");
-    for (std::uint32_t i = 0; i < request.count; ++i) {
-      v4l2_buffer b{};
-      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-      b.memory = V4L2_MEMORY_MMAP;
-      b.index = i;
-      must(fd, VIDIOC_QUERYBUF, &b, "output VIDIOC_QUERYBUF");
-      void* data = ::mmap(nullptr, b.length, PROT_READ | PROT_WRITE, MAP_SHARED, fd, b.m.offset);
-      if (data == MAP_FAILED) throw std::runtime_error(errno_text("output mmap"));
-      buffers_.push_back({static_cast<std::uint8_t*>(data), b.length});
-      queue(i);
-    }
-    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    must(fd, VIDIOC_STREAMON, &type, "output VIDIOC_STREAMON");
+  LoopWriter(const std::string& output, std::uint32_t fourcc) : output_(output, fourcc), fourcc_(fourcc) {
+    for (std::uint32_t i = 0; i < output_.count(); ++i) queue(i);
+    output_.stream_on();
     thread_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
   }
 
   ~LoopWriter() {
     thread_.request_stop();
     thread_.join();
-    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    xioctl(node_.fd(), VIDIOC_STREAMOFF, &type);
-    for (const auto& b : buffers_) ::munmap(b.data, b.length);
+    output_.stream_off();
   }
   LoopWriter(const LoopWriter&) = delete;
   LoopWriter& operator=(const LoopWriter&) = delete;
@@ -209,16 +175,12 @@ class LoopWriter {
   [[nodiscard]] const std::string& error() const { return error_; }  // after the destructor's join: read in tests only
 
  private:
-  struct Buffer {
-    std::uint8_t* data;
-    std::size_t length;
-  };
-
   void queue(std::uint32_t index) {
     const std::uint32_t number = next_.fetch_add(1);
-    std::uint8_t* data = buffers_[index].data;
+    std::uint8_t* data = output_.buffer(index).data;
+    const std::uint32_t stride = output_.stride();
     for (int y = 0; y < kHeight; ++y) {
-      std::uint8_t* row = data + static_cast<std::size_t>(y) * stride_;
+      std::uint8_t* row = data + static_cast<std::size_t>(y) * stride;
       for (int x = 0; x < kWidth; ++x) {
         if (fourcc_ == V4L2_PIX_FMT_YUYV) {
           row[2 * x] = luma(number, x, y);
@@ -229,42 +191,33 @@ class LoopWriter {
       }
     }
     if (fourcc_ == V4L2_PIX_FMT_NV12) {  // neutral chroma after the Y plane
-      std::memset(data + static_cast<std::size_t>(stride_) * kHeight, 128,
-                  static_cast<std::size_t>(stride_) * kHeight / 2);
+      std::memset(data + static_cast<std::size_t>(stride) * kHeight, 128,
+                  static_cast<std::size_t>(stride) * kHeight / 2);
     }
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    b.memory = V4L2_MEMORY_MMAP;
-    b.index = index;
-    b.bytesused = size_;
-    b.field = V4L2_FIELD_NONE;
-    must(node_.fd(), VIDIOC_QBUF, &b, "output VIDIOC_QBUF");
+    if (const int e = output_.queue(index); e != 0) {
+      throw std::runtime_error("output VIDIOC_QBUF: " + std::string(std::strerror(e)));
+    }
   }
 
   void run(const std::stop_token& stop) {
     try {
       while (!stop.stop_requested()) {
-        pollfd p{node_.fd(), POLLOUT, 0};
+        pollfd p{output_.fd(), POLLOUT, 0};
         if (::poll(&p, 1, 50) <= 0) continue;
-        v4l2_buffer b{};
-        b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-        b.memory = V4L2_MEMORY_MMAP;
-        if (xioctl(node_.fd(), VIDIOC_DQBUF, &b) != 0) {
+        const auto done = output_.dequeue();
+        if (!done) {
           if (errno == EAGAIN) continue;
           throw std::runtime_error(errno_text("output VIDIOC_DQBUF"));
         }
-        queue(b.index);
+        queue(*done);
       }
     } catch (const std::exception& e) {
       error_ = e.what();
     }
   }
 
-  Node node_;
+  LoopOutput output_;
   std::uint32_t fourcc_;
-  std::uint32_t stride_ = 0;
-  std::uint32_t size_ = 0;
-  std::vector<Buffer> buffers_;
   std::atomic<std::uint32_t> next_{0};
   std::string error_;
   std::jthread thread_;

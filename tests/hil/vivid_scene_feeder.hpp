@@ -135,61 +135,29 @@ class SceneFeeder {
   };
 
   SceneFeeder(const std::string& output, std::vector<std::vector<std::uint8_t>> frames, std::uint32_t frames_per_scene)
-      : node_(output), frames_(std::move(frames)), frames_per_scene_(frames_per_scene) {
+      : output_(output, V4L2_PIX_FMT_YUYV),
+        frames_(std::move(frames)),
+        frames_per_scene_(frames_per_scene),
+        scene_in_buffer_(output_.count(), kNoScene) {
     if (frames_.empty() || frames_per_scene_ == 0) throw std::invalid_argument("SceneFeeder: no frames to feed");
-    const int fd = node_.fd();
-    int index = 0;
-    must(fd, VIDIOC_S_OUTPUT, &index, "output VIDIOC_S_OUTPUT");
-    auto timings = timings_640x480p60();
-    must(fd, VIDIOC_S_DV_TIMINGS, &timings, "output VIDIOC_S_DV_TIMINGS");
-    v4l2_format f{};
-    f.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    f.fmt.pix.width = kWidth;
-    f.fmt.pix.height = kHeight;
-    f.fmt.pix.pixelformat = V4L2_PIX_FMT_YUYV;
-    f.fmt.pix.field = V4L2_FIELD_NONE;
-    must(fd, VIDIOC_S_FMT, &f, "output VIDIOC_S_FMT");
-    if (f.fmt.pix.pixelformat != V4L2_PIX_FMT_YUYV || f.fmt.pix.width != kWidth || f.fmt.pix.height != kHeight) {
-      throw std::runtime_error(output + ": vivid's output refuses YUYV 640x480");
-    }
-    stride_ = f.fmt.pix.bytesperline;
-    size_ = f.fmt.pix.sizeimage;
     for (const auto& frame : frames_) {
       if (frame.size() != static_cast<std::size_t>(kWidth) * kHeight * 2) {
         throw std::invalid_argument("SceneFeeder: a frame is not YUYV 640x480");
       }
     }
-    v4l2_requestbuffers request{};
-    request.count = 8;
-    request.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    request.memory = V4L2_MEMORY_MMAP;
-    must(fd, VIDIOC_REQBUFS, &request, "output VIDIOC_REQBUFS");
-    for (std::uint32_t i = 0; i < request.count; ++i) {
-      v4l2_buffer b{};
-      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-      b.memory = V4L2_MEMORY_MMAP;
-      b.index = i;
-      must(fd, VIDIOC_QUERYBUF, &b, "output VIDIOC_QUERYBUF");
-      void* data = ::mmap(nullptr, b.length, PROT_READ | PROT_WRITE, MAP_SHARED, fd, b.m.offset);
-      if (data == MAP_FAILED) throw std::runtime_error(errno_text("output mmap"));
-      buffers_.push_back({static_cast<std::uint8_t*>(data), b.length, kNoScene});
-    }
-    for (std::uint32_t i = 0; i < buffers_.size(); ++i) {
+    for (std::uint32_t i = 0; i < output_.count(); ++i) {
       if (const int e = queue(i); e != 0) {
         throw std::runtime_error("output VIDIOC_QBUF: " + std::string(std::strerror(e)));
       }
     }
-    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    must(fd, VIDIOC_STREAMON, &type, "output VIDIOC_STREAMON");
+    output_.stream_on();
     thread_ = std::jthread([this](const std::stop_token& stop) { run(stop); });
   }
 
   ~SceneFeeder() {
     thread_.request_stop();
     thread_.join();
-    int type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    xioctl(node_.fd(), VIDIOC_STREAMOFF, &type);  // fails with ENODEV once the device is gone: nothing to do then
-    for (const auto& b : buffers_) ::munmap(b.data, b.length);
+    output_.stream_off();
   }
   SceneFeeder(const SceneFeeder&) = delete;
   SceneFeeder& operator=(const SceneFeeder&) = delete;
@@ -209,12 +177,6 @@ class SceneFeeder {
  private:
   static constexpr std::size_t kNoScene = static_cast<std::size_t>(-1);
 
-  struct Buffer {
-    std::uint8_t* data;
-    std::size_t length;
-    std::size_t scene;  // what the buffer holds now
-  };
-
   // 0, or the errno of VIDIOC_QBUF.
   int queue(std::uint32_t index) {
     const std::uint32_t number = next_.fetch_add(1);
@@ -223,22 +185,16 @@ class SceneFeeder {
       const std::lock_guard lock(mutex_);
       runs_.push_back({std::chrono::steady_clock::now(), scene});
     }
-    Buffer& buffer = buffers_[index];
-    if (buffer.scene != scene) {
+    if (scene_in_buffer_[index] != scene) {
+      std::uint8_t* out = output_.buffer(index).data;
       const std::uint8_t* in = frames_[scene].data();
       for (int y = 0; y < kHeight; ++y) {
-        std::memcpy(buffer.data + static_cast<std::size_t>(y) * stride_, in + static_cast<std::size_t>(y) * kWidth * 2,
+        std::memcpy(out + static_cast<std::size_t>(y) * output_.stride(), in + static_cast<std::size_t>(y) * kWidth * 2,
                     static_cast<std::size_t>(kWidth) * 2);
       }
-      buffer.scene = scene;
+      scene_in_buffer_[index] = scene;
     }
-    v4l2_buffer b{};
-    b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-    b.memory = V4L2_MEMORY_MMAP;
-    b.index = index;
-    b.bytesused = size_;
-    b.field = V4L2_FIELD_NONE;
-    return xioctl(node_.fd(), VIDIOC_QBUF, &b) == 0 ? 0 : errno;
+    return output_.queue(index);
   }
 
   void run(const std::stop_token& stop) {
@@ -251,25 +207,21 @@ class SceneFeeder {
       }
     };
     while (!stop.stop_requested()) {
-      pollfd p{node_.fd(), POLLOUT, 0};
+      pollfd p{output_.fd(), POLLOUT, 0};
       if (::poll(&p, 1, 50) <= 0) continue;
-      v4l2_buffer b{};
-      b.type = V4L2_BUF_TYPE_VIDEO_OUTPUT;
-      b.memory = V4L2_MEMORY_MMAP;
-      if (xioctl(node_.fd(), VIDIOC_DQBUF, &b) != 0) {
+      const auto done = output_.dequeue();
+      if (!done) {
         if (errno == EAGAIN) continue;
         return failed("output VIDIOC_DQBUF", errno);
       }
-      if (const int e = queue(b.index); e != 0) return failed("output VIDIOC_QBUF", e);
+      if (const int e = queue(*done); e != 0) return failed("output VIDIOC_QBUF", e);
     }
   }
 
-  Node node_;
+  LoopOutput output_;
   std::vector<std::vector<std::uint8_t>> frames_;
   std::uint32_t frames_per_scene_;
-  std::uint32_t stride_ = 0;
-  std::uint32_t size_ = 0;
-  std::vector<Buffer> buffers_;
+  std::vector<std::size_t> scene_in_buffer_;  // what each buffer holds now
   std::atomic<std::uint32_t> next_{0};
   std::atomic<bool> gone_{false};
   mutable std::mutex mutex_;
