@@ -47,31 +47,10 @@ using Clock = std::chrono::steady_clock;
 using test_support::describe_wait_status;
 using test_support::read_file;
 
-// Five points (three distances facing the camera, two angles at 0.5 m), two
+// The sweep markerd runs and is killed in (tests/data/plans/kill.toml): five
+// points (three distances facing the camera, two angles at 0.5 m), two
 // measurements of four frames each: ten steps.
-constexpr const char* kPlan = R"(name = "kill"
-frames_per_point = 4
-repeats = 2
-settle_s = 0.1
-point_timeout_s = 20
-detection_threshold = 0.9
-fault_timeout_s = 60
-
-[marker]
-family = "frame8"
-id = 165
-size_m = 0.08
-
-[[grid]]
-name = "distance"
-distance_m = [0.4, 0.8, 1.2]
-angle_deg = [0.0]
-
-[[grid]]
-name = "angle"
-distance_m = [0.5]
-angle_deg = [20.0, 40.0]
-)";
+const std::string kPlan = read_file(test_support::kSourceTree / "tests/data/plans/kill.toml");
 
 // A markerd child process (it does not outlive the guard, nor the test
 // process); a failure when it cannot be started or stopped.

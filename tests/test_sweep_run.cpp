@@ -41,31 +41,11 @@ using sweep::RunState;
 using test_support::read_file;
 using test_support::write_file;
 
-// Four points on the rail at angle 0, then two angles at 0.5 m; two
-// measurements of four frames each.
-constexpr const char* kPlan = R"(name = "small"
-frames_per_point = 4
-repeats = 2
-settle_s = 0.1
-point_timeout_s = 20
-detection_threshold = 0.9
-fault_timeout_s = 60
-
-[marker]
-family = "frame8"
-id = 165
-size_m = 0.08
-
-[[grid]]
-name = "distance"
-distance_m = [0.4, 0.7, 1.0, 1.3]
-angle_deg = [0.0]
-
-[[grid]]
-name = "angle"
-distance_m = [0.5]
-angle_deg = { from = 20, to = 40, step = 20 }
-)";
+// The sweep of these tests (tests/data/plans/small.toml): four points on the
+// rail at angle 0, then two angles at 0.5 m; two measurements of four frames
+// each, twelve steps. Tests check the line numbers of its errors: the file
+// holds nothing but the plan.
+const std::string kPlan = read_file(test_support::kSourceTree / "tests/data/plans/small.toml");
 
 class SweepRunTest : public testing::Test {
  protected:
