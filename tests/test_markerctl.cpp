@@ -504,8 +504,8 @@ TEST_F(Markerctl, DebugWritesTheThresholdTheCandidatesAndWhyEachWasRejected) {
     for (auto& j : lines) j.erase("time_ms");
     return lines;
   };
-  EXPECT_EQ(without_time(r.json_lines()), without_time(plain.json_lines())) << r.describe();
-  ASSERT_NE(detection_at(r.json_lines(), truth), nullptr) << r.describe();
+  EXPECT_EQ(without_time(json_lines(r)), without_time(json_lines(plain))) << r.describe();
+  ASSERT_NE(detection_at(json_lines(r), truth), nullptr) << r.describe();
 
   EXPECT_EQ(png_size(path("debug/0000-threshold.png")), std::make_pair(640, 480));
   EXPECT_EQ(png_size(path("debug/0000-candidates.png")), std::make_pair(640, 480));

@@ -27,6 +27,9 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/unique_fd.hpp"
+
 extern char** environ;
 
 namespace markerd::test_support {
@@ -61,31 +64,10 @@ inline int exit_code(int wait_status) {
   return WIFEXITED(wait_status) ? WEXITSTATUS(wait_status) : 128 + WTERMSIG(wait_status);
 }
 
-// A file descriptor closed with its owner.
-class OwnedFd {
- public:
-  explicit OwnedFd(int fd = -1) : fd_(fd) {}
-  OwnedFd(OwnedFd&& other) noexcept : fd_(std::exchange(other.fd_, -1)) {}
-  OwnedFd& operator=(OwnedFd&& other) noexcept {
-    if (this != &other) {
-      if (fd_ >= 0) ::close(fd_);
-      fd_ = std::exchange(other.fd_, -1);
-    }
-    return *this;
-  }
-  ~OwnedFd() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  [[nodiscard]] int get() const { return fd_; }
-
- private:
-  int fd_;
-};
-
-inline OwnedFd open_or_throw(const fs::path& path, int flags) {
+inline UniqueFd open_or_throw(const fs::path& path, int flags) {
   const int fd = ::open(path.c_str(), flags | O_CLOEXEC, 0644);
-  if (fd < 0) throw std::runtime_error("cannot open " + path.string() + ": " + std::strerror(errno));
-  return OwnedFd(fd);
+  if (fd < 0) throw std::runtime_error("cannot open " + path.string() + ": " + markerd::errno_text(errno));
+  return UniqueFd(fd);
 }
 
 // How a child process runs besides its arguments.
@@ -130,8 +112,8 @@ class ChildProcess {
 
   // The same with stdout appended to `output`, stderr to `errors`.
   void start(const std::vector<std::string>& argv, const fs::path& output, const fs::path& errors) {
-    const OwnedFd out = open_or_throw(output, O_WRONLY | O_CREAT | O_APPEND);
-    const OwnedFd err = output == errors ? OwnedFd() : open_or_throw(errors, O_WRONLY | O_CREAT | O_APPEND);
+    const UniqueFd out = open_or_throw(output, O_WRONLY | O_CREAT | O_APPEND);
+    const UniqueFd err = output == errors ? UniqueFd() : open_or_throw(errors, O_WRONLY | O_CREAT | O_APPEND);
     start_with(argv, out.get(), err.get() >= 0 ? err.get() : out.get(), ProcessOptions{});
   }
 
@@ -154,7 +136,7 @@ class ChildProcess {
     std::vector<char*> env_pointers;
     for (auto& e : env) env_pointers.push_back(e.data());
     env_pointers.push_back(nullptr);
-    const OwnedFd in = open_or_throw("/dev/null", O_RDONLY);
+    const UniqueFd in = open_or_throw("/dev/null", O_RDONLY);
     const pid_t parent = ::getpid();
     const pid_t pid = ::fork();
     if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
@@ -276,13 +258,13 @@ class CapturedProcess {
   }
 
  private:
-  static OwnedFd memory_file(const char* name) {
+  static UniqueFd memory_file(const char* name) {
     const int fd = ::memfd_create(name, MFD_CLOEXEC);
     if (fd < 0) throw std::runtime_error(std::string("memfd_create: ") + std::strerror(errno));
-    return OwnedFd(fd);
+    return UniqueFd(fd);
   }
 
-  static std::string contents(const OwnedFd& file) {
+  static std::string contents(const UniqueFd& file) {
     std::string text;
     char chunk[4096];
     for (off_t at = 0;;) {
@@ -295,7 +277,7 @@ class CapturedProcess {
     return text;
   }
 
-  OwnedFd out_, err_;
+  UniqueFd out_, err_;
   ChildProcess child_;
   std::optional<int> status_;
   bool timed_out_ = false;
