@@ -2,7 +2,7 @@
 // read with its errors, the shared camera manager starts (and restarts) and
 // lists what there is, opening a camera that is not there says so and names
 // the cameras that are, and close() is safe whenever. Streaming needs a
-// camera: the qemu UVC gadget test of issue 6 covers it; nothing here fakes
+// camera: the qemu UVC gadget test (tests/hil/test_uvc_hil.cpp) covers it; nothing here fakes
 // a libcamera Camera (libcamera offers no way to make one outside a pipeline
 // handler).
 

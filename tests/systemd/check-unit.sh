@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Checks a service unit as CI does (issue 4): `systemd-analyze verify` has
+# Checks a service unit as CI does: `systemd-analyze verify` has
 # nothing to say about it, and `systemd-analyze security --offline=yes` rates
 # its overall exposure at most MAX (default 2.5). Prints the security table
 # either way, so that a failure shows which settings cost what.
