@@ -42,15 +42,11 @@
 namespace markerctl {
 namespace {
 
-using markerd::errno_text;
-using markerd::UniqueFd;
 using markerd::rig::Axis;
 using markerd::rig::AxisError;
 using markerd::rig::AxisSettings;
 using markerd::rig::AxisState;
 using markerd::rig::AxisStatus;
-using Clock = std::chrono::steady_clock;
-using namespace std::chrono_literals;
 
 // ---------------------------------------------------------------- status
 

@@ -14,9 +14,7 @@ namespace markerctl {
 namespace {
 
 using markerd::errno_text;
-using markerd::UniqueFd;
 using markerd::rig::Axis;
-using markerd::rig::AxisError;
 using markerd::rig::AxisSettings;
 using markerd::rig::AxisState;
 using markerd::rig::AxisStatus;
