@@ -1,4 +1,4 @@
-// The blur model of a frame8 ring (detector/src/frame8_ring_model.hpp), on
+// The blur model of a frame8 ring (detector/src/frame8/ring_model.hpp), on
 // the renderer's markers with cells of about a pixel and a half.
 
 #include <gtest/gtest.h>
@@ -10,7 +10,7 @@
 #include <cmath>
 #include <vector>
 
-#include "frame8_ring_model.hpp"
+#include "frame8/ring_model.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"

@@ -16,7 +16,7 @@
 #include "frame8/common.hpp"
 #include "frame8/rejection.hpp"
 #include "frame8/ring_read.hpp"
-#include "frame8_ring_model.hpp"
+#include "ring_model.hpp"
 #include "markerd/detector/detector.hpp"
 
 namespace markerd::frame8 {

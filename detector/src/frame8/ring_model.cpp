@@ -1,4 +1,4 @@
-#include "frame8_ring_model.hpp"
+#include "ring_model.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/LU>
