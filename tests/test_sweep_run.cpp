@@ -7,7 +7,10 @@
 #include <gtest/gtest.h>
 
 #include <fmt/format.h>
+#include <sys/resource.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <chrono>
 #include <cmath>
@@ -638,6 +641,45 @@ TEST_F(SweepRunTest, AJournalFieldOfTheWrongTypeIsNamed) {
 // The records' times: a year outside what system_clock's nanoseconds hold
 // overflowed into a wrong time (found by the fuzzer); now an error naming
 // the file (and line) and the year. Fields of the wrong type name the field.
+// A start that fails part way (here a file-size limit, as a full disk
+// would) leaves no half-made run directory behind, nor a journal naming it:
+// the run never started, and the client was told why.
+TEST_F(SweepRunTest, AStartThatFailsPartWayLeavesNoHalfMadeRun) {
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  const auto files_under_state = [&] {
+    std::vector<std::string> names;
+    for (const auto& entry : fs::recursive_directory_iterator(dir_ / "state")) {
+      names.push_back(fs::relative(entry.path(), dir_ / "state").string());
+    }
+    return names;
+  };
+  const auto before = files_under_state();
+  // start.json (about 3 kB) cannot be written past 1 kB; the plan and the
+  // journal fit. Writes past the limit fail with EFBIG instead of SIGXFSZ.
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+  rlimit old_limit{};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old_limit), 0);
+  rlimit limit = old_limit;
+  limit.rlim_cur = 1000;
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &limit), 0);
+  std::string error;
+  try {
+    (void)r.start(sweep::parse_plan(kPlan, "small.toml"));
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &old_limit), 0);
+  std::signal(SIGXFSZ, old_handler);
+  EXPECT_NE(error.find("start.json.tmp"), std::string::npos) << error;
+  EXPECT_EQ(files_under_state(), before);
+
+  const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+  EXPECT_TRUE(fs::exists(run / "start.json"));
+  r.abort();
+  EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
+}
+
 TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
   fs::path run;
   {

@@ -317,8 +317,19 @@ fs::path SweepRunner::start(SweepPlan plan) {
   // record finds a journal naming a run that never started, and forgets it,
   // rather than a started run that no journal names.
   write_journal(run->directory, kJournalRunning, false);
-  run->recorder = RunRecorder::create(run->directory, start);
-  run->recorder.append_event({now, "started", {}, 0});
+  try {
+    run->recorder = RunRecorder::create(run->directory, start);
+    run->recorder.append_event({now, "started", {}, 0});
+  } catch (const std::exception&) {
+    // The run never started: nothing was measured, and the client hears why.
+    // Its half-made directory (a full disk fails here) would otherwise stay
+    // behind, looking like a run that never ended, with a journal naming it.
+    run->recorder = RunRecorder();
+    std::error_code ignored;
+    fs::remove_all(run->directory, ignored);
+    fs::remove(settings_.journal, ignored);
+    throw;
+  }
   run->plan = std::move(plan);
   const fs::path directory = run->directory;
   spdlog::info("sweep {}: started, {} steps ({} points), about {:.0f} s", run->run_id, run->steps.size(),
