@@ -22,7 +22,6 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <chrono>
-#include <cmath>
 #include <iostream>
 #include <memory>
 #include <mutex>

@@ -1,7 +1,6 @@
 #include "rig_session.hpp"
 
 #include <iostream>
-#include <thread>
 
 namespace markerctl {
 
