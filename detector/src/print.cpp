@@ -17,6 +17,7 @@
 
 #include <fmt/format.h>
 
+#include "markerd/base/ascii.hpp"
 #include "markerd/base/errno_text.hpp"
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"
@@ -258,8 +259,7 @@ GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet
 }
 
 void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& out) {
-  std::string ext = out.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char ch) { return std::tolower(ch); });
+  const std::string ext = ascii_lower(out.extension().string());
   if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
     throw PrintError(fmt::format("{}: unsupported extension '{}' (use .svg, .pdf or .png)", out.string(),
                                  out.extension().string()));

@@ -4,8 +4,6 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
-#include <algorithm>
-#include <cctype>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -13,6 +11,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "common.hpp"
+#include "markerd/base/ascii.hpp"
 #include "markerd/detector/print.hpp"
 
 namespace markerctl {
@@ -30,9 +29,7 @@ struct MarkerOptions {
 };
 
 std::string lower_extension(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
-  return ext;
+  return markerd::ascii_lower(path.extension().string());
 }
 
 std::string id_ranges() {

@@ -1,8 +1,8 @@
 #include "common.hpp"
+#include "markerd/base/ascii.hpp"
 
 #include <fmt/format.h>
 
-#include <algorithm>
 #include <array>
 #include <cctype>
 #include <charconv>
@@ -21,12 +21,6 @@ std::string_view trim(std::string_view s) {
   return s;
 }
 
-std::string lower(std::string_view s) {
-  std::string out(s);
-  std::transform(out.begin(), out.end(), out.begin(), [](unsigned char c) { return std::tolower(c); });
-  return out;
-}
-
 }  // namespace
 
 std::optional<NumberAndUnit> split_number(std::string_view text) {
@@ -37,7 +31,7 @@ std::optional<NumberAndUnit> split_number(std::string_view text) {
   const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   if (ec != std::errc{} || !std::isfinite(value)) return std::nullopt;
   return NumberAndUnit{value,
-                       lower(trim(std::string_view(end, static_cast<std::size_t>(text.data() + text.size() - end))))};
+                       markerd::ascii_lower(trim(std::string_view(end, static_cast<std::size_t>(text.data() + text.size() - end))))};
 }
 
 double parse_length_m(std::string_view text, BareUnit bare, std::string_view option) {

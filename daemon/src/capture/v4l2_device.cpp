@@ -7,7 +7,6 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cerrno>
 
 namespace markerd::daemon::v4l2 {
@@ -18,12 +17,6 @@ int xioctl(int fd, unsigned long request, void* arg) noexcept {
     result = ::ioctl(fd, request, arg);
   } while (result == -1 && errno == EINTR);
   return result;
-}
-
-std::string lower(std::string_view text) {
-  std::string out(text);
-  std::transform(out.begin(), out.end(), out.begin(), [](unsigned char c) { return std::tolower(c); });
-  return out;
 }
 
 std::uint32_t device_caps(const v4l2_capability& cap) {

@@ -29,8 +29,6 @@ std::string c_text(const char (&chars)[N]) {
   return {chars, strnlen(chars, N)};
 }
 
-std::string lower(std::string_view text);
-
 // The capabilities of the node opened (device_caps where the driver gives them).
 std::uint32_t device_caps(const v4l2_capability& cap);
 // Every format of a buffer type, with its sizes and frame intervals.

@@ -18,6 +18,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "markerd/base/ascii.hpp"
 #include "markerd/base/errno_text.hpp"
 #include "markerd/base/unique_fd.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
@@ -380,7 +381,7 @@ std::int64_t control_value(const V4l2ControlSetting& setting, const V4l2ControlI
     }
     if (const auto* text = std::get_if<std::string>(&setting.value)) {
       for (const auto& item : c.menu) {
-        if (lower(item.name) == lower(*text) || v4l2_control_name(item.name) == v4l2_control_name(*text)) {
+        if (ascii_lower(item.name) == ascii_lower(*text) || v4l2_control_name(item.name) == v4l2_control_name(*text)) {
           return item.index;
         }
       }
@@ -407,7 +408,7 @@ void V4l2Source::set_controls(int fd) {
   for (const auto& s : settings_.controls) order.push_back(&s);
   std::stable_partition(order.begin(), order.end(), [&](const V4l2ControlSetting* s) {
     const auto* c = find(s->name);
-    return c != nullptr && lower(c->label).find("auto") != std::string::npos;
+    return c != nullptr && ascii_lower(c->label).find("auto") != std::string::npos;
   });
   for (const auto* setting : order) {
     const auto* c = find(setting->name);
