@@ -1,5 +1,7 @@
 #include "markerd/daemon/daemon.hpp"
 
+#include "markerd/base/config_table.hpp"
+#include "markerd/base/read_file.hpp"
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
@@ -31,7 +33,7 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
  public:
   explicit SweepEnvironment(const Daemon& daemon) : daemon_(daemon) {
     try {
-      config_text_ = sweep::read_text_file(daemon.config_.source);
+      config_text_ = read_regular_file(daemon.config_.source, ConfigTable::kMaxFileBytes, "the config file");
     } catch (const std::exception&) {
       // A config given as text (the tests) has no file: the record keeps its name only.
     }

@@ -17,6 +17,7 @@
 #include <type_traits>
 #include <utility>
 
+#include "markerd/base/read_file.hpp"
 #include "markerd/base/unique_fd.hpp"
 #include "markerd/base/utc_time.hpp"
 
@@ -31,6 +32,15 @@ constexpr const char* kPlanFile = "plan.toml";
 constexpr const char* kPointsFile = "points.jsonl";
 constexpr const char* kEventsFile = "events.jsonl";
 constexpr const char* kStopFile = "stop.json";
+
+// A run directory may be handed in by a user (markerctl sweep report DIR):
+// a FIFO or a device where a record should be must not hang the reader or
+// fill memory. Hours of a sweep stay far below the limit.
+constexpr std::size_t kMaxRecordFileBytes = std::size_t{256} << 20;
+
+std::string read_record_file(const fs::path& path) {
+  return read_regular_file(path, kMaxRecordFileBytes, "the run record");
+}
 
 [[noreturn]] void fail(const fs::path& path, std::string_view action, int error) {
   throw std::runtime_error(
@@ -139,7 +149,7 @@ UniqueFd open_for_append(const fs::path& path) {
 void cut_partial_last_line(const fs::path& path) {
   std::error_code ec;
   if (!fs::exists(path, ec)) return;
-  const std::string content = read_text_file(path);
+  const std::string content = read_record_file(path);
   if (content.empty() || content.back() == '\n') return;
   const std::size_t newline = content.rfind('\n');
   const off_t keep = newline == std::string::npos ? 0 : static_cast<off_t>(newline + 1);
@@ -175,7 +185,7 @@ template <class Take>
 std::size_t read_lines(const fs::path& path, Take&& take) {
   std::error_code ec;
   if (!fs::exists(path, ec)) return 0;
-  const std::string content = read_text_file(path);
+  const std::string content = read_record_file(path);
   std::size_t begin = 0;
   std::size_t line_number = 0;
   while (begin < content.size()) {
@@ -200,24 +210,6 @@ void check_schema(const nlohmann::json& json) {
 }
 
 }  // namespace
-
-std::string read_text_file(const fs::path& path) {
-  const auto fail = [&](int error) {
-    throw std::runtime_error(fmt::format("{}: cannot read: {}", path.string(), std::generic_category().message(error)));
-  };
-  const UniqueFd fd(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
-  if (!fd) fail(errno);
-  std::string content;
-  std::array<char, 65536> chunk{};
-  for (;;) {
-    const ssize_t n = ::read(fd.get(), chunk.data(), chunk.size());
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) fail(errno);
-    if (n == 0) break;
-    content.append(chunk.data(), static_cast<std::size_t>(n));
-  }
-  return content;
-}
 
 std::string_view to_string(ExitStatus status) {
   switch (status) {
@@ -383,7 +375,9 @@ RunRecords read_run(const fs::path& directory) {
     throw std::runtime_error(fmt::format("sweep run {}: no {} (not a run directory?)", directory.string(), kStartFile));
   }
   try {
-    records.start = start_from_json(nlohmann::json::parse(read_text_file(start_path)));
+    records.start = start_from_json(nlohmann::json::parse(read_record_file(start_path)));
+  } catch (const FileError&) {
+    throw;  // names the file already
   } catch (const std::exception& e) {
     throw std::runtime_error(fmt::format("{}: {}", start_path.string(), e.what()));
   }
@@ -394,7 +388,9 @@ RunRecords read_run(const fs::path& directory) {
   const fs::path stop_path = directory / kStopFile;
   if (fs::exists(stop_path, ec)) {
     try {
-      records.stop = stop_from_json(nlohmann::json::parse(read_text_file(stop_path)));
+      records.stop = stop_from_json(nlohmann::json::parse(read_record_file(stop_path)));
+    } catch (const FileError&) {
+      throw;  // names the file already
     } catch (const std::exception& e) {
       throw std::runtime_error(fmt::format("{}: {}", stop_path.string(), e.what()));
     }

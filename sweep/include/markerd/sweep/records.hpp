@@ -155,9 +155,6 @@ class RunRecorder {
   UniqueFd events_fd_;
 };
 
-// A whole file as text; std::runtime_error naming the path when it cannot be read.
-std::string read_text_file(const std::filesystem::path& path);
-
 // Writes `text` to `path` so that a reader (or a crash) sees the old file or
 // the new one, never a mixture: a temporary in the same directory, fsync,
 // rename, fsync of the directory.
