@@ -125,16 +125,18 @@ void CaptureLoop::stream(const std::stop_token& stop) {
 
 void CaptureLoop::fail(std::string_view what, const std::exception& error) {
   failures_.fetch_add(1, std::memory_order_relaxed);
-  state_.store(CaptureState::waiting, std::memory_order_relaxed);
   std::string message = fmt::format("camera {}: {}: {}", source_.name(), what, error.what());
   // The same failure again and again (a camera left unplugged) is worth one
   // warning per change, not one per retry.
   bool repeated = false;
   {
+    // The state changes with its reason, under the lock status() reads both
+    // under: a reader never sees "waiting" without the words that say why.
     const std::lock_guard lock(error_mutex_);
     repeated = message == last_error_;
     last_error_ = message;
     last_error_time_ = std::chrono::system_clock::now();
+    state_.store(CaptureState::waiting, std::memory_order_relaxed);
   }
   if (repeated) {
     spdlog::debug("{}; retrying in {} ms", message, next_delay_.count());
@@ -161,7 +163,6 @@ void CaptureLoop::wait_before_reopen(const std::stop_token& stop) {
 
 CaptureStatus CaptureLoop::status() const {
   CaptureStatus s;
-  s.state = state_.load(std::memory_order_relaxed);
   s.source = source_.name();
   s.frames = frames_.load(std::memory_order_relaxed);
   s.dropped = dropped_.load(std::memory_order_relaxed);
@@ -172,6 +173,7 @@ CaptureStatus CaptureLoop::status() const {
   s.last_frame_time = std::chrono::steady_clock::time_point(
       std::chrono::steady_clock::duration(last_frame_ns_.load(std::memory_order_relaxed)));
   const std::lock_guard lock(error_mutex_);
+  s.state = state_.load(std::memory_order_relaxed);
   s.last_error = last_error_;
   s.last_error_time = last_error_time_;
   return s;
