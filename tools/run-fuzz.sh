@@ -44,11 +44,12 @@ done
 
 build=build-fuzz
 # -O2 for speed, line tables for the sanitizers' reports, and assertions
-# left on (no -DNDEBUG).
+# left on (no -DNDEBUG). No precompiled headers: this build is where a file
+# that forgets an #include (and compiled only thanks to them) fails.
 if [[ ! -f $build/CMakeCache.txt ]]; then
   CC=clang CXX=clang++ cmake -S . -B "$build" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
     -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -gline-tables-only" \
-    -DMARKERD_FUZZ=ON -DMARKERD_BUILD_TESTS=OFF -DMARKERD_BUILD_BENCH=OFF
+    -DMARKERD_FUZZ=ON -DMARKERD_BUILD_TESTS=OFF -DMARKERD_BUILD_BENCH=OFF -DMARKERD_PCH=OFF
 fi
 cmake --build "$build" -j"${JOBS:-$(nproc)}" --target "${targets[@]/#/fuzz_}"
 
