@@ -29,7 +29,7 @@
 
 namespace {
 
-using markerd::Family;
+using markerd::detector::Family;
 
 constexpr double kGoodRate = 0.9;
 
@@ -67,15 +67,15 @@ std::vector<double> parse_list(const std::string& text, const char* what) {
 }
 
 struct Sweeps {
-  std::vector<markerd::EvalResult> by_distance;
-  std::vector<std::vector<markerd::EvalResult>> by_yaw;  // one per --yaw-at distance
+  std::vector<markerd::detector::EvalResult> by_distance;
+  std::vector<std::vector<markerd::detector::EvalResult>> by_yaw;  // one per --yaw-at distance
 };
 
 // The farthest value reached by an unbroken run of points at >= 90% from the
 // first, as text: "-" when the first point already falls short, and marked
 // ">=" when the run lasts to the end of the sweep (the sweep, not the
 // detector, set the limit).
-std::string reach(const std::vector<markerd::EvalResult>& points, bool by_yaw) {
+std::string reach(const std::vector<markerd::detector::EvalResult>& points, bool by_yaw) {
   std::optional<double> last;
   std::size_t good = 0;
   for (const auto& r : points) {
@@ -98,7 +98,7 @@ double median_of(std::vector<double> v) {
 std::string percent(double rate) { return fmt::format("{:.1f}%", 100 * rate); }
 std::string or_dash(bool present, const std::string& s) { return present ? s : "-"; }
 
-void print_family(const markerd::FamilyInfo& info, const Sweeps& s, const std::vector<double>& yaw_at) {
+void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, const std::vector<double>& yaw_at) {
   fmt::print("## {}\n\n", info.name);
   fmt::print("### Against distance (yaw 0 deg)\n\n");
   fmt::print("| distance (m) | rate | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
@@ -126,7 +126,7 @@ void print_family(const markerd::FamilyInfo& info, const Sweeps& s, const std::v
   fmt::print("\n");
 }
 
-std::string summary_row(const markerd::FamilyInfo& info, const Sweeps& s) {
+std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps& s) {
   std::string row = fmt::format("| {} |", info.name);
   row += fmt::format(" {} |", reach(s.by_distance, false));
   for (const auto& sweep : s.by_yaw) row += fmt::format(" {} |", reach(sweep, true));
@@ -187,22 +187,22 @@ int main(int argc, char** argv) {
   // Times are of one thread, as the daemon runs a detector per worker.
   cv::setNumThreads(1);
 
-  markerd::CameraModel camera = markerd::CameraModel::thesis_640x480();
+  markerd::detector::CameraModel camera = markerd::detector::CameraModel::thesis_640x480();
   if (!camera_path.empty()) {
     try {
-      camera = markerd::CameraModel::load(camera_path);
+      camera = markerd::detector::CameraModel::load(camera_path);
     } catch (const std::exception& e) {
       std::fprintf(stderr, "bench_accuracy: %s\n", e.what());
       return 2;
     }
   }
 
-  std::vector<markerd::FamilyInfo> families;
-  for (const auto& info : markerd::all_families()) {
+  std::vector<markerd::detector::FamilyInfo> families;
+  for (const auto& info : markerd::detector::all_families()) {
     if (family_name == "all" || info.name == family_name) families.push_back(info);
   }
 
-  markerd::EvalSettings settings;
+  markerd::detector::EvalSettings settings;
   settings.frames_per_point = frames;
   settings.seed = seed;
   settings.scene.marker_size_m = size_m;
@@ -234,16 +234,16 @@ int main(int argc, char** argv) {
     settings.scene.family = info.family;
     Sweeps s;
     try {
-      markerd::DetectorConfig config;
+      markerd::detector::DetectorConfig config;
       config.family = info.family;
       config.camera = camera;
       config.marker_size_m = size_m;
       config.frame8.model_small_cells = model_small_cells;
       config.frame8.blur_sigma_px = blur;
-      auto detector = markerd::make_detector(config);
+      auto detector = markerd::detector::make_detector(config);
       const auto run = [&](double d, double yaw) {
         if (progress) std::fprintf(stderr, "\r%s: %.2f m, %.0f deg   ", std::string(info.name).c_str(), d, yaw);
-        return markerd::evaluate_point(*detector, camera, settings, {d, yaw});
+        return markerd::detector::evaluate_point(*detector, camera, settings, {d, yaw});
       };
       for (double d : distances) s.by_distance.push_back(run(d, 0));
       for (double d : yaw_at) {

@@ -62,7 +62,7 @@ int main(int argc, char** argv) {
   const fs::path dir = fs::temp_directory_path() / fmt::format("markerd-bench-daemon-{}", ::getpid());
   fs::create_directories(dir / "logs");
   // The thesis's lens at the asked resolution.
-  markerd::CameraModel::thesis_640x480().scaled_to(width, height).save(dir / "camera.yaml");
+  markerd::detector::CameraModel::thesis_640x480().scaled_to(width, height).save(dir / "camera.yaml");
   {
     std::ofstream config(dir / "markerd.toml");
     config << fmt::format(R"([camera]

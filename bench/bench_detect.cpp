@@ -31,21 +31,21 @@
 
 namespace {
 
-using markerd::Family;
+using markerd::detector::Family;
 
 constexpr int kFrames = 20;
 constexpr double kMarkerSize = 0.08;
 
 struct FrameSet {
-  std::vector<markerd::GreyImage> images;
+  std::vector<markerd::detector::GreyImage> images;
   std::vector<int> ids;
 };
 
 // The scene of frame i, the same for every family but for the marker drawn.
-markerd::Scene scene_for(Family family, int i) {
-  markerd::Scene s;
+markerd::detector::Scene scene_for(Family family, int i) {
+  markerd::detector::Scene s;
   s.family = family;
-  const auto& info = markerd::family_info(family);
+  const auto& info = markerd::detector::family_info(family);
   s.id = info.first_default_id + (37 * i + 11) % info.default_id_count();
   s.marker_size_m = kMarkerSize;
   const double t = static_cast<double>(i) / (kFrames - 1);
@@ -55,7 +55,7 @@ markerd::Scene scene_for(Family family, int i) {
   const double yaw = 60.0 * static_cast<double>((7 * i) % kFrames) / (kFrames - 1);
   const double roll = -10.0 + 20.0 * static_cast<double>((3 * i) % kFrames) / (kFrames - 1);
   const double offset = 0.05 * distance * ((i % 3) - 1);
-  s.pose = markerd::facing_pose(distance, yaw, 0, roll, offset, -0.5 * offset);
+  s.pose = markerd::detector::facing_pose(distance, yaw, 0, roll, offset, -0.5 * offset);
   s.noise_sigma = 2;
   s.blur_sigma_px = 0.6;
   s.clutter = true;
@@ -65,31 +65,31 @@ markerd::Scene scene_for(Family family, int i) {
 
 // Rendered once per (family, resolution), outside every timing loop; the
 // renderer is far slower than any detector.
-const FrameSet& frames(Family family, const markerd::CameraModel& camera) {
+const FrameSet& frames(Family family, const markerd::detector::CameraModel& camera) {
   static std::map<std::pair<Family, int>, FrameSet> cache;
   auto [it, inserted] = cache.try_emplace({family, camera.width});
   if (inserted) {
     for (int i = 0; i < kFrames; ++i) {
-      const markerd::Scene s = scene_for(family, i);
-      it->second.images.push_back(markerd::render_scene(camera, s));
+      const markerd::detector::Scene s = scene_for(family, i);
+      it->second.images.push_back(markerd::detector::render_scene(camera, s));
       it->second.ids.push_back(s.id);
     }
   }
   return it->second;
 }
 
-void run_detector(benchmark::State& state, Family family, const markerd::CameraModel& camera) {
-  std::unique_ptr<markerd::MarkerDetector> detector;
+void run_detector(benchmark::State& state, Family family, const markerd::detector::CameraModel& camera) {
+  std::unique_ptr<markerd::detector::MarkerDetector> detector;
   try {
-    markerd::DetectorConfig config;
+    markerd::detector::DetectorConfig config;
     config.family = family;
-    detector = markerd::make_detector(config);
+    detector = markerd::detector::make_detector(config);
   } catch (const std::exception& e) {
     state.SkipWithError(e.what());
     return;
   }
   const FrameSet& set = frames(family, camera);
-  std::vector<markerd::Detection> found;
+  std::vector<markerd::detector::Detection> found;
   // Warm-up outside the timing (the first frames of a size size the
   // buffers), and the detected fraction over the set, each frame once: the
   // timed loop below rarely stops on a whole number of rounds.
@@ -115,14 +115,14 @@ void run_detector(benchmark::State& state, Family family, const markerd::CameraM
 }
 
 // A marker about 140 px across, with noise and blur, a new seed every frame.
-void run_renderer(benchmark::State& state, const markerd::CameraModel& camera) {
-  markerd::Scene s;
-  s.pose = markerd::facing_pose(0.3, 20);
+void run_renderer(benchmark::State& state, const markerd::detector::CameraModel& camera) {
+  markerd::detector::Scene s;
+  s.pose = markerd::detector::facing_pose(0.3, 20);
   s.noise_sigma = 2;
   s.blur_sigma_px = 0.7;
   for (auto _ : state) {
     ++s.seed;
-    const markerd::GreyImage img = markerd::render_scene(camera, s);
+    const markerd::detector::GreyImage img = markerd::detector::render_scene(camera, s);
     benchmark::DoNotOptimize(img.view().data);
   }
   state.SetItemsProcessed(state.iterations());
@@ -198,15 +198,15 @@ int main(int argc, char** argv) {
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
 
   // Cameras live as long as the registered benchmarks that capture them.
-  static const markerd::CameraModel small = markerd::CameraModel::thesis_640x480();
-  static const markerd::CameraModel large = small.scaled_to(1920, 1440);
-  const std::vector<std::pair<std::string, const markerd::CameraModel*>> resolutions = {
+  static const markerd::detector::CameraModel small = markerd::detector::CameraModel::thesis_640x480();
+  static const markerd::detector::CameraModel large = small.scaled_to(1920, 1440);
+  const std::vector<std::pair<std::string, const markerd::detector::CameraModel*>> resolutions = {
       {"640x480", &small}, {"1920x1440", &large}};
   std::vector<std::string> names;
   for (const auto& [res, camera] : resolutions) {
     names.push_back(res);
     for (const Entry& e : kFamilies) {
-      const markerd::CameraModel* cam = camera;
+      const markerd::detector::CameraModel* cam = camera;
       const Family family = e.family;
       benchmark::RegisterBenchmark((std::string(e.name) + "/" + res).c_str(),
                                    [family, cam](benchmark::State& s) { run_detector(s, family, *cam); })

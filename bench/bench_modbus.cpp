@@ -37,8 +37,8 @@ const std::filesystem::path kSourceDir = MARKERD_SOURCE_DIR;
 
 // A simulated drive (unit 1) and a bus to it, over TCP or an RTU pty pair.
 struct Peer {
-  markerd::test::TempDir dir;
-  std::optional<markerd::test::SocatPtyPair> line;
+  markerd::test_support::TempDir dir;
+  std::optional<markerd::test_support::SocatPtyPair> line;
   RegisterMap map = load_register_map(kSourceDir / "config/drives/generic.toml");
   std::unique_ptr<ModbusDriveSim> sim;
   std::shared_ptr<ModbusBus> bus;

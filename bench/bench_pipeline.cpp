@@ -90,24 +90,24 @@ int main(int argc, char** argv) {
 
   // The thesis lens at the requested resolution; markers from near to far,
   // turned, over clutter, as the simulated camera renders them.
-  const markerd::CameraModel camera = markerd::CameraModel::thesis_640x480().scaled_to(width, height);
-  std::vector<markerd::GreyImage> images;
+  const markerd::detector::CameraModel camera = markerd::detector::CameraModel::thesis_640x480().scaled_to(width, height);
+  std::vector<markerd::detector::GreyImage> images;
   const auto render_start = Clock::now();
   for (int k = 0; k < scenes; ++k) {
-    markerd::Scene scene;
+    markerd::detector::Scene scene;
     scene.id = 37 * k + 11;
-    scene.pose = markerd::facing_pose(0.4 + 0.3 * k, -20 + 13.0 * k, 0, 7.0 * k);
+    scene.pose = markerd::detector::facing_pose(0.4 + 0.3 * k, -20 + 13.0 * k, 0, 7.0 * k);
     scene.supersample = 2;
     scene.noise_sigma = 2;
     scene.blur_sigma_px = 0.6;
     scene.seed = static_cast<std::uint64_t>(k + 1);
-    images.push_back(markerd::render_scene(camera, scene));
+    images.push_back(markerd::detector::render_scene(camera, scene));
   }
   fmt::print("rendered {} scenes of {}x{} in {:.1f} s\n", scenes, width, height,
              std::chrono::duration<double>(Clock::now() - render_start).count());
 
-  std::vector<std::unique_ptr<markerd::MarkerDetector>> detectors;
-  for (int i = 0; i < workers; ++i) detectors.push_back(markerd::make_detector(markerd::DetectorConfig{}));
+  std::vector<std::unique_ptr<markerd::detector::MarkerDetector>> detectors;
+  for (int i = 0; i < workers; ++i) detectors.push_back(markerd::detector::make_detector(markerd::detector::DetectorConfig{}));
   CountingSink sink;
   std::atomic<std::uint64_t> released{0};
   markerd::daemon::PipelineConfig config;

@@ -95,8 +95,8 @@ Cost process_cost(pid_t pid) {
 }
 
 // The pixels of a looped frame are those of one of the scenes, byte for byte.
-bool shows_a_scene(const GreyView& image, const std::vector<GreyImage>& scenes) {
-  return std::any_of(scenes.begin(), scenes.end(), [&](const GreyImage& scene) {
+bool shows_a_scene(const detector::GreyView& image, const std::vector<detector::GreyImage>& scenes) {
+  return std::any_of(scenes.begin(), scenes.end(), [&](const detector::GreyImage& scene) {
     if (image.width != scene.width() || image.height != scene.height()) return false;
     for (int y = 0; y < image.height; ++y) {
       if (std::memcmp(image.row(y), scene.row(y), static_cast<std::size_t>(image.width)) != 0) return false;
@@ -112,7 +112,7 @@ struct SourceRun {
 };
 
 // markerd's capture path: `warmup` frames, then `frames` measured.
-SourceRun run_source(const V4l2Settings& settings, int warmup, int frames, const std::vector<GreyImage>& scenes) {
+SourceRun run_source(const V4l2Settings& settings, int warmup, int frames, const std::vector<detector::GreyImage>& scenes) {
   const auto source = make_v4l2_source(settings);
   FramePool pool({.slots = 4, .pixel_bytes = source->geometry().slot_pixel_bytes});
   source->open();
@@ -265,10 +265,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   try {
-    std::vector<GreyImage> scenes;
+    std::vector<detector::GreyImage> scenes;
     std::vector<std::vector<std::uint8_t>> yuyv;
-    for (const Scene& scene : hil::feeder_scenes()) {
-      scenes.push_back(render_scene(hil::feeder_camera(), scene));
+    for (const detector::Scene& scene : hil::feeder_scenes()) {
+      scenes.push_back(detector::render_scene(hil::feeder_camera(), scene));
       yuyv.push_back(hil::to_yuyv(scenes.back()));
     }
     hil::select_hdmi_input(capture);
@@ -318,7 +318,7 @@ int main(int argc, char** argv) {
                    grey.data(), hil::kWidth);
     }
     const Cost convert = thread_cost() - convert_start;
-    if (!shows_a_scene(GreyView{grey.data(), hil::kWidth, hil::kHeight, hil::kWidth}, scenes)) {
+    if (!shows_a_scene(detector::GreyView{grey.data(), hil::kWidth, hil::kHeight, hil::kWidth}, scenes)) {
       throw std::logic_error("yuyv_to_grey did not give the scene back");
     }
     fmt::print(

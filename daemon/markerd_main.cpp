@@ -150,7 +150,7 @@ int main(int argc, char** argv) {
       markerd::daemon::check_detector_setup(config);
       std::cout << fmt::format("{}: ok (camera: {}, marker: {} id {} {} m, rig: {}, detection log: {}, control: {})\n",
                                config_path, config.camera.source_kind,
-                               markerd::family_info(config.marker.family).name, config.marker.id, config.marker.size_m,
+                               markerd::detector::family_info(config.marker.family).name, config.marker.id, config.marker.size_m,
                                config.rig ? "yes" : "none", config.log.directory.string(),
                                config.control.socket.string());
       return 0;

@@ -16,7 +16,7 @@
 
 namespace {
 
-bool same(const markerd::CameraModel& a, const markerd::CameraModel& b) {
+bool same(const markerd::detector::CameraModel& a, const markerd::detector::CameraModel& b) {
   return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
          a.cy == b.cy && a.dist == b.dist;
 }
@@ -27,10 +27,10 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   static const std::filesystem::path input = markerd::fuzz::scratch_dir() / "camera.yaml";
   static const std::filesystem::path saved = markerd::fuzz::scratch_dir() / "camera-saved.yaml";
   markerd::fuzz::write_file(input, markerd::fuzz::as_text(data, size));
-  markerd::CameraModel model;
+  markerd::detector::CameraModel model;
   try {
-    model = markerd::CameraModel::load(input);
-  } catch (const markerd::CameraModelError& e) {
+    model = markerd::detector::CameraModel::load(input);
+  } catch (const markerd::detector::CameraModelError& e) {
     markerd::fuzz::expected_error(e);
     return 0;
   }
@@ -38,14 +38,14 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     if (!std::isfinite(v)) markerd::fuzz::finding(fmt::format("a camera_matrix holding {} is accepted", v));
   }
   model.save(saved);
-  const markerd::CameraModel again = markerd::CameraModel::load(saved);
+  const markerd::detector::CameraModel again = markerd::detector::CameraModel::load(saved);
   if (!same(model, again)) markerd::fuzz::finding("a camera model changes when saved and loaded again");
 
-  const markerd::CameraModel half = model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));
+  const markerd::detector::CameraModel half = model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));
   for (const auto& m : {model, half}) {
-    for (const markerd::Point2 pixel : {markerd::Point2{0, 0}, markerd::Point2{m.cx, m.cy},
-                                        markerd::Point2{static_cast<double>(m.width - 1), static_cast<double>(m.height - 1)}}) {
-      const markerd::Point2 normalized = m.pixel_to_normalized(pixel);
+    for (const markerd::detector::Point2 pixel : {markerd::detector::Point2{0, 0}, markerd::detector::Point2{m.cx, m.cy},
+                                        markerd::detector::Point2{static_cast<double>(m.width - 1), static_cast<double>(m.height - 1)}}) {
+      const markerd::detector::Point2 normalized = m.pixel_to_normalized(pixel);
       (void)m.normalized_to_pixel(normalized);
     }
   }

@@ -16,7 +16,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   try {
     const auto root = markerd::ConfigTable::parse(markerd::fuzz::as_text(data, size), source);
     const markerd::daemon::DaemonConfig config = markerd::daemon::parse_daemon_config(root);
-    (void)markerd::make_detector(markerd::daemon::detector_config(config));
+    (void)markerd::detector::make_detector(markerd::daemon::detector_config(config));
   } catch (const markerd::ConfigError& e) {
     markerd::fuzz::expected_error(e);
   }

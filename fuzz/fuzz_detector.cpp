@@ -34,14 +34,14 @@ constexpr std::size_t kHeaderBytes = 9;
 constexpr int kMaxWidth = 640;
 constexpr int kMaxHeight = 480;
 
-bool finite(const markerd::Quad& quad) {
-  return std::all_of(quad.begin(), quad.end(), [](const markerd::Point2& p) { return std::isfinite(p.x) && std::isfinite(p.y); });
+bool finite(const markerd::detector::Quad& quad) {
+  return std::all_of(quad.begin(), quad.end(), [](const markerd::detector::Point2& p) { return std::isfinite(p.x) && std::isfinite(p.y); });
 }
 
-void check(const markerd::Detection& d, int width, int height) {
+void check(const markerd::detector::Detection& d, int width, int height) {
   using markerd::fuzz::finding;
-  if (d.family != markerd::Family::frame8) finding(fmt::format("a frame8 detector reported family {}", static_cast<int>(d.family)));
-  if (d.id < 0 || d.id >= markerd::family_info(markerd::Family::frame8).id_count) finding(fmt::format("id {} reported", d.id));
+  if (d.family != markerd::detector::Family::frame8) finding(fmt::format("a frame8 detector reported family {}", static_cast<int>(d.family)));
+  if (d.id < 0 || d.id >= markerd::detector::family_info(markerd::detector::Family::frame8).id_count) finding(fmt::format("id {} reported", d.id));
   if (!finite(d.corners)) finding(fmt::format("id {}: corners that are not finite ({}x{})", d.id, width, height));
   if (d.inner_corners && !finite(*d.inner_corners)) finding(fmt::format("id {}: inner corners that are not finite", d.id));
   if (!(d.margin >= 0 && d.margin <= 1)) finding(fmt::format("id {}: margin {}", d.id, d.margin));
@@ -61,8 +61,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const bool with_pose = (flags & 1u) != 0;
   const bool padded = (flags & 8u) != 0;
 
-  markerd::DetectorConfig config;
-  config.family = markerd::Family::frame8;
+  markerd::detector::DetectorConfig config;
+  config.family = markerd::detector::Family::frame8;
   config.frame8.uniform_ids = (flags & 2u) != 0;
   config.frame8.model_small_cells = (flags & 4u) != 0;
   config.frame8.decimate = (flags >> 4) % 9;
@@ -71,7 +71,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   config.frame8.min_margin = data[7] / 255.0 * 0.99;
   config.frame8.blur_sigma_px = data[8] / 51.0;
   if (with_pose) {
-    config.camera = markerd::CameraModel::thesis_640x480().scaled_to(width, height);
+    config.camera = markerd::detector::CameraModel::thesis_640x480().scaled_to(width, height);
     config.marker_size_m = 0.08;
   }
 
@@ -84,9 +84,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const std::unique_ptr<std::uint8_t[]> buffer(new std::uint8_t[bytes]);
   for (std::size_t i = 0; i < bytes; ++i) buffer[i] = pixel_count == 0 ? 0 : pixels[i % pixel_count];
 
-  const markerd::GreyView view{buffer.get(), width, height, stride};
-  const std::unique_ptr<markerd::MarkerDetector> detector = markerd::make_detector(config);
-  std::vector<markerd::Detection> found;
+  const markerd::detector::GreyView view{buffer.get(), width, height, stride};
+  const std::unique_ptr<markerd::detector::MarkerDetector> detector = markerd::detector::make_detector(config);
+  std::vector<markerd::detector::Detection> found;
   detector->detect(view, found);
   for (const auto& d : found) check(d, width, height);
   return 0;

@@ -25,39 +25,39 @@ inline rig::RigSnapshot snapshot(double rail_mm, double turntable_deg) {
 }
 
 // A pose near `truth`: `offset_m` away, turned `angle_rad` further about the marker's Y.
-inline MarkerPose near(const rig::MarkerGroundTruth& truth, const Eigen::Vector3d& offset_m, double angle_rad,
+inline detector::MarkerPose near(const rig::MarkerGroundTruth& truth, const Eigen::Vector3d& offset_m, double angle_rad,
                        double reprojection_px) {
-  MarkerPose p;
+  detector::MarkerPose p;
   p.rotation = truth.rotation * Eigen::AngleAxisd(angle_rad, Eigen::Vector3d::UnitY()).toRotationMatrix();
   p.translation = truth.translation + offset_m;
   p.reprojection_error_px = reprojection_px;
   return p;
 }
 
-inline Quad quad(double x0, double y0, double side) {
-  return {Point2{x0 + 0.12345678, y0 + 0.98765432}, Point2{x0 + side, y0 + 0.5}, Point2{x0 + side - 0.25, y0 + side},
-          Point2{x0 - 0.75, y0 + side + 0.0625}};
+inline detector::Quad quad(double x0, double y0, double side) {
+  return {detector::Point2{x0 + 0.12345678, y0 + 0.98765432}, detector::Point2{x0 + side, y0 + 0.5}, detector::Point2{x0 + side - 0.25, y0 + side},
+          detector::Point2{x0 - 0.75, y0 + side + 0.0625}};
 }
 
 // A frame8 detection with inner corners and both pose solutions, and an
 // ArUco detection without inner corners or pose.
-inline std::vector<Detection> detections(const rig::MarkerGroundTruth& truth) {
-  Detection frame8;
-  frame8.family = Family::frame8;
+inline std::vector<detector::Detection> detections(const rig::MarkerGroundTruth& truth) {
+  detector::Detection frame8;
+  frame8.family = detector::Family::frame8;
   frame8.id = 165;
   frame8.corners = quad(301.5, 201.25, 80.0);
   frame8.inner_corners = quad(313.5, 213.25, 56.0);
   frame8.quarter_turns = 1;
   frame8.bits_corrected = 2;
   frame8.margin = 0.8765432;
-  PoseEstimate pose;
+  detector::PoseEstimate pose;
   pose.best = near(truth, {0.001234567, -0.000654321, 0.0041}, 0.0123, 0.1834567);
   pose.alternative = near(truth, {-0.002, 0.003, -0.01}, -0.35, 0.4567891);
   pose.ambiguous = true;
   frame8.pose = pose;
 
-  Detection aruco;
-  aruco.family = Family::aruco4x4_50;
+  detector::Detection aruco;
+  aruco.family = detector::Family::aruco4x4_50;
   aruco.id = 7;
   aruco.corners = quad(10.0, 20.0, 30.0);
   aruco.margin = 1.0;
@@ -66,7 +66,7 @@ inline std::vector<Detection> detections(const rig::MarkerGroundTruth& truth) {
 
 struct FullRecord {
   rig::MarkerGroundTruth truth = rig::ground_truth(rig::RigGeometry{}, 500.0, 30.0);
-  std::vector<Detection> found = detections(truth);
+  std::vector<detector::Detection> found = detections(truth);
   FrameRecordInput input;
 
   FullRecord() {
@@ -89,7 +89,7 @@ struct FullRecord {
 // detections, so that lines vary in length and cross page boundaries.
 struct Stream {
   FullRecord base;
-  std::vector<Detection> many;
+  std::vector<detector::Detection> many;
 
   Stream() {
     for (int i = 0; i < 4; ++i) many.insert(many.end(), base.found.begin(), base.found.end());
@@ -99,7 +99,7 @@ struct Stream {
     in.sequence = sequence;
     in.capture_time += std::chrono::microseconds(16'667 * sequence);
     in.capture_utc += std::chrono::microseconds(16'667 * sequence);
-    in.detections = std::span<const Detection>(many).first(1 + 2 * (sequence % 4));
+    in.detections = std::span<const detector::Detection>(many).first(1 + 2 * (sequence % 4));
     return in;
   }
 };

@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-namespace markerd::test {
+namespace markerd::test_support {
 
 using Bytes = std::vector<std::uint8_t>;
 
@@ -82,4 +82,4 @@ inline Bytes png_declaring(std::uint32_t width, std::uint32_t height) {
 
 inline bool make_fifo(const std::filesystem::path& path) { return ::mkfifo(path.c_str(), 0600) == 0; }
 
-}  // namespace markerd::test
+}  // namespace markerd::test_support

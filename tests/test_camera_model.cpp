@@ -22,7 +22,7 @@
 #include "markerd/detector/camera_model.hpp"
 #include "support/temp_dir.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 namespace fs = std::filesystem;
@@ -409,4 +409,4 @@ TEST(CameraModel, ScaledToKeepsPixelCentresConsistent) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -100,10 +100,10 @@ class ScriptedSource final : public CaptureSource {
   bool ended_ = false;
 };
 
-class NothingDetector : public MarkerDetector {
+class NothingDetector : public detector::MarkerDetector {
  public:
-  [[nodiscard]] Family family() const override { return Family::frame8; }
-  void detect(const GreyView&, std::vector<Detection>& out) override { out.clear(); }
+  [[nodiscard]] detector::Family family() const override { return detector::Family::frame8; }
+  void detect(const detector::GreyView&, std::vector<detector::Detection>& out) override { out.clear(); }
 };
 
 struct Logged {
@@ -131,7 +131,7 @@ std::unique_ptr<Pipeline> lossless_pipeline(RecordingSink& sink) {
   PipelineConfig config;
   config.policy = DropPolicy::lossless;
   config.pool = {4, 16, 4};
-  std::vector<std::unique_ptr<MarkerDetector>> detectors;
+  std::vector<std::unique_ptr<detector::MarkerDetector>> detectors;
   detectors.push_back(std::make_unique<NothingDetector>());
   return std::make_unique<Pipeline>(config, std::move(detectors), sink);
 }
@@ -246,7 +246,7 @@ rig::RigSnapshot snapshot_at(double rail_mm, double turntable_deg) {
 }
 
 TEST(SimCamera, RendersThePoseTheRigSnapshotImpliesAndOnlyWhenItChanges) {
-  const CameraModel camera = CameraModel::thesis_640x480();
+  const detector::CameraModel camera = detector::CameraModel::thesis_640x480();
   rig::RigGeometry geometry;
   geometry.d0_mm = 300;
   SimCamera sim(quiet_settings(), camera, geometry);
@@ -255,11 +255,11 @@ TEST(SimCamera, RendersThePoseTheRigSnapshotImpliesAndOnlyWhenItChanges) {
   FramePool pool({2, 640 * 480, 4});
   sim.open();
 
-  Scene scene;
-  scene.pose = facing_pose(0.95, 30);
+  detector::Scene scene;
+  scene.pose = detector::facing_pose(0.95, 30);
   scene.blur_sigma_px = 0.6;
   scene.supersample = 2;
-  const GreyImage expected = render_scene(camera, scene);
+  const detector::GreyImage expected = detector::render_scene(camera, scene);
 
   for (int k = 0; k < 3; ++k) {
     ASSERT_TRUE(sim.wait_frame(1s));
@@ -280,8 +280,8 @@ TEST(SimCamera, RendersThePoseTheRigSnapshotImpliesAndOnlyWhenItChanges) {
   moved->rig = snapshot_at(200, 0);
   sim.fill(*moved);
   EXPECT_EQ(sim.renders(), 2U);
-  auto detector = make_detector({});
-  std::vector<Detection> found;
+  auto detector = detector::make_detector({});
+  std::vector<detector::Detection> found;
   detector->detect(moved->image, found);
   ASSERT_EQ(found.size(), 1U);
   EXPECT_EQ(found[0].id, 165);
@@ -291,7 +291,7 @@ TEST(SimCamera, RendersThePoseTheRigSnapshotImpliesAndOnlyWhenItChanges) {
 TEST(SimCamera, AddsFreshNoiseOfTheSetSigmaToEveryFrame) {
   SimCameraSettings settings = quiet_settings();
   settings.noise_sigma = 3.0;
-  const CameraModel camera = CameraModel::thesis_640x480();
+  const detector::CameraModel camera = detector::CameraModel::thesis_640x480();
   SimCamera noisy(settings, camera, {});
   SimCamera clean(quiet_settings(), camera, {});
   FramePool pool({3, 640 * 480, 4});
@@ -325,7 +325,7 @@ TEST(SimCamera, AddsFreshNoiseOfTheSetSigmaToEveryFrame) {
 TEST(SimCamera, KeepsItsFrameRate) {
   SimCameraSettings settings = quiet_settings();
   settings.fps = 100;
-  SimCamera sim(settings, CameraModel::thesis_640x480(), {});
+  SimCamera sim(settings, detector::CameraModel::thesis_640x480(), {});
   sim.open();
   ASSERT_TRUE(sim.wait_frame(1s));
   const auto start = std::chrono::steady_clock::now();
@@ -344,7 +344,7 @@ TEST(SimCamera, DropsOutOnItsScheduleAndComesBack) {
   SimCameraSettings settings = quiet_settings();
   settings.outage_every = 300ms;
   settings.outage_for = 100ms;
-  SimCamera sim(settings, CameraModel::thesis_640x480(), {});
+  SimCamera sim(settings, detector::CameraModel::thesis_640x480(), {});
   FramePool pool({1, 640 * 480, 4});
   sim.open();
   // What happened, with repeats collapsed: "frame", "vanished: ...",

@@ -229,7 +229,7 @@ TEST_F(DaemonTest, TheDetectorOptionsRangesAreTheDetectors) {
   text.replace(text.find("[pipeline]"), 10, "[detector.frame8]\nthreshold_offset = 100\nblur_sigma_px = 5\n[pipeline]");
   const DaemonConfig config = parse_daemon_config(ConfigTable::parse(text, (dir_ / "markerd.toml").string()));
   EXPECT_NO_THROW(check_detector_setup(config));
-  EXPECT_NE(make_detector(detector_config(config)), nullptr);
+  EXPECT_NE(detector::make_detector(detector_config(config)), nullptr);
 }
 
 // docs/daemon.md: camera.model is optional for a real camera; without it the
@@ -252,11 +252,11 @@ fps = 60
 )";
   const DaemonConfig config = parse_daemon_config(ConfigTable::parse(text, (dir_ / "markerd.toml").string()));
   ASSERT_FALSE(config.camera.model.has_value());
-  const DetectorConfig detector = detector_config(config);
+  const detector::DetectorConfig detector = detector_config(config);
   EXPECT_FALSE(detector.camera.has_value());
   EXPECT_EQ(detector.marker_size_m, 0.0);
   EXPECT_NO_THROW(check_detector_setup(config));
-  EXPECT_NE(make_detector(detector), nullptr);
+  EXPECT_NE(detector::make_detector(detector), nullptr);
 
   // With the model, the marker size goes with it: poses.
   const DaemonConfig with_model = parse_daemon_config(ConfigTable::parse(base_config(), (dir_ / "markerd.toml").string()));

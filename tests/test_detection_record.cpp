@@ -50,7 +50,7 @@ void expect_quaternion(const json& j, const Eigen::Quaterniond& q) {
   EXPECT_NEAR(j[3].get<double>(), q.z(), kPoseTol);
 }
 
-void expect_quad(const json& j, const Quad& quad) {
+void expect_quad(const json& j, const detector::Quad& quad) {
   ASSERT_EQ(j.size(), 4U);
   for (std::size_t i = 0; i < 4; ++i) {
     ASSERT_EQ(j[i].size(), 2U);
@@ -69,7 +69,7 @@ void expect_axis(const json& j, const rig::AxisSnapshot& a, const std::string& u
   EXPECT_EQ(j.at("moving"), a.moving);
 }
 
-void expect_pose(const json& j, const MarkerPose& pose, const rig::MarkerGroundTruth& truth) {
+void expect_pose(const json& j, const detector::MarkerPose& pose, const rig::MarkerGroundTruth& truth) {
   expect_vector(j.at("rvec"), pose.rvec(), kPoseTol);
   expect_quaternion(j.at("quaternion"), pose.quaternion());
   expect_vector(j.at("tvec"), pose.translation, kPoseTol);
@@ -111,7 +111,7 @@ TEST(DetectionRecord, FullRecordRoundTripsEveryField) {
   expect_axis(rig.at("turntable"), in.rig->turntable, "deg", kDegTol);
 
   const json& truth = j.at("truth");
-  MarkerPose truth_pose;
+  detector::MarkerPose truth_pose;
   truth_pose.rotation = full.truth.rotation;
   truth_pose.translation = full.truth.translation;
   expect_vector(truth.at("rvec"), truth_pose.rvec(), kPoseTol);
@@ -122,7 +122,7 @@ TEST(DetectionRecord, FullRecordRoundTripsEveryField) {
 
   const json& dets = j.at("detections");
   ASSERT_EQ(dets.size(), 2U);
-  const Detection& f8 = full.found[0];
+  const detector::Detection& f8 = full.found[0];
   const json& d0 = dets[0];
   EXPECT_EQ(d0.at("family"), "frame8");
   EXPECT_EQ(d0.at("id"), 165);
@@ -314,7 +314,7 @@ TEST(DetectionLogSchema, TheExampleIsAValidRecordOfTheSchema) {
   // What the formatter writes for the example's frame (the sample's frame8
   // detection alone), for the doc when the schema changes.
   samples::FullRecord frame;
-  frame.input.detections = std::span<const Detection>(frame.found).first(1);
+  frame.input.detections = std::span<const detector::Detection>(frame.found).first(1);
   DetectionRecordFormatter formatter;
   SCOPED_TRACE("the formatter writes for this frame:\n" + std::string(formatter.format(frame.input)));
   const json j = json::parse(line, nullptr, false);

@@ -34,26 +34,26 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-GreyImage render_frame(int index, int width = 160, int height = 120) {
-  Scene scene;
-  scene.family = Family::frame8;
+detector::GreyImage render_frame(int index, int width = 160, int height = 120) {
+  detector::Scene scene;
+  scene.family = detector::Family::frame8;
   scene.id = 100 + index;
-  scene.pose = facing_pose(0.45, -20.0 + 10.0 * index);
+  scene.pose = detector::facing_pose(0.45, -20.0 + 10.0 * index);
   scene.supersample = 2;
   scene.seed = static_cast<std::uint64_t>(index) + 1;
-  return render_scene(CameraModel::thesis_640x480().scaled_to(width, height), scene);
+  return detector::render_scene(detector::CameraModel::thesis_640x480().scaled_to(width, height), scene);
 }
 
-cv::Mat as_mat(const GreyImage& image) {
+cv::Mat as_mat(const detector::GreyImage& image) {
   return cv::Mat(image.height(), image.width(), CV_8UC1, const_cast<std::uint8_t*>(image.data())).clone();
 }
 
-cv::Mat as_mat(const GreyView& view) {
+cv::Mat as_mat(const detector::GreyView& view) {
   return cv::Mat(view.height, view.width, CV_8UC1, const_cast<std::uint8_t*>(view.data),
                  static_cast<std::size_t>(view.stride));
 }
 
-bool same_pixels(const GreyView& view, const cv::Mat& expected) {
+bool same_pixels(const detector::GreyView& view, const cv::Mat& expected) {
   if (view.width != expected.cols || view.height != expected.rows) return false;
   return cv::countNonZero(as_mat(view) != expected) == 0;
 }
@@ -288,9 +288,9 @@ TEST_F(FileSourceTest, DamagedJpegsAndBombsAreCorruptFramesSayingWhy) {
   ASSERT_TRUE(cv::imencode(".jpg", images[1], jpeg));
   fs::remove(frame_path(1));
   fs::remove(frame_path(2));
-  test::write_bytes(frames() / "frame_0001.jpg", test::first_half(jpeg));
-  test::write_bytes(frames() / "frame_0002.jpg", test::with_corrupt_entropy_data(jpeg));
-  test::write_bytes(frames() / "frame_.png", test::png_declaring(30000, 30000));  // first in name order
+  test_support::write_bytes(frames() / "frame_0001.jpg", test_support::first_half(jpeg));
+  test_support::write_bytes(frames() / "frame_0002.jpg", test_support::with_corrupt_entropy_data(jpeg));
+  test_support::write_bytes(frames() / "frame_.png", test_support::png_declaring(30000, 30000));  // first in name order
 
   start(frames());
   EXPECT_EQ(source_->geometry().width, 160);

@@ -15,7 +15,7 @@
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 const CameraModel kCamera = CameraModel::thesis_640x480();
@@ -378,4 +378,4 @@ TEST(Frame8, MarkerAtTheImageBorder) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

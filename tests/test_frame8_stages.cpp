@@ -16,7 +16,7 @@
 #include "frame8/detector.hpp"
 #include "markerd/detector/frame8.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // A clean marker, axis-aligned: `cell` pixels a cell, its outer edge from
 // pixel `origin` (pixel centres at integers), ink 30 on paper 220.
@@ -226,4 +226,4 @@ TEST(Frame8Rejection, EveryRejectionHasAStageAndADistinctName) {
   EXPECT_FALSE(worth_remeasuring(Rejection::no_contrast));
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -22,7 +22,7 @@ namespace markerd::daemon {
 namespace {
 
 namespace fs = std::filesystem;
-using test::Bytes;
+using test_support::Bytes;
 
 class ImageFile : public testing::Test {
  protected:
@@ -86,7 +86,7 @@ TEST_F(ImageFile, EveryFormatDecodesAsImreadDecodesIt) {
     ASSERT_TRUE(cv::imwrite(path(name).string(), image)) << name;
     const cv::Mat expected = cv::imread(path(name).string(), cv::IMREAD_GRAYSCALE);
     testing::internal::CaptureStderr();
-    const GreyImage read = read_grey_image(path(name));
+    const detector::GreyImage read = read_grey_image(path(name));
     EXPECT_EQ(testing::internal::GetCapturedStderr(), "") << name;
     ASSERT_EQ(read.width(), expected.cols) << name;
     ASSERT_EQ(read.height(), expected.rows) << name;
@@ -96,26 +96,26 @@ TEST_F(ImageFile, EveryFormatDecodesAsImreadDecodesIt) {
 }
 
 TEST_F(ImageFile, ATruncatedJpegIsAnErrorSayingSo) {
-  test::write_bytes(path("half.jpg"), test::first_half(encode(".jpg", colour_scene())));
+  test_support::write_bytes(path("half.jpg"), test_support::first_half(encode(".jpg", colour_scene())));
   expect_error(path("half.jpg"), "the JPEG is truncated");
 }
 
 TEST_F(ImageFile, AJpegWithCorruptDataIsAnErrorSayingSo) {
-  const Bytes corrupt = test::with_corrupt_entropy_data(encode(".jpg", colour_scene()));
+  const Bytes corrupt = test_support::with_corrupt_entropy_data(encode(".jpg", colour_scene()));
   ASSERT_FALSE(corrupt.empty());
-  test::write_bytes(path("corrupt.jpg"), corrupt);
+  test_support::write_bytes(path("corrupt.jpg"), corrupt);
   expect_error(path("corrupt.jpg"), "the JPEG is corrupt");
 }
 
 TEST_F(ImageFile, ATruncatedPngIsAnErrorSayingSo) {
-  test::write_bytes(path("half.png"), test::first_half(encode(".png", colour_scene())));
+  test_support::write_bytes(path("half.png"), test_support::first_half(encode(".png", colour_scene())));
   expect_error(path("half.png"), "the PNG is truncated");
 }
 
 TEST_F(ImageFile, APngWithADamagedChunkIsAnError) {
   Bytes png = encode(".png", colour_scene());
   png[png.size() / 2] ^= 0x55;  // inside IDAT: its CRC no longer matches
-  test::write_bytes(path("damaged.png"), png);
+  test_support::write_bytes(path("damaged.png"), png);
   expect_error(path("damaged.png"), "the PNG is corrupt");
 }
 
@@ -125,14 +125,14 @@ TEST_F(ImageFile, ADamagedTextChunkDoesNotRefuseThePixels) {
   const Bytes png = encode(".png", grey);
   // A tEXt chunk right after IHDR (8 + 25 bytes in), its CRC broken.
   Bytes text_chunk;
-  test::append_png_chunk(text_chunk, "tEXt", {'C', 'o', 'm', 'm', 'e', 'n', 't', 0, 'h', 'i'});
+  test_support::append_png_chunk(text_chunk, "tEXt", {'C', 'o', 'm', 'm', 'e', 'n', 't', 0, 'h', 'i'});
   text_chunk.back() ^= 0xff;
   Bytes damaged(png.begin(), png.begin() + 33);
   damaged.insert(damaged.end(), text_chunk.begin(), text_chunk.end());
   damaged.insert(damaged.end(), png.begin() + 33, png.end());
-  test::write_bytes(path("text.png"), damaged);
+  test_support::write_bytes(path("text.png"), damaged);
   testing::internal::CaptureStderr();
-  const GreyImage read = read_grey_image(path("text.png"));
+  const detector::GreyImage read = read_grey_image(path("text.png"));
   EXPECT_EQ(testing::internal::GetCapturedStderr(), "");
   ASSERT_EQ(read.width(), grey.cols);
   const cv::Mat got(read.height(), read.width(), CV_8UC1, const_cast<std::uint8_t*>(read.data()));
@@ -140,22 +140,22 @@ TEST_F(ImageFile, ADamagedTextChunkDoesNotRefuseThePixels) {
 }
 
 TEST_F(ImageFile, ADecompressionBombIsRefusedByItsHeader) {
-  const Bytes bomb = test::png_declaring(30000, 30000);
+  const Bytes bomb = test_support::png_declaring(30000, 30000);
   ASSERT_LT(bomb.size(), 100u);
-  test::write_bytes(path("bomb.png"), bomb);
+  test_support::write_bytes(path("bomb.png"), bomb);
   expect_error(path("bomb.png"), "the PNG declares 30000x30000 pixels (900.0 megapixels), more than the 64");
   // A side beyond 65535 with few pixels (a row buffer of 400 KB a channel).
-  test::write_bytes(path("wide.png"), test::png_declaring(100000, 1));
+  test_support::write_bytes(path("wide.png"), test_support::png_declaring(100000, 1));
   expect_error(path("wide.png"), "100000x1");
   // The same header with a size markerd reads gets as far as the data.
-  test::write_bytes(path("small.png"), test::png_declaring(64, 64));
+  test_support::write_bytes(path("small.png"), test_support::png_declaring(64, 64));
   expect_error(path("small.png"), "the PNG is corrupt");
 }
 
 TEST_F(ImageFile, ADirectoryOrAFifoIsRefusedAtOnce) {
   fs::create_directories(path("frames.png"));
   expect_error(path("frames.png"), "is a directory, not a file");
-  ASSERT_TRUE(test::make_fifo(path("pipe.jpg")));
+  ASSERT_TRUE(test_support::make_fifo(path("pipe.jpg")));
   expect_error(path("pipe.jpg"), "is a FIFO, not a file");  // without waiting for a writer
   expect_error(path("missing.png"), "No such file or directory");
 }
@@ -164,21 +164,21 @@ TEST_F(ImageFile, TruncatedFilesOfTheOtherFormatsAreErrors) {
   const cv::Mat colour = colour_scene();
   for (const std::string extension : {".ppm", ".bmp", ".tif"}) {
     const std::string name = "half" + extension;
-    test::write_bytes(path(name), test::first_half(encode(extension, colour)));
+    test_support::write_bytes(path(name), test_support::first_half(encode(extension, colour)));
     expect_error(path(name), "the ");
   }
   cv::Mat grey;
   cv::extractChannel(colour, grey, 0);
-  test::write_bytes(path("half.pgm"), test::first_half(encode(".pgm", grey)));
+  test_support::write_bytes(path("half.pgm"), test_support::first_half(encode(".pgm", grey)));
   expect_error(path("half.pgm"), "the PNM is truncated");
 }
 
 TEST_F(ImageFile, WhatIsNoImageIsNamed) {
-  test::write_bytes(path("notes.png"), {'n', 'o', 't', 'e', 's'});
+  test_support::write_bytes(path("notes.png"), {'n', 'o', 't', 'e', 's'});
   expect_error(path("notes.png"), "not an image markerd reads");
-  test::write_bytes(path("empty.jpg"), {});
+  test_support::write_bytes(path("empty.jpg"), {});
   expect_error(path("empty.jpg"), "the image is empty");
-  test::write_bytes(path("header.jpg"), {0xff, 0xd8, 0xff, 0xe0});
+  test_support::write_bytes(path("header.jpg"), {0xff, 0xd8, 0xff, 0xe0});
   expect_error(path("header.jpg"), "the JPEG's header cannot be read: the data ends before its frame header");
 }
 
@@ -189,14 +189,14 @@ TEST_F(ImageFile, OpenGivesTheDeclaredSizeBeforeDecoding) {
   cv::Mat grey;
   cv::extractChannel(colour_scene(), grey, 2);
   for (const std::string extension : {".png", ".jpg", ".pgm", ".bmp", ".tif"}) {
-    test::write_bytes(path("a" + extension), encode(extension, grey));
+    test_support::write_bytes(path("a" + extension), encode(extension, grey));
     const ImageSize size = reader.open(path("a" + extension));
     EXPECT_EQ(size.width, 160) << extension;
     EXPECT_EQ(size.height, 120) << extension;
   }
   // A decoder kept from file to file decodes each whole; a stride wider
   // than the row leaves the bytes past it alone.
-  test::write_bytes(path("b.jpg"), encode(".jpg", colour_scene()));
+  test_support::write_bytes(path("b.jpg"), encode(".jpg", colour_scene()));
   for (int round = 0; round < 2; ++round) {
     (void)reader.open(path("b.jpg"));
     std::vector<std::uint8_t> rows(static_cast<std::size_t>(170 * 120), 0x5a);

@@ -424,16 +424,16 @@ TEST_F(Markerctl, DamagedImagesAreErrorsInMarkerctlsOwnWords) {
   render("good.png", {"--dist", "0.5"});
   const cv::Mat good = cv::imread(path("good.png"), cv::IMREAD_GRAYSCALE);
   ASSERT_FALSE(good.empty());
-  markerd::test::Bytes jpeg;
-  markerd::test::Bytes png;
+  markerd::test_support::Bytes jpeg;
+  markerd::test_support::Bytes png;
   ASSERT_TRUE(cv::imencode(".jpg", good, jpeg));
   ASSERT_TRUE(cv::imencode(".png", good, png));
-  markerd::test::write_bytes(path("half.jpg"), markerd::test::first_half(jpeg));
-  markerd::test::write_bytes(path("corrupt.jpg"), markerd::test::with_corrupt_entropy_data(jpeg));
-  markerd::test::write_bytes(path("half.png"), markerd::test::first_half(png));
-  markerd::test::write_bytes(path("bomb.png"), markerd::test::png_declaring(30000, 30000));
+  markerd::test_support::write_bytes(path("half.jpg"), markerd::test_support::first_half(jpeg));
+  markerd::test_support::write_bytes(path("corrupt.jpg"), markerd::test_support::with_corrupt_entropy_data(jpeg));
+  markerd::test_support::write_bytes(path("half.png"), markerd::test_support::first_half(png));
+  markerd::test_support::write_bytes(path("bomb.png"), markerd::test_support::png_declaring(30000, 30000));
   fs::create_directory(path("dir.png"));
-  ASSERT_TRUE(markerd::test::make_fifo(path("fifo.jpg")));
+  ASSERT_TRUE(markerd::test_support::make_fifo(path("fifo.jpg")));
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"half.jpg", "the JPEG is truncated"},
       {"corrupt.jpg", "the JPEG is corrupt"},

@@ -196,14 +196,14 @@ TEST_F(MarkerctlRig, ASecondProcessIsRefusedWhileTheFirstHoldsTheRig) {
   const fs::path lock_file =
       markerd::rig::DeviceLock::file_for({"sim", fs::weakly_canonical(config).string(), ""}, lock_dir());
   std::string record;
-  ASSERT_TRUE(markerd::test::wait_for(
+  ASSERT_TRUE(markerd::test_support::wait_for(
       [&] {
         record = read_file(lock_file);
         return record.rfind(std::to_string(first->pid()) + "\n", 0) == 0;
       },
       30s))
       << lock_file << ": " << record;
-  ASSERT_TRUE(markerd::test::wait_for([&] { return first->out().find("rail: homing") != std::string::npos; }, 30s));
+  ASSERT_TRUE(markerd::test_support::wait_for([&] { return first->out().find("rail: homing") != std::string::npos; }, 30s));
 
   const Outcome second = run({"rig", "--config", config, "status"});
   EXPECT_EQ(second.code, 1) << second.describe();

@@ -21,7 +21,7 @@
 #include "modbus/peers.hpp"
 
 using namespace markerd::rig;
-using markerd::test::wait_for;
+using markerd::test_support::wait_for;
 using std::chrono::milliseconds;
 
 namespace {
@@ -99,8 +99,8 @@ struct TcpRig {
 // A simulator on one end of a pty pair, serving several unit ids, and a bus
 // on the other end.
 struct RtuRig {
-  markerd::test::TempDir dir;
-  markerd::test::SocatPtyPair line{dir.path()};
+  markerd::test_support::TempDir dir;
+  markerd::test_support::SocatPtyPair line{dir.path()};
   ModbusDriveSim sim;
   std::shared_ptr<ModbusBus> bus;
   explicit RtuRig(std::vector<ModbusSimUnit> units, int retries = 2)

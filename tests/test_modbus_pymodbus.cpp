@@ -21,7 +21,7 @@
 #include "modbus/peers.hpp"
 
 using namespace markerd::rig;
-using markerd::test::wait_for;
+using markerd::test_support::wait_for;
 
 namespace {
 
@@ -115,10 +115,10 @@ std::vector<Write> read_log(const std::filesystem::path& log) {
 
 TEST(ModbusPymodbus, WritesAMoveInTheConfiguredWordOrderAndPulsesTheTrigger) {
   if (!std::filesystem::exists(kDebianPython)) GTEST_SKIP() << kDebianPython << " is missing";
-  markerd::test::TempDir dir;
+  markerd::test_support::TempDir dir;
   const auto port_file = dir.path() / "port";
   const auto log = dir.path() / "writes.jsonl";
-  markerd::test::PeerProcess server({kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(),
+  markerd::test_support::PeerProcess server({kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(),
                                       "--port-file", port_file.string(), "--log", log.string(), "--target",
                                       std::to_string(kTarget), "--position", std::to_string(kPosition), "--start-coil",
                                       std::to_string(kStartCoil)},

@@ -13,7 +13,7 @@
 
 #include "counting_new.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 std::vector<GreyImage> frames(const CameraModel& cam) {
@@ -93,4 +93,4 @@ TEST(NoAllocation, CounterSeesAllocations) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

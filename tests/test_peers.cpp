@@ -18,7 +18,7 @@
 #include "markerd/detector/evaluate.hpp"
 #include "markerd/detector/render.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 Scene scene_of(Family family, int id, double roll_deg = 0, double yaw_deg = 10, std::uint64_t seed = 7) {
@@ -330,4 +330,4 @@ INSTANTIATE_TEST_SUITE_P(Both, Peers, ::testing::Values(Family::aruco4x4_50, Fam
                          [](const auto& p) { return std::string(family_info(p.param).name); });
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -56,10 +56,10 @@ class Gate {
 // Test frames are 4x4 images whose first two pixels hold the frame's number;
 // the test detectors report it as the detection id, so the sink sees which
 // pixels a worker actually read.
-std::vector<GreyImage> numbered_images(int count) {
-  std::vector<GreyImage> images;
+std::vector<detector::GreyImage> numbered_images(int count) {
+  std::vector<detector::GreyImage> images;
   for (int k = 0; k < count; ++k) {
-    GreyImage image(4, 4, 0);
+    detector::GreyImage image(4, 4, 0);
     image.at(0, 0) = static_cast<std::uint8_t>(k % 256);
     image.at(1, 0) = static_cast<std::uint8_t>(k / 256);
     images.push_back(std::move(image));
@@ -67,24 +67,24 @@ std::vector<GreyImage> numbered_images(int count) {
   return images;
 }
 
-int number_in(const GreyView& image) { return image.at(0, 0) + 256 * image.at(1, 0); }
+int number_in(const detector::GreyView& image) { return image.at(0, 0) + 256 * image.at(1, 0); }
 
 // Reads the number; optionally announces each call and waits at a gate
 // first, and optionally opens another gate when done (to force an order).
-class NumberDetector : public MarkerDetector {
+class NumberDetector : public detector::MarkerDetector {
  public:
   Gate* gate = nullptr;
   std::counting_semaphore<1000>* entered = nullptr;
   Gate* open_when_done = nullptr;
   int busy_work = 0;  // multiplies a pixel sum, to vary the workers' pace
 
-  [[nodiscard]] Family family() const override { return Family::frame8; }
-  void detect(const GreyView& image, std::vector<Detection>& out) override {
+  [[nodiscard]] detector::Family family() const override { return detector::Family::frame8; }
+  void detect(const detector::GreyView& image, std::vector<detector::Detection>& out) override {
     if (entered != nullptr) entered->release();
     if (gate != nullptr) gate->pass();
-    if (image.empty()) throw DetectorError("frame8: empty image");
+    if (image.empty()) throw detector::DetectorError("frame8: empty image");
     out.clear();
-    Detection d;
+    detector::Detection d;
     d.id = number_in(image);
     volatile unsigned sum = 0;
     for (int k = 0; k < busy_work * (d.id % 7); ++k) sum = sum + image.at(k % 4, (k / 4) % 4);
@@ -93,17 +93,17 @@ class NumberDetector : public MarkerDetector {
   }
 };
 
-std::vector<std::unique_ptr<MarkerDetector>> detectors(std::vector<NumberDetector*> handles) {
-  std::vector<std::unique_ptr<MarkerDetector>> out;
+std::vector<std::unique_ptr<detector::MarkerDetector>> detectors(std::vector<NumberDetector*> handles) {
+  std::vector<std::unique_ptr<detector::MarkerDetector>> out;
   for (NumberDetector* d : handles) out.emplace_back(d);
   return out;
 }
 
 // `count` detectors that each announce a frame at `entered`, then wait at
 // `gate`: the test holds the workers with frames in hand.
-std::vector<std::unique_ptr<MarkerDetector>> gated_detectors(std::size_t count, Gate& gate,
+std::vector<std::unique_ptr<detector::MarkerDetector>> gated_detectors(std::size_t count, Gate& gate,
                                                              std::counting_semaphore<1000>& entered) {
-  std::vector<std::unique_ptr<MarkerDetector>> out;
+  std::vector<std::unique_ptr<detector::MarkerDetector>> out;
   for (std::size_t i = 0; i < count; ++i) {
     auto detector = std::make_unique<NumberDetector>();
     detector->gate = &gate;
@@ -169,7 +169,7 @@ struct Releases {
 
 // Plays a capture source that lends its pixels: acquire, fill, publish.
 // False when the pipeline dropped the frame at acquire.
-bool offer(Pipeline& pipeline, const std::vector<GreyImage>& images, Releases& releases, std::uint64_t sequence) {
+bool offer(Pipeline& pipeline, const std::vector<detector::GreyImage>& images, Releases& releases, std::uint64_t sequence) {
   Frame* frame = pipeline.acquire();
   if (frame == nullptr) return false;
   frame->sequence = sequence;
@@ -244,7 +244,7 @@ TEST(FramePool, ReleaseRunsTheHookOnceAndAcquireResetsTheSlot) {
   f->status = FrameStatus::corrupt_frame;
   f->detections.resize(3);
   EXPECT_THROW(f->use_pixel_buffer(5, 4), std::length_error);
-  const GreyView view = f->use_pixel_buffer(4, 4);
+  const detector::GreyView view = f->use_pixel_buffer(4, 4);
   EXPECT_EQ(view.data, f->pixel_buffer().data());
   f->set_release({&Releases::on_release, &releases, 0});
   pool.release(*f);
@@ -723,7 +723,7 @@ TEST(Pipeline, TheSinksIdleHousekeepingRunsWhileNoFramesCome) {
 TEST(Pipeline, NeedsADetector) {
   RecordingSink sink;
   EXPECT_THROW({ Pipeline p(config(DropPolicy::live, 2), {}, sink); }, std::invalid_argument);
-  std::vector<std::unique_ptr<MarkerDetector>> null_detector(1);
+  std::vector<std::unique_ptr<detector::MarkerDetector>> null_detector(1);
   EXPECT_THROW({ Pipeline p(config(DropPolicy::live, 2), std::move(null_detector), sink); }, std::invalid_argument);
 }
 
@@ -733,21 +733,21 @@ TEST(Pipeline, NeedsADetector) {
 // slots' own buffers as a simulated camera would: every frame's ids are its
 // own scene's.
 TEST(Pipeline, Frame8WorkersDetectRenderedFramesInOrder) {
-  const CameraModel camera = CameraModel::thesis_640x480();
+  const detector::CameraModel camera = detector::CameraModel::thesis_640x480();
   const std::vector<int> ids = {17, 165, 203};
-  std::vector<GreyImage> scenes;
+  std::vector<detector::GreyImage> scenes;
   for (std::size_t i = 0; i < ids.size(); ++i) {
-    Scene scene;
+    detector::Scene scene;
     scene.id = ids[i];
-    scene.pose = facing_pose(0.4 + 0.2 * static_cast<double>(i), 10.0 * static_cast<double>(i));
+    scene.pose = detector::facing_pose(0.4 + 0.2 * static_cast<double>(i), 10.0 * static_cast<double>(i));
     scene.supersample = 2;
     scene.noise_sigma = 1;
     scene.seed = i + 1;
-    scenes.push_back(render_scene(camera, scene));
+    scenes.push_back(detector::render_scene(camera, scene));
   }
   RecordingSink sink;
-  std::vector<std::unique_ptr<MarkerDetector>> workers;
-  for (int i = 0; i < 2; ++i) workers.push_back(make_detector(DetectorConfig{}));
+  std::vector<std::unique_ptr<detector::MarkerDetector>> workers;
+  for (int i = 0; i < 2; ++i) workers.push_back(detector::make_detector(detector::DetectorConfig{}));
   PipelineConfig c = config(DropPolicy::lossless, 4);
   c.pool.pixel_bytes = 640 * 480;
   Pipeline pipeline(c, std::move(workers), sink);
@@ -755,7 +755,7 @@ TEST(Pipeline, Frame8WorkersDetectRenderedFramesInOrder) {
   for (int k = 0; k < kFrames; ++k) {
     Frame* frame = pipeline.acquire();
     ASSERT_NE(frame, nullptr);
-    const GreyImage& scene = scenes[k % scenes.size()];
+    const detector::GreyImage& scene = scenes[k % scenes.size()];
     frame->sequence = static_cast<std::uint64_t>(k);
     frame->use_pixel_buffer(scene.width(), scene.height());
     std::copy_n(scene.data(), 640 * 480, frame->pixel_buffer().data());

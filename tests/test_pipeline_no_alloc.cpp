@@ -27,9 +27,9 @@ namespace {
 // whose pixels are not the ones its source lent.
 class CountingSink : public FrameSink {
  public:
-  explicit CountingSink(const std::vector<GreyImage>& images) : images_(images) {}
+  explicit CountingSink(const std::vector<detector::GreyImage>& images) : images_(images) {}
   void write(const Frame& frame) override {
-    const GreyImage& lent = images_[frame.sequence % images_.size()];
+    const detector::GreyImage& lent = images_[frame.sequence % images_.size()];
     if (frame.image.data != lent.data()) copied_.fetch_add(1, std::memory_order_relaxed);
     if (frame.status != FrameStatus::ok) failed_.fetch_add(1, std::memory_order_relaxed);
     detections_.fetch_add(frame.detections.size(), std::memory_order_relaxed);
@@ -47,7 +47,7 @@ class CountingSink : public FrameSink {
   std::atomic<std::uint64_t> failed_{0};
 
  private:
-  const std::vector<GreyImage>& images_;
+  const std::vector<detector::GreyImage>& images_;
   std::atomic<std::uint64_t> written_{0};
 };
 
@@ -58,22 +58,22 @@ struct ReleaseCount {
 };
 
 TEST(PipelineNoAllocation, SteadyStateFramesThroughFrame8WorkersAllocateNothing) {
-  const CameraModel camera = CameraModel::thesis_640x480();
-  std::vector<GreyImage> images;
+  const detector::CameraModel camera = detector::CameraModel::thesis_640x480();
+  std::vector<detector::GreyImage> images;
   for (int k = 0; k < 6; ++k) {
-    Scene scene;
+    detector::Scene scene;
     scene.id = 23 * k + 9;
-    scene.pose = facing_pose(0.35 + 0.25 * k, -30 + 12.0 * k, 0, 9.0 * k);
+    scene.pose = detector::facing_pose(0.35 + 0.25 * k, -30 + 12.0 * k, 0, 9.0 * k);
     scene.supersample = 2;
     scene.noise_sigma = 2;
     scene.blur_sigma_px = 0.6;
     scene.seed = static_cast<std::uint64_t>(k + 1);
-    images.push_back(render_scene(camera, scene));
+    images.push_back(detector::render_scene(camera, scene));
   }
   CountingSink sink(images);
   std::atomic<std::uint64_t> released{0};
-  std::vector<std::unique_ptr<MarkerDetector>> workers;
-  for (int i = 0; i < 2; ++i) workers.push_back(make_detector(DetectorConfig{}));
+  std::vector<std::unique_ptr<detector::MarkerDetector>> workers;
+  for (int i = 0; i < 2; ++i) workers.push_back(detector::make_detector(detector::DetectorConfig{}));
   PipelineConfig config;
   config.policy = DropPolicy::lossless;  // every frame detected: the same work in each run
   config.pool.slots = 4;

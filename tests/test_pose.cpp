@@ -20,7 +20,7 @@
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/pose.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 using Eigen::Matrix3d;
@@ -632,4 +632,4 @@ TEST(Pose, RightAtAndNearAHalfTurn) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

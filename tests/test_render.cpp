@@ -28,7 +28,7 @@
 #include "markerd/detector/render.hpp"
 #include "support/temp_dir.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 CameraModel pinhole_camera() {
@@ -674,4 +674,4 @@ TEST(PrintableMarker, RejectsBadInput) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -23,7 +23,7 @@ using namespace std::chrono_literals;
 
 namespace {
 
-double px_distance(markerd::Point2 a, markerd::Point2 b) { return std::hypot(a.x - b.x, a.y - b.y); }
+double px_distance(markerd::detector::Point2 a, markerd::detector::Point2 b) { return std::hypot(a.x - b.x, a.y - b.y); }
 
 }  // namespace
 
@@ -35,7 +35,7 @@ TEST(Geometry, GroundTruthEqualsTheRenderersPose) {
     for (double yaw : {-75.0, -30.0, -5.0, 0.0, 12.5, 45.0, 80.0}) {
       SCOPED_TRACE(testing::Message() << "d " << d << " yaw " << yaw);
       const MarkerGroundTruth truth = ground_truth(g, d * 1000 - 300, yaw + 5);
-      const markerd::MarkerPose pose = markerd::facing_pose(d, yaw);
+      const markerd::detector::MarkerPose pose = markerd::detector::facing_pose(d, yaw);
       EXPECT_LT((truth.rotation - pose.rotation).norm(), 1e-12);
       EXPECT_LT((truth.translation - pose.translation).norm(), 1e-12);
       EXPECT_NEAR(truth.distance_m, d, 1e-12);
@@ -45,16 +45,16 @@ TEST(Geometry, GroundTruthEqualsTheRenderersPose) {
 }
 
 TEST(Geometry, APositiveTurntableAngleTurnsTheMarkerLikeThePositiveYaw) {
-  const markerd::CameraModel camera = markerd::CameraModel::thesis_640x480();
+  const markerd::detector::CameraModel camera = markerd::detector::CameraModel::thesis_640x480();
   RigGeometry g;
   g.d0_mm = 300;
-  markerd::Scene rig_scene;
-  markerd::Scene renderer_scene;
+  markerd::detector::Scene rig_scene;
+  markerd::detector::Scene renderer_scene;
   rig_scene.pose.rotation = ground_truth(g, 650, 30).rotation;
   rig_scene.pose.translation = ground_truth(g, 650, 30).translation;
-  renderer_scene.pose = markerd::facing_pose(0.95, 30);
-  const markerd::Quad rig_corners = markerd::project_marker_corners(camera, rig_scene);
-  const markerd::Quad renderer_corners = markerd::project_marker_corners(camera, renderer_scene);
+  renderer_scene.pose = markerd::detector::facing_pose(0.95, 30);
+  const markerd::detector::Quad rig_corners = markerd::detector::project_marker_corners(camera, rig_scene);
+  const markerd::detector::Quad renderer_corners = markerd::detector::project_marker_corners(camera, renderer_scene);
   for (std::size_t k = 0; k < 4; ++k) EXPECT_LT(px_distance(rig_corners[k], renderer_corners[k]), 1e-9) << k;
   // Both turn the marker's right edge away from the camera: it is farther
   // (its +X axis points along +z) and looks shorter than the left edge.
@@ -64,7 +64,7 @@ TEST(Geometry, APositiveTurntableAngleTurnsTheMarkerLikeThePositiveYaw) {
   EXPECT_LT(right, left * 0.97);
   // And a negative angle mirrors it.
   rig_scene.pose.rotation = ground_truth(g, 650, -30).rotation;
-  const markerd::Quad mirrored = markerd::project_marker_corners(camera, rig_scene);
+  const markerd::detector::Quad mirrored = markerd::detector::project_marker_corners(camera, rig_scene);
   EXPECT_GT(px_distance(mirrored[1], mirrored[2]), px_distance(mirrored[0], mirrored[3]) * 1.03);
 }
 
@@ -74,7 +74,7 @@ TEST(Geometry, CameraOffsetsMoveTheMarkerTheOtherWay) {
   g.camera_offset_x_mm = 20;   // camera right of the rail's line
   g.camera_offset_y_mm = -15;  // and above it (camera y points down)
   const MarkerGroundTruth truth = ground_truth(g, 200, 25);
-  const markerd::MarkerPose pose = markerd::facing_pose(0.5, 25, 0, 0, -0.020, 0.015);
+  const markerd::detector::MarkerPose pose = markerd::detector::facing_pose(0.5, 25, 0, 0, -0.020, 0.015);
   EXPECT_LT((truth.rotation - pose.rotation).norm(), 1e-12);
   EXPECT_LT((truth.translation - pose.translation).norm(), 1e-12);
 }
@@ -201,7 +201,7 @@ TEST(Rig, ASimulatedRigFromTheShippedConfigHomesMovesAndPublishesSnapshots) {
   EXPECT_FALSE(s.rail.fault || s.turntable.fault || s.rail.moving || s.turntable.moving);
 
   const MarkerGroundTruth truth = rig->ground_truth(s);
-  const markerd::MarkerPose pose = markerd::facing_pose(0.95, -30);
+  const markerd::detector::MarkerPose pose = markerd::detector::facing_pose(0.95, -30);
   EXPECT_LT((truth.rotation - pose.rotation).norm(), 1e-12);
   EXPECT_LT((truth.translation - pose.translation).norm(), 1e-12);
 

@@ -15,7 +15,7 @@
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 const CameraModel kCamera = CameraModel::thesis_640x480();
@@ -181,4 +181,4 @@ TEST(RingModel, DetectorReadsFartherWithTheModel) {
 }
 
 }  // namespace
-}  // namespace markerd
+}  // namespace markerd::detector

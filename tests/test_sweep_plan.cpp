@@ -70,7 +70,7 @@ TEST(SweepPlan, ShippedDistancePlanIsTheThesisSweep) {
   EXPECT_EQ(plan.point_timeout, std::chrono::milliseconds(30000));
   EXPECT_EQ(plan.fault_timeout, std::chrono::milliseconds(600000));
   EXPECT_DOUBLE_EQ(plan.detection_threshold, 0.9);
-  EXPECT_EQ(plan.marker.family, markerd::Family::frame8);
+  EXPECT_EQ(plan.marker.family, markerd::detector::Family::frame8);
   EXPECT_EQ(plan.marker.id, 165);
   EXPECT_DOUBLE_EQ(plan.marker.size_m, 0.08);
   ASSERT_EQ(plan.grids.size(), 1U);
@@ -214,20 +214,20 @@ TEST(SweepPlan, EveryNumberHasARangeThatMeansSomething) {
 }
 
 TEST(SweepPlan, APlanForAFamilyTheDetectorDoesNotFindIsAProblem) {
-  markerd::DetectorConfig frame8;
-  frame8.family = markerd::Family::frame8;
-  const PlanMarker tag{markerd::Family::tag36h11, 5, 0.16};
+  markerd::detector::DetectorConfig frame8;
+  frame8.family = markerd::detector::Family::frame8;
+  const PlanMarker tag{markerd::detector::Family::tag36h11, 5, 0.16};
   const auto problem = marker_problem(tag, frame8);
   ASSERT_TRUE(problem.has_value());
   EXPECT_NE(problem->find("tag36h11"), std::string::npos) << *problem;
   EXPECT_NE(problem->find("frame8"), std::string::npos) << *problem;
-  EXPECT_FALSE(marker_problem({markerd::Family::frame8, 165, 0.16}, frame8).has_value());
+  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 165, 0.16}, frame8).has_value());
   // frame8's 0 and 255 come only with uniform_ids.
-  const auto zero = marker_problem({markerd::Family::frame8, 0, 0.08}, frame8);
+  const auto zero = marker_problem({markerd::detector::Family::frame8, 0, 0.08}, frame8);
   ASSERT_TRUE(zero.has_value());
   EXPECT_NE(zero->find("uniform_ids"), std::string::npos) << *zero;
   frame8.frame8.uniform_ids = true;
-  EXPECT_FALSE(marker_problem({markerd::Family::frame8, 0, 0.08}, frame8).has_value());
+  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 0, 0.08}, frame8).has_value());
 }
 
 TEST(SweepPlan, FloatRangesReachTheirEndWithoutDrift) {
@@ -276,7 +276,7 @@ angle_deg = [20, -10, 0]
   EXPECT_EQ(plan.point_timeout, defaults.point_timeout);
   EXPECT_EQ(plan.fault_timeout, defaults.fault_timeout);
   EXPECT_EQ(plan.detection_threshold, defaults.detection_threshold);
-  EXPECT_EQ(plan.marker.family, markerd::Family::frame8);
+  EXPECT_EQ(plan.marker.family, markerd::detector::Family::frame8);
   EXPECT_EQ(plan.marker.id, 165);
   EXPECT_EQ(plan.description, "");
   EXPECT_EQ(plan.source, "<string>");

@@ -62,7 +62,7 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
 
   [[nodiscard]] double camera_fps() const override { return configured_fps(daemon_.config_.camera.source); }
 
-  [[nodiscard]] DetectorConfig detector_config() const override { return daemon::detector_config(daemon_.config_); }
+  [[nodiscard]] detector::DetectorConfig detector_config() const override { return daemon::detector_config(daemon_.config_); }
 
   [[nodiscard]] nlohmann::json config_record() const override {
     return {{"file", daemon_.config_.source}, {"text", config_text_}};
@@ -72,7 +72,7 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
     const CameraSettings& camera = daemon_.config_.camera;
     nlohmann::json j{{"source", daemon_.source_->name()}, {"kind", camera.source_kind}, {"fps", camera_fps()}};
     if (camera.model) {
-      const CameraModel& m = *camera.model;
+      const detector::CameraModel& m = *camera.model;
       j["model"] = {{"file", camera.model_path.string()},
                     {"width", m.width},
                     {"height", m.height},
@@ -139,9 +139,9 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
 
   PipelineConfig pipeline = config_.pipeline;
   pipeline.pool.pixel_bytes = source_->geometry().slot_pixel_bytes;
-  std::vector<std::unique_ptr<MarkerDetector>> detectors;
-  const DetectorConfig detector = detector_config(config_);
-  for (std::size_t i = 0; i < config_.detector.workers; ++i) detectors.push_back(make_detector(detector));
+  std::vector<std::unique_ptr<detector::MarkerDetector>> detectors;
+  const detector::DetectorConfig detector = detector_config(config_);
+  for (std::size_t i = 0; i < config_.detector.workers; ++i) detectors.push_back(detector::make_detector(detector));
   pipeline_ = std::make_unique<Pipeline>(pipeline, std::move(detectors), *sink_);
   capture_loop_ = std::make_unique<CaptureLoop>(*source_, *pipeline_, rig_.get(), config_.camera.loop);
 

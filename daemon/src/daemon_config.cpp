@@ -42,10 +42,10 @@ MarkerSettings parse_marker(const ConfigTable& t) {
   t.allow_only({"family", "id", "size_m", "cut_hole"});
   MarkerSettings m;
   const auto family_name = t.optional<std::string>("family", "frame8");
-  const auto family = family_from_name(family_name);
+  const auto family = detector::family_from_name(family_name);
   if (!family) t.fail("family", fmt::format("unknown marker family \"{}\"", family_name));
   m.family = *family;
-  const FamilyInfo& info = family_info(m.family);
+  const detector::FamilyInfo& info = detector::family_info(m.family);
   const auto id = t.optional<std::int64_t>("id", m.id);
   if (id < 0 || id >= info.id_count) {
     t.fail("id", fmt::format("must be 0 .. {} for {}, got {}", info.id_count - 1, info.name, id));
@@ -68,7 +68,7 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
       // A camera file is a few KiB; OpenCV's reader would take a directory
       // or a FIFO for an empty or endless file.
       (void)check_regular_file(c.model_path, ConfigTable::kMaxFileBytes, "the camera model");
-      c.model = CameraModel::load(c.model_path);
+      c.model = detector::CameraModel::load(c.model_path);
     } catch (const std::exception& e) {
       t.fail("model", e.what());
     }
@@ -124,16 +124,16 @@ DetectorSettings parse_detector(const ConfigTable& t) {
   if (auto f = t.maybe_table("frame8")) {
     f->allow_only({"decimate", "threshold_offset", "min_hole_side_px", "min_margin", "uniform_ids", "model_small_cells",
                    "blur_sigma_px"});
-    Frame8Options& o = d.frame8;
+    detector::Frame8Options& o = d.frame8;
     o.decimate = int_in(*f, "decimate", o.decimate, 0, 8, "(0: automatic)");
-    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, Frame8Options::kMinThresholdOffset,
-                                Frame8Options::kMaxThresholdOffset, "grey levels");
+    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, detector::Frame8Options::kMinThresholdOffset,
+                                detector::Frame8Options::kMaxThresholdOffset, "grey levels");
     o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px, {2, 1000, "px"});
     o.min_margin = f->optional<double>("min_margin", o.min_margin);
     if (!(o.min_margin >= 0 && o.min_margin < 1)) f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
     o.uniform_ids = f->optional<bool>("uniform_ids", o.uniform_ids);
     o.model_small_cells = f->optional<bool>("model_small_cells", o.model_small_cells);
-    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, Frame8Options::kMaxBlurSigmaPx, "px"});
+    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, detector::Frame8Options::kMaxBlurSigmaPx, "px"});
   }
   return d;
 }
@@ -283,8 +283,8 @@ void check_control_setup(const ControlConfig& config) {
   }
 }
 
-DetectorConfig detector_config(const DaemonConfig& config) {
-  DetectorConfig d;
+detector::DetectorConfig detector_config(const DaemonConfig& config) {
+  detector::DetectorConfig d;
   d.family = config.marker.family;
   d.frame8 = config.detector.frame8;
   d.camera = config.camera.model;
@@ -296,8 +296,8 @@ DetectorConfig detector_config(const DaemonConfig& config) {
 
 void check_detector_setup(const DaemonConfig& config) {
   try {
-    (void)make_detector(detector_config(config));
-  } catch (const DetectorError& e) {
+    (void)detector::make_detector(detector_config(config));
+  } catch (const detector::DetectorError& e) {
     throw ConfigError(fmt::format("{}: the detector cannot be made from [marker], [camera] and [detector]: {}",
                                   config.source, e.what()));
   }

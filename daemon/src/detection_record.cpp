@@ -39,7 +39,7 @@ std::int64_t nanoseconds_since_epoch(std::chrono::steady_clock::time_point t) {
 
 void vector3(JsonWriter& json, const Eigen::Vector3d& v) { json.numbers({v.data(), 3}, kPoseDecimals); }
 
-void quad(JsonWriter& json, const Quad& quad) {
+void quad(JsonWriter& json, const detector::Quad& quad) {
   json.begin_array();
   for (const auto& corner : quad) {
     const std::array<double, 2> xy{corner.x, corner.y};
@@ -75,7 +75,7 @@ void rig_snapshot(JsonWriter& json, const rig::RigSnapshot& snapshot) {
 
 // rvec, quaternion and tvec of a rotation and translation, through
 // MarkerPose's conversions (stable at the half turn of the rig's poses).
-void rotation_translation(JsonWriter& json, const MarkerPose& pose) {
+void rotation_translation(JsonWriter& json, const detector::MarkerPose& pose) {
   json.key("rvec");
   vector3(json, pose.rvec());
   const Eigen::Quaterniond q = pose.quaternion();
@@ -86,7 +86,7 @@ void rotation_translation(JsonWriter& json, const MarkerPose& pose) {
 }
 
 void ground_truth(JsonWriter& json, const rig::MarkerGroundTruth& truth) {
-  MarkerPose pose;
+  detector::MarkerPose pose;
   pose.rotation = truth.rotation;
   pose.translation = truth.translation;
   json.begin_object();
@@ -96,7 +96,7 @@ void ground_truth(JsonWriter& json, const rig::MarkerGroundTruth& truth) {
   json.end_object();
 }
 
-void pose_error(JsonWriter& json, const MarkerPose& pose, const rig::MarkerGroundTruth& truth) {
+void pose_error(JsonWriter& json, const detector::MarkerPose& pose, const rig::MarkerGroundTruth& truth) {
   const rig::PoseError e = rig::pose_error(pose.rotation, pose.translation, truth);
   json.begin_object();
   json.key("translation_mm").number(e.translation_mm, kMmDecimals);
@@ -107,7 +107,7 @@ void pose_error(JsonWriter& json, const MarkerPose& pose, const rig::MarkerGroun
   json.end_object();
 }
 
-void marker_pose(JsonWriter& json, const MarkerPose& pose, const std::optional<rig::MarkerGroundTruth>& truth) {
+void marker_pose(JsonWriter& json, const detector::MarkerPose& pose, const std::optional<rig::MarkerGroundTruth>& truth) {
   json.begin_object();
   rotation_translation(json, pose);
   json.key("reprojection_error_px").number(pose.reprojection_error_px, kPixelDecimals);
@@ -120,9 +120,9 @@ void marker_pose(JsonWriter& json, const MarkerPose& pose, const std::optional<r
   json.end_object();
 }
 
-void detection(JsonWriter& json, const Detection& d, const std::optional<rig::MarkerGroundTruth>& truth) {
+void detection(JsonWriter& json, const detector::Detection& d, const std::optional<rig::MarkerGroundTruth>& truth) {
   json.begin_object();
-  json.key("family").string(family_info(d.family).name);
+  json.key("family").string(detector::family_info(d.family).name);
   json.key("id").integer(d.id);
   json.key("corners");
   quad(json, d.corners);
@@ -200,7 +200,7 @@ std::string_view DetectionRecordFormatter::format(const FrameRecordInput& in) {
   }
 
   json.key("detections").begin_array();
-  for (const Detection& d : in.detections) detection(json, d, in.truth);
+  for (const detector::Detection& d : in.detections) detection(json, d, in.truth);
   json.end_array();
   json.end_object();
   buffer_.push_back('\n');

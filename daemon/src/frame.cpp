@@ -19,14 +19,14 @@ void Frame::mark_corrupt(std::string_view cause) noexcept {
   set_cause(cause);
 }
 
-GreyView Frame::use_pixel_buffer(int width, int height) {
+detector::GreyView Frame::use_pixel_buffer(int width, int height) {
   const auto bytes = static_cast<std::size_t>(std::max(width, 0)) * static_cast<std::size_t>(std::max(height, 0));
   if (width <= 0 || height <= 0 || bytes > pixel_buffer_.size()) {
     throw std::length_error("frame pool: a " + std::to_string(width) + "x" + std::to_string(height) +
                             " grey image does not fit a slot of " + std::to_string(pixel_buffer_.size()) +
                             " bytes (the pool's pixel size is set from the camera's format at start)");
   }
-  image = GreyView{pixel_buffer_.data(), width, height, width};
+  image = detector::GreyView{pixel_buffer_.data(), width, height, width};
   return image;
 }
 

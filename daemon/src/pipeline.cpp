@@ -25,7 +25,7 @@ void name_this_thread(const char* name) noexcept { pthread_setname_np(pthread_se
 
 }  // namespace
 
-Pipeline::Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<MarkerDetector>> detectors,
+Pipeline::Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<detector::MarkerDetector>> detectors,
                    FrameSink& sink)
     : policy_(config.policy), sink_(sink), pool_(config.pool) {
   if (detectors.empty()) throw std::invalid_argument("pipeline: at least one detector (one per worker) is needed");

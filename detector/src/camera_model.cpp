@@ -10,7 +10,7 @@
 
 #include "markerd/base/read_file.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 // A calibration is a few kilobytes; a larger file is not one.
@@ -300,4 +300,4 @@ Point2 CameraModel::normalized_to_pixel(Point2 n) const {
   return {fx * d.x + cx, fy * d.y + cy};
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -9,7 +9,7 @@
 #include <stdexcept>
 #include <vector>
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 // splitmix64's finaliser: spreads the bits of seed, distance and yaw so that
@@ -126,4 +126,4 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
   return result;
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -3,7 +3,7 @@
 #include <array>
 #include <stdexcept>
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 constexpr std::array<FamilyInfo, 3> families{{
     {Family::frame8, "frame8", 256, 10, 0, 1, 254},
@@ -28,4 +28,4 @@ std::optional<Family> family_from_name(std::string_view name) {
   return std::nullopt;
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

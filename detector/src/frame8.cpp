@@ -2,7 +2,7 @@
 
 #include <stdexcept>
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 Cell data_cell(int edge, int bit) {
   // Position along the edge in reading order: 0 for the most significant bit.
@@ -38,4 +38,4 @@ std::array<std::uint8_t, grid * grid> ring_cells(int id) {
   return cells;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

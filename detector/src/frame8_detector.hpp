@@ -3,6 +3,6 @@
 
 #include "markerd/detector/detector.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 std::unique_ptr<MarkerDetector> make_frame8_detector(const DetectorConfig& config);
 }

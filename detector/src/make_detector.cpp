@@ -2,7 +2,7 @@
 #include "markerd/detector/detector.hpp"
 #include "peers.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 std::unique_ptr<MarkerDetector> make_detector(const DetectorConfig& config) {
   if (config.camera.has_value() != (config.marker_size_m > 0)) {
@@ -16,4 +16,4 @@ std::unique_ptr<MarkerDetector> make_detector(const DetectorConfig& config) {
   throw DetectorError("make_detector: unknown family");
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -17,7 +17,7 @@
 #include <string>
 #include <vector>
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 // Shared by both peers: the same preconditions and the same pose as frame8, so
@@ -230,4 +230,4 @@ std::unique_ptr<MarkerDetector> make_apriltag_detector(const DetectorConfig& con
   return std::make_unique<AprilTagDetector>(config);
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -8,9 +8,9 @@
 
 #include "markerd/detector/detector.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 std::unique_ptr<MarkerDetector> make_aruco_detector(const DetectorConfig& config);
 std::unique_ptr<MarkerDetector> make_apriltag_detector(const DetectorConfig& config);
 
-}  // namespace markerd
+}  // namespace markerd::detector

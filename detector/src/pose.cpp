@@ -19,7 +19,7 @@
 // which is exactly where a marker facing the camera and turned about its own
 // vertical axis (the rig's ground truth) lies; see tests/test_pose.cpp.
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 using Vec2 = Eigen::Vector2d;
@@ -469,4 +469,4 @@ Point2 project(const CameraModel& camera, const MarkerPose& pose, const Eigen::V
   return camera.normalized_to_pixel({p.x() / p.z(), p.y() / p.z()});
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

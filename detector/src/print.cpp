@@ -22,7 +22,7 @@
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/render.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 constexpr double kMmPerInch = 25.4;
@@ -320,4 +320,4 @@ void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& 
   write_file(out, bytes);
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

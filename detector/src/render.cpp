@@ -19,7 +19,7 @@
 
 #include "markerd/detector/frame8.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 namespace {
 
 constexpr float kPaper = 0.88F;
@@ -537,4 +537,4 @@ Quad project_marker_corners(const CameraModel& camera, const Scene& scene, doubl
   return quad;
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

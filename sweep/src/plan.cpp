@@ -68,17 +68,17 @@ PlanMarker parse_marker(const ConfigTable& root) {
   if (!t) return marker;
   t->allow_only({"family", "id", "size_m"});
   if (const auto name = t->maybe<std::string>("family")) {
-    const auto family = family_from_name(*name);
+    const auto family = detector::family_from_name(*name);
     if (!family) {
       std::string known;
-      for (const FamilyInfo& info : all_families()) known += fmt::format("{}{}", known.empty() ? "" : ", ", info.name);
+      for (const detector::FamilyInfo& info : detector::all_families()) known += fmt::format("{}{}", known.empty() ? "" : ", ", info.name);
       t->fail("family", fmt::format("unknown family '{}' (known: {})", *name, known));
     }
     marker.family = *family;
   }
   const bool id_given = t->contains("id");
   marker.id = t->optional<int>("id", marker.id);
-  const FamilyInfo& info = family_info(marker.family);
+  const detector::FamilyInfo& info = detector::family_info(marker.family);
   if (marker.id < 0 || marker.id >= info.id_count) {
     t->fail("id", fmt::format("must be 0 .. {} for {}, got {}{}", info.id_count - 1, info.name, marker.id,
                               id_given ? "" : " (the default: give the marker's id)"));
@@ -359,15 +359,15 @@ SweepPlan load_plan(const std::filesystem::path& path) {
   return parse_plan(read_plan_file(path), path.string());
 }
 
-std::optional<std::string> marker_problem(const PlanMarker& marker, const DetectorConfig& detector) {
-  const FamilyInfo& info = family_info(marker.family);
+std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector) {
+  const detector::FamilyInfo& info = detector::family_info(marker.family);
   if (marker.family != detector.family) {
     return fmt::format("the plan's marker is {} #{}, but markerd detects {} (its config's [marker] family): run the "
                        "plan on a markerd configured for {}, or give the plan the family markerd detects",
-                       info.name, marker.id, family_info(detector.family).name, info.name);
+                       info.name, marker.id, detector::family_info(detector.family).name, info.name);
   }
   const bool reported = marker.id >= info.first_default_id && marker.id <= info.last_default_id;
-  if (!reported && !(marker.family == Family::frame8 && detector.frame8.uniform_ids)) {
+  if (!reported && !(marker.family == detector::Family::frame8 && detector.frame8.uniform_ids)) {
     return fmt::format("the plan's marker is {} #{}, an id markerd's detector does not report (frame8's 0 and 255 "
                        "need [detector.frame8] uniform_ids = true in markerd's config)",
                        info.name, marker.id);

@@ -430,7 +430,7 @@ std::string angle_text(double degrees) {
 std::string marker_text(const PlanMarker& marker) {
   const double mm = marker.size_m * 1000;
   const bool whole = std::abs(mm - std::round(mm)) < 0.05;
-  return fmt::format("{} #{}, {:.{}f} mm", family_info(marker.family).name, marker.id, mm, whole ? 0 : 1);
+  return fmt::format("{} #{}, {:.{}f} mm", detector::family_info(marker.family).name, marker.id, mm, whole ? 0 : 1);
 }
 
 std::string status_text(const RunRecords& run) {

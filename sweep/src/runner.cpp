@@ -40,8 +40,8 @@ FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& m
                               double detector_marker_size_m) {
   FrameSample sample;
   sample.sequence = frame.sequence;
-  const Detection* found = nullptr;
-  for (const Detection& d : frame.detections) {
+  const detector::Detection* found = nullptr;
+  for (const detector::Detection& d : frame.detections) {
     if (found == nullptr && d.family == marker.family && d.id == marker.id) {
       found = &d;
     } else {
@@ -51,7 +51,7 @@ FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& m
   if (found == nullptr) return sample;
   sample.detected = true;
   if (!found->pose) return sample;
-  MarkerPose pose = found->pose->best;
+  detector::MarkerPose pose = found->pose->best;
   if (detector_marker_size_m > 0) pose.translation *= marker.size_m / detector_marker_size_m;
   sample.has_pose = true;
   const Eigen::Vector3d rvec = pose.rvec();

@@ -270,7 +270,7 @@ std::string table_cell(std::string_view text) {
 }
 
 std::string marker_text(const PlanMarker& marker) {
-  return fmt::format("{} #{}, {} mm", family_info(marker.family).name, marker.id,
+  return fmt::format("{} #{}, {} mm", detector::family_info(marker.family).name, marker.id,
                      one_decimal_or_whole(marker.size_m * 1000));
 }
 

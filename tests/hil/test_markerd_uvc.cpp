@@ -441,7 +441,7 @@ class MarkerdUvc : public testing::Test {
       ids.insert(*last_id);
       ASSERT_FALSE(d.at("pose").is_null()) << where << ": no pose, though the config has the camera model";
       const json& best = d.at("pose").at("best");
-      const MarkerPose& truth = scenes.at(frame.scene).pose;
+      const detector::MarkerPose& truth = scenes.at(frame.scene).pose;
       const double translation = (vector3(best.at("tvec")) - truth.translation).norm() / truth.translation.norm();
       const double rotation = rotation_between_deg(rotation_of(vector3(best.at("rvec"))), truth.rotation);
       worst_translation = std::max(worst_translation, translation);

@@ -97,7 +97,7 @@ struct PhaseCheck {
 // marker the feeder was showing then (by `runs`), with a pose close to the
 // rendered one; sequence numbers and capture times increase.
 PhaseCheck check_phase(const std::vector<json>& lines, Clock::time_point from, Clock::time_point to,
-                       const std::vector<SceneFeeder::Run>& runs, const std::vector<Scene>& scenes,
+                       const std::vector<SceneFeeder::Run>& runs, const std::vector<detector::Scene>& scenes,
                        const std::string& phase) {
   PhaseCheck check;
   std::optional<std::uint64_t> last_sequence;
@@ -127,7 +127,7 @@ PhaseCheck check_phase(const std::vector<json>& lines, Clock::time_point from, C
     for (const json& d : detections) {
       EXPECT_EQ(d.at("family"), "frame8") << where;
       const int id = d.at("id").get<int>();
-      const auto scene = std::find_if(scenes.begin(), scenes.end(), [&](const Scene& s) { return s.id == id; });
+      const auto scene = std::find_if(scenes.begin(), scenes.end(), [&](const detector::Scene& s) { return s.id == id; });
       if (scene == scenes.end()) {
         ADD_FAILURE() << where << ": id " << id << " was never shown: " << d.dump();
         continue;
@@ -200,7 +200,7 @@ class MarkerdVivid : public testing::Test {
 
     const auto start = Clock::now();
     scenes_ = feeder_scenes();
-    for (const Scene& scene : scenes_) frames_.push_back(to_yuyv(render_scene(feeder_camera(), scene)));
+    for (const detector::Scene& scene : scenes_) frames_.push_back(to_yuyv(detector::render_scene(feeder_camera(), scene)));
     std::cout << "rendered " << scenes_.size() << " scenes in " << seconds_since(start) << " s\n";
   }
 
@@ -270,7 +270,7 @@ class MarkerdVivid : public testing::Test {
   fs::path config_;
   fs::path socket_;
   fs::path markerd_output_;
-  std::vector<Scene> scenes_;
+  std::vector<detector::Scene> scenes_;
   std::vector<std::vector<std::uint8_t>> frames_;
   std::unique_ptr<SceneFeeder> feeder_;
 };
@@ -392,7 +392,7 @@ TEST_F(MarkerdVivid, LogsTheMarkersShownSurvivesAnUnplugAndStopsCleanly) {
       check_phase(log.lines, replugged, Clock::time_point::max(), runs_after, scenes_, "after the replug");
   for (const auto* phase : {&before, &after}) {
     EXPECT_GE(phase->frames, 4U);
-    for (const Scene& scene : scenes_) {
+    for (const detector::Scene& scene : scenes_) {
       EXPECT_GE(phase->frames_by_id.count(scene.id), 1U) << "id " << scene.id << " never logged";
     }
     EXPECT_GE(phase->id_changes, 1U) << "the log follows the feeder's scene changes";

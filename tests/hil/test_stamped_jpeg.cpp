@@ -24,10 +24,10 @@ constexpr int kQuality = 90;
 class StampedJpegTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    grey_ = render_scene(feeder_camera(), feeder_scenes().front());
+    grey_ = detector::render_scene(feeder_camera(), feeder_scenes().front());
     yuyv_ = to_yuyv(grey_);
   }
-  GreyImage grey_;
+  detector::GreyImage grey_;
   std::vector<std::uint8_t> yuyv_;
 };
 
@@ -48,7 +48,7 @@ TEST_F(StampedJpegTest, DecodesToTheFrameWithItsNumber) {
   StampedJpeg jpeg(yuyv_, kWidth, kHeight, kQuality);
   std::vector<std::uint8_t> out(static_cast<std::size_t>(kWidth) * kHeight * 2);
   daemon::MjpegDecoder decoder;
-  GreyImage decoded(kWidth, kHeight);
+  detector::GreyImage decoded(kWidth, kHeight);
   for (const std::uint32_t number : {7U, 0xA5A5A5A5U}) {
     const std::size_t length = jpeg.write(number, out);
     const char* why = decoder.decode({out.data(), length}, kWidth, kHeight, decoded.row(0), kWidth);

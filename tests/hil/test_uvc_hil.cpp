@@ -97,7 +97,7 @@ struct Captured {
   std::uint64_t sequence = 0;
   Clock::time_point capture_time{};
   Clock::time_point filled{};  // when fill() returned: the frame was the test's
-  GreyImage image;
+  detector::GreyImage image;
 };
 
 std::vector<Captured> capture(CaptureSource& source, int count) {
@@ -119,7 +119,7 @@ std::vector<Captured> capture(CaptureSource& source, int count) {
     c.capture_time = frame->capture_time;
     EXPECT_EQ(frame->status, FrameStatus::ok) << frame->cause();
     if (frame->status == FrameStatus::ok) {
-      c.image = GreyImage(frame->image.width, frame->image.height);
+      c.image = detector::GreyImage(frame->image.width, frame->image.height);
       for (int y = 0; y < frame->image.height; ++y) {
         std::copy_n(frame->image.row(y), frame->image.width, c.image.row(y));
       }
@@ -245,13 +245,13 @@ class UvcHil : public testing::Test {
   void check_frames(const std::string& backend, const std::string& format, const std::vector<Captured>& frames) const {
     const auto sent = sent_frames(server_dir_);
     const auto scenes = feeder_scenes();
-    const CameraModel camera = feeder_camera();
-    DetectorConfig config;
-    config.family = Family::frame8;
+    const detector::CameraModel camera = feeder_camera();
+    detector::DetectorConfig config;
+    config.family = detector::Family::frame8;
     config.camera = camera;
     config.marker_size_m = scenes.front().marker_size_m;
-    const auto detector = make_detector(config);
-    std::vector<Detection> detections;
+    const auto detector = detector::make_detector(config);
+    std::vector<detector::Detection> detections;
 
     std::vector<std::uint32_t> numbers;
     std::vector<std::uint64_t> sequences;
@@ -290,12 +290,12 @@ class UvcHil : public testing::Test {
       if (numbers.size() % kDetectEvery != 1 % kDetectEvery) continue;
       detector->detect(c.image, detections);
       ASSERT_EQ(detections.size(), 1U) << backend << " frame " << *number << " (scene " << s.scene << ")";
-      const Detection& d = detections.front();
+      const detector::Detection& d = detections.front();
       EXPECT_EQ(d.id, s.id) << backend << " frame " << *number;
       ids.insert(d.id);
       ASSERT_TRUE(d.pose.has_value());
-      const MarkerPose& truth = scenes[s.scene].pose;
-      const MarkerPose& pose = d.pose->best;
+      const detector::MarkerPose& truth = scenes[s.scene].pose;
+      const detector::MarkerPose& pose = d.pose->best;
       EXPECT_LT((pose.translation - truth.translation).norm() / truth.translation.norm(), kMaxTranslationError)
           << backend << " frame " << *number;
       const double angle =

@@ -139,7 +139,7 @@ std::uint8_t luma(std::uint32_t number, int x, int y) {
 }
 
 // The number of the frame `image` shows, when every pixel is that frame's.
-std::optional<std::uint32_t> frame_number(const GreyView& image) {
+std::optional<std::uint32_t> frame_number(const detector::GreyView& image) {
   if (image.width != kWidth || image.height != kHeight || image.data == nullptr) return std::nullopt;
   const std::uint8_t* row0 = image.row(0);
   const std::uint32_t number = row0[0] | (row0[1] << 8) | (row0[2] << 16) | (static_cast<std::uint32_t>(row0[3]) << 24);

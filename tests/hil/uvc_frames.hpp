@@ -50,7 +50,7 @@ inline void stamp_yuyv(std::uint8_t* yuyv, std::size_t stride, std::uint32_t num
 
 // The stamped number of a grey frame; nothing when the stamp does not read
 // back as a number and its complement (a torn or foreign frame).
-inline std::optional<std::uint32_t> read_stamp(const GreyView& image) {
+inline std::optional<std::uint32_t> read_stamp(const detector::GreyView& image) {
   if (image.empty() || image.width < 2 * kStampBits * kStampCellWidth || image.height < kStampRows) return std::nullopt;
   std::uint64_t bits = 0;
   for (int cell = 0; cell < 2 * kStampBits; ++cell) {

@@ -662,8 +662,8 @@ int main(int argc, char** argv) {
     const Options options = parse(argc, argv);
     fs::create_directories(options.out_dir);
     std::vector<SceneFrames> scenes;
-    for (const Scene& scene : feeder_scenes()) {
-      std::vector<std::uint8_t> yuyv = to_yuyv(render_scene(feeder_camera(), scene));
+    for (const detector::Scene& scene : feeder_scenes()) {
+      std::vector<std::uint8_t> yuyv = to_yuyv(detector::render_scene(feeder_camera(), scene));
       StampedJpeg jpeg(yuyv, kWidth, kHeight, kJpegQuality);
       scenes.push_back({scene.id, std::move(yuyv), std::move(jpeg)});
     }

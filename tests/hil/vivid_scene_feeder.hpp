@@ -84,27 +84,27 @@ inline std::optional<VividNodes> find_vivid_nodes() {
 // facing it that the pose has no flip ambiguity), over the renderer's
 // clutter, through the thesis camera's lens with its distortion. The blur
 // and noise of the simulated camera's defaults.
-inline std::vector<Scene> feeder_scenes() {
-  Scene a;
-  a.family = Family::frame8;
+inline std::vector<detector::Scene> feeder_scenes() {
+  detector::Scene a;
+  a.family = detector::Family::frame8;
   a.id = 165;
   a.marker_size_m = 0.08;
-  a.pose = facing_pose(0.5, 30, 0, 0, 0.02, -0.01);
+  a.pose = detector::facing_pose(0.5, 30, 0, 0, 0.02, -0.01);
   a.blur_sigma_px = 0.6;
   a.noise_sigma = 2.0;
   a.supersample = 3;
   a.seed = 11;
-  Scene b = a;
+  detector::Scene b = a;
   b.id = 77;
-  b.pose = facing_pose(0.5, -40, 0, 10, -0.03, 0.02);
+  b.pose = detector::facing_pose(0.5, -40, 0, 10, -0.03, 0.02);
   b.seed = 12;
   return {a, b};
 }
 
-inline CameraModel feeder_camera() { return CameraModel::thesis_640x480(); }
+inline detector::CameraModel feeder_camera() { return detector::CameraModel::thesis_640x480(); }
 
 // A grey image as YUYV: Y the grey, U and V 128 (no colour).
-inline std::vector<std::uint8_t> to_yuyv(const GreyImage& image) {
+inline std::vector<std::uint8_t> to_yuyv(const detector::GreyImage& image) {
   std::vector<std::uint8_t> yuyv(static_cast<std::size_t>(image.width()) * image.height() * 2, 128);
   for (int y = 0; y < image.height(); ++y) {
     const std::uint8_t* in = image.row(y);

@@ -15,7 +15,7 @@
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 
-namespace markerd::test {
+namespace markerd::test_support {
 
 // Polls `condition` every 2 ms until it holds (true) or `timeout` passes.
 inline bool wait_for(const std::function<bool()>& condition,
@@ -27,8 +27,6 @@ inline bool wait_for(const std::function<bool()>& condition,
   }
   return true;
 }
-
-using test_support::TempDir;
 
 // A peer program (found in PATH when not named by its path) with its output
 // in `log`. The destructor terminates it (SIGTERM, then SIGKILL after 5 s)
@@ -74,4 +72,4 @@ class SocatPtyPair {
   PeerProcess socat_;
 };
 
-}  // namespace markerd::test
+}  // namespace markerd::test_support

@@ -23,25 +23,25 @@ struct DetectOptions {
   std::string size;
   std::string family = "frame8";
   int decimate = 0;
-  int threshold_offset = markerd::Frame8Options{}.threshold_offset;
-  double min_margin = markerd::Frame8Options{}.min_margin;
+  int threshold_offset = markerd::detector::Frame8Options{}.threshold_offset;
+  double min_margin = markerd::detector::Frame8Options{}.min_margin;
   bool uniform_ids = false;
   std::string debug_dir;
   bool verbose = false;
   std::vector<std::string> images;
 };
 
-nlohmann::ordered_json quad_json(const markerd::Quad& quad) {
+nlohmann::ordered_json quad_json(const markerd::detector::Quad& quad) {
   auto out = nlohmann::ordered_json::array();
   // 1e-4 px: ten times finer than the detectors' best sub-pixel accuracy.
   for (const auto& p : quad) out.push_back({rounded(p.x, 4), rounded(p.y, 4)});
   return out;
 }
 
-nlohmann::ordered_json detection_json(const std::string& file, const markerd::Detection& d, double time_ms) {
+nlohmann::ordered_json detection_json(const std::string& file, const markerd::detector::Detection& d, double time_ms) {
   nlohmann::ordered_json j;
   j["file"] = file;
-  j["family"] = markerd::family_info(d.family).name;
+  j["family"] = markerd::detector::family_info(d.family).name;
   j["id"] = d.id;
   j["corners"] = quad_json(d.corners);
   if (d.inner_corners) j["inner_corners"] = quad_json(*d.inner_corners);
@@ -49,7 +49,7 @@ nlohmann::ordered_json detection_json(const std::string& file, const markerd::De
   j["bits_corrected"] = d.bits_corrected;
   j["margin"] = rounded(d.margin, 4);
   if (d.pose) {
-    const markerd::MarkerPose& pose = d.pose->best;
+    const markerd::detector::MarkerPose& pose = d.pose->best;
     const Eigen::Vector3d r = pose.rvec();
     const Eigen::Quaterniond q = pose.quaternion();
     const Eigen::Vector3d& t = pose.translation;
@@ -64,18 +64,18 @@ nlohmann::ordered_json detection_json(const std::string& file, const markerd::De
 }
 
 int run_detect(const DetectOptions& o) {
-  const markerd::Family family = parse_family(o.family);
+  const markerd::detector::Family family = parse_family(o.family);
   if (o.camera.empty() != o.size.empty()) {
     throw usage_error(o.camera.empty() ? "--size" : "--camera",
                       "the pose needs both --camera and --size (give both or neither)");
   }
-  markerd::DetectorConfig config;
+  markerd::detector::DetectorConfig config;
   config.family = family;
   config.frame8.decimate = o.decimate;
   config.frame8.threshold_offset = o.threshold_offset;
   config.frame8.min_margin = o.min_margin;
   config.frame8.uniform_ids = o.uniform_ids;
-  if (!o.debug_dir.empty() && family != markerd::Family::frame8) {
+  if (!o.debug_dir.empty() && family != markerd::detector::Family::frame8) {
     throw usage_error("--debug", "only the frame8 detector has a debug output");
   }
   config.frame8.debug_dir = o.debug_dir;
@@ -84,7 +84,7 @@ int run_detect(const DetectOptions& o) {
     if (!(config.marker_size_m > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
     config.camera = load_camera(o.camera);
   }
-  const auto detector = markerd::make_detector(config);
+  const auto detector = markerd::detector::make_detector(config);
 
   int failed = 0;
   const auto report = [&failed](const std::string& message) {
@@ -92,9 +92,9 @@ int run_detect(const DetectOptions& o) {
     std::cerr << fmt::format("markerctl: {}\n", message);
     ++failed;
   };
-  std::vector<markerd::Detection> detections;
+  std::vector<markerd::detector::Detection> detections;
   markerd::daemon::ImageFileReader reader;
-  markerd::GreyImage grey;
+  markerd::detector::GreyImage grey;
   int debug_frame = 0;  // the detector numbers its debug output by detect() call
   for (const std::string& path : o.images) {
     try {
@@ -106,20 +106,20 @@ int run_detect(const DetectOptions& o) {
         continue;
       }
       if (grey.width() != size.width || grey.height() != size.height) {
-        grey = markerd::GreyImage(size.width, size.height);
+        grey = markerd::detector::GreyImage(size.width, size.height);
       }
       reader.decode(grey.data(), size.width);
     } catch (const markerd::daemon::ImageFileError& e) {
       report(e.what());
       continue;
     }
-    const markerd::GreyView view = grey.view();
+    const markerd::detector::GreyView view = grey.view();
     double time_ms = 0;
     try {
       const auto start = std::chrono::steady_clock::now();
       detector->detect(view, detections);
       time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    } catch (const markerd::DetectorError& e) {
+    } catch (const markerd::detector::DetectorError& e) {
       report(fmt::format("{}: {}", path, e.what()));
       continue;
     }

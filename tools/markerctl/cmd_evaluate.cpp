@@ -41,11 +41,11 @@ struct Sweep {
   std::string title;
   bool over_yaw = false;
   double at_distance = 0;  // yaw sweeps only
-  std::vector<markerd::EvalPoint> points;
-  std::vector<markerd::EvalResult> results;
+  std::vector<markerd::detector::EvalPoint> points;
+  std::vector<markerd::detector::EvalResult> results;
 };
 
-std::string cell(const markerd::EvalResult& r, double value, int decimals) {
+std::string cell(const markerd::detector::EvalResult& r, double value, int decimals) {
   if (r.detected == 0) return "-";
   return fmt::format("{:.{}f}", value, decimals);
 }
@@ -82,7 +82,7 @@ std::string summary(const std::string& family, const std::vector<Sweep>& sweeps)
   return out + fmt::format(" (detection rate >= {:.0f}%)", 100 * good_rate);
 }
 
-nlohmann::ordered_json result_json(const std::string& family, const markerd::EvalResult& r) {
+nlohmann::ordered_json result_json(const std::string& family, const markerd::detector::EvalResult& r) {
   nlohmann::ordered_json j;
   j["family"] = family;
   j["distance_m"] = rounded(r.point.distance_m, 6);
@@ -98,9 +98,9 @@ nlohmann::ordered_json result_json(const std::string& family, const markerd::Eva
 }
 
 int run_evaluate(const EvaluateOptions& o) {
-  std::vector<markerd::Family> families;
+  std::vector<markerd::detector::Family> families;
   if (o.family == "all") {
-    for (const auto& info : markerd::all_families()) families.push_back(info.family);
+    for (const auto& info : markerd::detector::all_families()) families.push_back(info.family);
   } else {
     families.push_back(parse_family(o.family));
   }
@@ -120,7 +120,7 @@ int run_evaluate(const EvaluateOptions& o) {
   }
   const double size = parse_length_m(o.size, BareUnit::metre, "--size");
   if (!(size > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
-  const markerd::CameraModel camera = load_camera(o.camera);
+  const markerd::detector::CameraModel camera = load_camera(o.camera);
 
   std::vector<Sweep> plan;
   {
@@ -151,17 +151,17 @@ int run_evaluate(const EvaluateOptions& o) {
 
   const bool tty = isatty(fileno(stderr)) != 0;
   std::vector<std::string> summaries;
-  for (const markerd::Family family : families) {
-    const std::string name(markerd::family_info(family).name);
-    markerd::DetectorConfig config;
+  for (const markerd::detector::Family family : families) {
+    const std::string name(markerd::detector::family_info(family).name);
+    markerd::detector::DetectorConfig config;
     config.family = family;
     config.camera = camera;
     config.marker_size_m = size;
-    const auto detector = markerd::make_detector(config);
+    const auto detector = markerd::detector::make_detector(config);
 
-    markerd::EvalSettings settings;
+    markerd::detector::EvalSettings settings;
     settings.scene.family = family;
-    settings.scene.id = family == markerd::Family::frame8 ? 165 : 0;
+    settings.scene.id = family == markerd::detector::Family::frame8 ? 165 : 0;
     settings.scene.marker_size_m = size;
     settings.scene.noise_sigma = o.noise;
     settings.scene.blur_sigma_px = o.blur;
@@ -179,7 +179,7 @@ int run_evaluate(const EvaluateOptions& o) {
                                    point.distance_m, point.yaw_deg, ++done, points_per_family, tty ? "" : "\n");
           std::cerr.flush();
         }
-        sweep.results.push_back(markerd::evaluate_point(*detector, camera, settings, point));
+        sweep.results.push_back(markerd::detector::evaluate_point(*detector, camera, settings, point));
         if (o.json) {
           std::cout << json_line(result_json(name, sweep.results.back())) << '\n';
           std::cout.flush();

@@ -34,24 +34,24 @@ std::string lower_extension(const std::filesystem::path& path) {
 
 std::string id_ranges() {
   std::string out;
-  for (const auto& info : markerd::all_families()) {
+  for (const auto& info : markerd::detector::all_families()) {
     out += fmt::format("{}{} 0-{}", out.empty() ? "" : ", ", info.name, info.id_count - 1);
   }
   return out;
 }
 
-int write_image(const MarkerOptions& o, markerd::Family family) {
+int write_image(const MarkerOptions& o, markerd::detector::Family family) {
   if (!cv::haveImageWriter(o.output)) {
     throw usage_error("-o",
                       fmt::format("'{}': no image format for this extension (use .png, .pgm, .bmp, .tif)", o.output));
   }
-  const auto& info = markerd::family_info(family);
+  const auto& info = markerd::detector::family_info(family);
   if (o.image_px % info.size_cells != 0) {
     std::cerr << fmt::format(
         "markerctl: note: {} px is not a multiple of the {} cells of a {} marker; cell edges will be blurred\n",
         o.image_px, info.size_cells, info.name);
   }
-  const markerd::GreyImage image = markerd::ideal_marker_image(family, o.id, o.image_px, !o.no_quiet_zone);
+  const markerd::detector::GreyImage image = markerd::detector::ideal_marker_image(family, o.id, o.image_px, !o.no_quiet_zone);
   // imwrite only reads the pixels; the const_cast is for cv::Mat's constructor.
   const cv::Mat mat(image.height(), image.width(), CV_8UC1, const_cast<std::uint8_t*>(image.data()));
   bool ok = false;
@@ -67,7 +67,7 @@ int write_image(const MarkerOptions& o, markerd::Family family) {
 }
 
 int run_marker(const MarkerOptions& o) {
-  const markerd::Family family = parse_family(o.family);
+  const markerd::detector::Family family = parse_family(o.family);
   check_id(family, o.id);
   if (o.image_px > 0) return write_image(o, family);
 
@@ -83,15 +83,15 @@ int run_marker(const MarkerOptions& o) {
                                         "(or --image-px N for a pixel image)",
                                         o.output));
   }
-  markerd::PrintSpec spec;
+  markerd::detector::PrintSpec spec;
   spec.family = family;
   spec.id = o.id;
   spec.size_mm = size_mm;
   spec.margin_mm = margin_mm;
   spec.dpi = o.dpi;
-  markerd::write_printable_marker(spec, o.output);
+  markerd::detector::write_printable_marker(spec, o.output);
   std::cout << fmt::format("{}: {} id {}, {:g} mm marker, {:g} mm margin{}\n", o.output,
-                           markerd::family_info(family).name, o.id, size_mm, margin_mm,
+                           markerd::detector::family_info(family).name, o.id, size_mm, margin_mm,
                            ext == ".png" ? fmt::format(", {:g} dpi", o.dpi) : std::string());
   return 0;
 }

@@ -40,13 +40,13 @@ struct RenderOptions {
 };
 
 // Truth is printed finer than any detector resolves (1e-6 px, 1e-9 m).
-nlohmann::ordered_json point_json(markerd::Point2 p) { return {rounded(p.x, 6), rounded(p.y, 6)}; }
+nlohmann::ordered_json point_json(markerd::detector::Point2 p) { return {rounded(p.x, 6), rounded(p.y, 6)}; }
 
 int run_render(const RenderOptions& o) {
-  markerd::Scene scene;
+  markerd::detector::Scene scene;
   scene.family = parse_family(o.family);
   // 165 is the thesis's example id; other families start at 0.
-  scene.id = o.id >= 0 ? o.id : (scene.family == markerd::Family::frame8 ? 165 : 0);
+  scene.id = o.id >= 0 ? o.id : (scene.family == markerd::detector::Family::frame8 ? 165 : 0);
   check_id(scene.family, scene.id);
   scene.marker_size_m = parse_length_m(o.size, BareUnit::metre, "--size");
   if (!(scene.marker_size_m > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
@@ -62,9 +62,9 @@ int run_render(const RenderOptions& o) {
                       fmt::format("'{}': no image format for this extension (use .png, .pgm, .bmp, .tif)", o.output));
   }
 
-  const markerd::CameraModel camera = load_camera(o.camera);
+  const markerd::detector::CameraModel camera = load_camera(o.camera);
   scene.cut_hole = o.cut_hole;
-  scene.pose = markerd::facing_pose(dist, yaw, pitch, roll, offset_x, offset_y);
+  scene.pose = markerd::detector::facing_pose(dist, yaw, pitch, roll, offset_x, offset_y);
   scene.exposure = o.exposure;
   scene.blur_sigma_px = o.blur;
   scene.noise_sigma = o.noise;
@@ -73,8 +73,8 @@ int run_render(const RenderOptions& o) {
   scene.distort = !o.no_distort;
   scene.seed = o.seed;
 
-  const markerd::GreyImage image = markerd::render_scene(camera, scene);
-  const markerd::Quad corners = markerd::project_marker_corners(camera, scene);
+  const markerd::detector::GreyImage image = markerd::detector::render_scene(camera, scene);
+  const markerd::detector::Quad corners = markerd::detector::project_marker_corners(camera, scene);
 
   // imwrite only reads the pixels; the const_cast is for cv::Mat's constructor.
   const cv::Mat mat(image.height(), image.width(), CV_8UC1, const_cast<std::uint8_t*>(image.data()));
@@ -88,7 +88,7 @@ int run_render(const RenderOptions& o) {
 
   nlohmann::ordered_json line;
   line["file"] = o.output;
-  line["family"] = markerd::family_info(scene.family).name;
+  line["family"] = markerd::detector::family_info(scene.family).name;
   line["id"] = scene.id;
   line["size_m"] = scene.marker_size_m;
   line["corners"] = nlohmann::ordered_json::array();

@@ -117,33 +117,33 @@ std::vector<double> parse_values(std::string_view text, std::string_view option,
 
 std::string family_names() {
   std::string names;
-  for (const auto& info : markerd::all_families()) {
+  for (const auto& info : markerd::detector::all_families()) {
     if (!names.empty()) names += ", ";
     names += info.name;
   }
   return names;
 }
 
-markerd::Family parse_family(std::string_view name, std::string_view option) {
-  if (auto family = markerd::family_from_name(name)) return *family;
+markerd::detector::Family parse_family(std::string_view name, std::string_view option) {
+  if (auto family = markerd::detector::family_from_name(name)) return *family;
   throw usage_error(std::string(option), fmt::format("unknown family '{}' (known: {})", name, family_names()));
 }
 
-void check_id(markerd::Family family, int id, std::string_view option) {
-  const auto& info = markerd::family_info(family);
+void check_id(markerd::detector::Family family, int id, std::string_view option) {
+  const auto& info = markerd::detector::family_info(family);
   if (id < 0 || id >= info.id_count) {
     throw usage_error(std::string(option),
                       fmt::format("{} is not a {} id (valid ids are 0 to {})", id, info.name, info.id_count - 1));
   }
 }
 
-markerd::CameraModel load_camera(const std::string& path) {
-  if (path.empty()) return markerd::CameraModel::thesis_640x480();
+markerd::detector::CameraModel load_camera(const std::string& path) {
+  if (path.empty()) return markerd::detector::CameraModel::thesis_640x480();
   std::error_code ec;
   if (!std::filesystem::exists(path, ec)) throw runtime_error("--camera", fmt::format("{}: no such file", path));
   try {
-    return markerd::CameraModel::load(path);
-  } catch (const markerd::CameraModelError& e) {
+    return markerd::detector::CameraModel::load(path);
+  } catch (const markerd::detector::CameraModelError& e) {
     // The loader's message already names the file.
     throw runtime_error("--camera", e.what());
   }

@@ -83,15 +83,15 @@ std::vector<double> parse_values(std::string_view text, std::string_view option,
                                  const std::function<double(std::string_view)>& parse_one);
 
 // "frame8", "aruco4x4_50", "tag36h11"; a usage error names the valid ones.
-markerd::Family parse_family(std::string_view name, std::string_view option = "--family");
+markerd::detector::Family parse_family(std::string_view name, std::string_view option = "--family");
 std::string family_names();  // "frame8, aruco4x4_50, tag36h11"
-void check_id(markerd::Family family, int id, std::string_view option = "--id");
+void check_id(markerd::detector::Family family, int id, std::string_view option = "--id");
 
 // How help texts name CameraModel::thesis_640x480() (docs/frame-marker.md).
 inline constexpr const char* thesis_camera_text =
     "640x480, fx 516, fy 515, cx 319, cy 238, distortion k1 0.3495, k2 -2.2549, p1 0, p2 0, k3 4.9959";
 // From a calibration file, or the thesis camera when `path` is empty.
-markerd::CameraModel load_camera(const std::string& path);
+markerd::detector::CameraModel load_camera(const std::string& path);
 
 // One line of JSON; bytes of a file name that are not UTF-8 become U+FFFD
 // instead of aborting the output.

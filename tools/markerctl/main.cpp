@@ -47,11 +47,11 @@ int run(const markerctl::Command& command) {
   } catch (const markerctl::CommandError& e) {
     print_error(e.context(), e.what());
     return e.exit_code();
-  } catch (const markerd::CameraModelError& e) {
+  } catch (const markerd::detector::CameraModelError& e) {
     print_error(name, e.what());
-  } catch (const markerd::PrintError& e) {
+  } catch (const markerd::detector::PrintError& e) {
     print_error(name, e.what());
-  } catch (const markerd::DetectorError& e) {
+  } catch (const markerd::detector::DetectorError& e) {
     print_error(name, e.what());
   } catch (const cv::Exception& e) {
     print_error(name, fmt::format("OpenCV: {}", e.err.empty() ? std::string(e.what()) : e.err));

@@ -390,10 +390,10 @@ void ImageFileReader::decode(std::uint8_t* grey, std::ptrdiff_t stride) {
   }
 }
 
-GreyImage read_grey_image(const std::filesystem::path& path) {
+detector::GreyImage read_grey_image(const std::filesystem::path& path) {
   ImageFileReader reader;
   const ImageSize size = reader.open(path);
-  GreyImage image(size.width, size.height);
+  detector::GreyImage image(size.width, size.height);
   reader.decode(image.data(), size.width);
   return image;
 }

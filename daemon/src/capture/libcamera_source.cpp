@@ -566,7 +566,7 @@ void Session::fill(std::uint32_t index, Frame& frame) {
     mark_corrupt(frame, "libcamera camera '{}': frame {} holds {} bytes, a {}x{} {} frame needs {}", camera_id_,
                  metadata.sequence, bytes_used, width_, height_, to_string(format_), first_plane_bytes_);
   } else if (format_ == LibcameraPixelFormat::yuyv || format_ == LibcameraPixelFormat::mjpeg) {
-    GreyView grey;
+    detector::GreyView grey;
     try {
       grey = frame.use_pixel_buffer(width_, height_);
     } catch (const std::length_error& e) {
@@ -586,7 +586,7 @@ void Session::fill(std::uint32_t index, Frame& frame) {
   } else {
     // The Y plane (NV12) or the whole image (R8), lent: the request goes
     // back when the pipeline is done with the frame.
-    frame.image = GreyView{slot.pixels, width_, height_, static_cast<std::ptrdiff_t>(stride_)};
+    frame.image = detector::GreyView{slot.pixels, width_, height_, static_cast<std::ptrdiff_t>(stride_)};
     lend(index, frame);
     return;
   }

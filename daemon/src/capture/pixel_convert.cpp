@@ -107,7 +107,7 @@ void decode_mjpeg_frame(Frame& frame) noexcept {
       return frame.mark_corrupt(e.what());
     }
   }
-  const GreyView image = frame.image;
+  const detector::GreyView image = frame.image;
   assert(image.data == frame.pixel_buffer().data());
   if (const char* why =
           decoder->decode(frame.encoded(), image.width, image.height, frame.pixel_buffer().data(), image.stride)) {

@@ -65,7 +65,7 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   return s;
 }
 
-SimCamera::SimCamera(SimCameraSettings settings, CameraModel camera, rig::RigGeometry geometry)
+SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry)
     : settings_(settings), camera_(std::move(camera)), geometry_(geometry) {
   if (camera_.width <= 0 || camera_.height <= 0) {
     throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
@@ -132,7 +132,7 @@ void SimCamera::skip() noexcept { ++sequence_; }
 void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
   if (rendered_at_ && rendered_at_->first == rail_mm && rendered_at_->second == turntable_deg) return;
   const rig::MarkerGroundTruth truth = rig::ground_truth(geometry_, rail_mm, turntable_deg);
-  Scene scene;
+  detector::Scene scene;
   scene.family = settings_.family;
   scene.id = settings_.id;
   scene.marker_size_m = settings_.marker_size_m;
@@ -146,7 +146,7 @@ void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
   scene.clutter = settings_.clutter;
   scene.distort = settings_.distort;
   scene.seed = settings_.seed;
-  clean_ = render_scene(camera_, scene);
+  clean_ = detector::render_scene(camera_, scene);
   rendered_at_ = {rail_mm, turntable_deg};
   ++renders_;
 }

@@ -582,7 +582,7 @@ void V4l2Source::fill(Frame& frame) {
   const int h = settings_.height;
   if (settings_.format == V4l2PixelFormat::grey || settings_.format == V4l2PixelFormat::nv12) {
     // The grey image is the buffer itself (NV12's Y plane comes first).
-    frame.image = GreyView{buffer.data, w, h, stride_};
+    frame.image = detector::GreyView{buffer.data, w, h, stride_};
     stream_->retain();
     frame.set_release({&requeue_lent, stream_, b.index});
     return;

@@ -16,7 +16,7 @@
 #include "markerd/detector/geometry.hpp"
 #include "markerd/detector/image.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // Maps the unit square (0,0) (1,0) (1,1) (0,1) onto a quad (Heckbert's closed form).
 struct Homography {
@@ -248,4 +248,4 @@ struct ShortEdgeFit {
   double spread = 0;  // the profile's sum of squares about its mean
 };
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -13,7 +13,7 @@
 
 #include "markerd/detector/pose.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // Fills the corners from a map of grid coordinates to the image (without a
 // camera) or to undistorted normalized coordinates (with one), and the
@@ -50,4 +50,4 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

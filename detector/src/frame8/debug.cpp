@@ -12,7 +12,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 const char* Frame8Detector::read_name(Read how) {
   switch (how) {
@@ -117,4 +117,4 @@ void Frame8Detector::write_debug(const std::vector<Detection>& out) {
   write_text(prefix + "candidates.json", json);
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -3,7 +3,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // Decides the code from the ring cells' grey levels: sampled in the image,
 // or fitted by the ring model when `model` is given. `rotation` is set once
@@ -55,4 +55,4 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   return true;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -12,7 +12,7 @@
 
 #include "normal_table.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // Samples a ring cell at its centre; where cells are resolved, at four
 // points around the centre instead (less noise, and a cell that is not one
@@ -218,4 +218,4 @@ Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, co
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

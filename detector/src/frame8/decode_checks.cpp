@@ -3,7 +3,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // Cells under this many pixels with two bits outvoted are as likely a dark
 // blob in clutter (see the check).
@@ -119,4 +119,4 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -3,7 +3,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 Rejection Frame8Detector::fit_grey_model(CellSize cell_size, RingRead& r) const {
   // Seeded by the corners: three black, one white.
@@ -56,4 +56,4 @@ Rejection Frame8Detector::fit_grey_model(CellSize cell_size, RingRead& r) const 
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -5,7 +5,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 Rejection Frame8Detector::read_corners(RingRead& r) const {
   const auto& corner = r.corner;
@@ -70,4 +70,4 @@ Rejection Frame8Detector::settle_orientation(const Homography& H, RingRead& r) c
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -4,7 +4,7 @@
 
 #include "frame8/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // How well an edge's cells are resolved along the edge, 0..1: a cell under
 // a pixel wide is blurred into its neighbours.
@@ -76,4 +76,4 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
   return Rejection::none;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -25,7 +25,7 @@
 
 #include "frame8_detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
   if (config_.frame8.decimate < 0 || config_.frame8.decimate > 8) {
@@ -298,12 +298,12 @@ void Frame8Detector::remove_nested(std::vector<Detection>& out) {
   }
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8
 
-namespace markerd {
+namespace markerd::detector {
 
 std::unique_ptr<MarkerDetector> make_frame8_detector(const DetectorConfig& config) {
   return std::make_unique<frame8::Frame8Detector>(config);
 }
 
-}  // namespace markerd
+}  // namespace markerd::detector

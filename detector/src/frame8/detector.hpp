@@ -19,7 +19,7 @@
 #include "ring_model.hpp"
 #include "markerd/detector/detector.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 class Frame8Detector final : public MarkerDetector {
  public:
@@ -169,4 +169,4 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<DebugCandidate> debug_candidates_;
 };
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -14,7 +14,7 @@
 
 #include "normal_table.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // A side shorter than this fraction of its neighbours is a sliver's end.
 constexpr double kSliverEnd = 0.35;
@@ -332,4 +332,4 @@ Rejection Frame8Detector::refit_undistorted(int rotation, Detection& det) {
   return report(grid_map(Hn), rotation, det);
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

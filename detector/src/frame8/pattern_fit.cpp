@@ -13,7 +13,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // The edge along `axis_normal` through grid point g0: searched across the
 // edge within +-half (grid units) through the homography. A step is
@@ -201,4 +201,4 @@ Rejection Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
   return report(M, rotation, det);
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -10,7 +10,7 @@
 #include <limits>
 #include <vector>
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // The quad of a light component, in working-image coordinates, clockwise on
 // screen; or why the component is none.
@@ -130,4 +130,4 @@ void Frame8Detector::convex_hull() {
   hull_.resize(static_cast<std::size_t>(std::max(0, k - 1)));
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

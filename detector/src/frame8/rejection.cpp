@@ -1,6 +1,6 @@
 #include "frame8/rejection.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 Stage stage_of(Rejection r) {
   switch (r) {
@@ -110,4 +110,4 @@ const char* rejection_name(Rejection r) {
   return "?";
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -5,7 +5,7 @@
 
 #include <cstdint>
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // The stages in the order a candidate meets them; each has the file of the
 // same name in detector/src/frame8/ (stage 4c also short_edges.cpp).
@@ -87,4 +87,4 @@ inline bool worth_remeasuring(Rejection r) {
   return r == Rejection::sides_unequal || stage_of(r) > Stage::grey_model;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

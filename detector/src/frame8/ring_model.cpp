@@ -12,7 +12,7 @@
 #include "markerd/detector/frame8.hpp"
 #include "normal_table.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 namespace {
 
 using detail::NormalTable;
@@ -369,4 +369,4 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
   return true;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -20,7 +20,7 @@
 
 #include "markerd/detector/image.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 class RingModel {
  public:
@@ -95,4 +95,4 @@ class RingModel {
   double rms_ = 0;
 };
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -8,7 +8,7 @@
 
 #include "frame8/common.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 struct RingRead {
   // 4a: the corner cells C0..C3 and, per edge, the data cells by bit.
@@ -46,4 +46,4 @@ struct RingRead {
   }
 };
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -15,7 +15,7 @@
 #include <emmintrin.h>
 #endif
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 constexpr int kTile = 4;  // threshold tile side, working-image pixels
 
@@ -307,4 +307,4 @@ void Frame8Detector::label_components() {
   }
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

@@ -13,7 +13,7 @@
 #include <Eigen/Cholesky>
 #include "normal_table.hpp"
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 // How many profile samples' worth the ring's grey levels weigh in a short
 // edge's fit: enough that no colouring fits by turning the contrast down.
@@ -226,4 +226,4 @@ int Frame8Detector::white_corner_by_short_edges(const Homography& H, int side, i
   return best;
 }
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

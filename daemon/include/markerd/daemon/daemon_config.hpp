@@ -26,7 +26,7 @@ namespace markerd::daemon {
 
 // [marker]: the marker under test.
 struct MarkerSettings {
-  Family family = Family::frame8;
+  detector::Family family = detector::Family::frame8;
   int id = 165;  // what the simulated camera shows
   double size_m = 0.08;
   bool cut_hole = false;  // frame8: the hole printed white; true: cut out, the background shows through
@@ -40,14 +40,14 @@ struct CameraSettings {
   std::string source_kind;  // "sim", "v4l2", ...
   // The intrinsics (OpenCV calibration YAML): poses need them, the
   // simulated camera renders through them.
-  std::optional<CameraModel> model;
+  std::optional<detector::CameraModel> model;
   std::filesystem::path model_path;
   CaptureLoopSettings loop;
 };
 
 struct DetectorSettings {
   std::size_t workers = 1;  // detection threads, each with its own detector
-  Frame8Options frame8;
+  detector::Frame8Options frame8;
 };
 
 struct LogSettings {
@@ -111,7 +111,7 @@ DaemonConfig parse_daemon_config(const ConfigTable& root);
 void check_control_setup(const ControlConfig& config);
 
 // The detector configuration the pipeline's workers are made with.
-[[nodiscard]] DetectorConfig detector_config(const DaemonConfig& config);
+[[nodiscard]] detector::DetectorConfig detector_config(const DaemonConfig& config);
 // Makes a detector from the config as markerd does at start, so that
 // --check-config refuses whatever the start would: a ConfigError naming the
 // file and the detector's complaint.

@@ -43,7 +43,7 @@ struct FrameRecordInput {
   int height = 0;
 
   std::chrono::nanoseconds detection_time{0};  // the detector's wall time on this frame
-  std::span<const Detection> detections;
+  std::span<const detector::Detection> detections;
 
   // The rig at capture time and the marker pose its positions imply; absent
   // when the daemon runs without a rig. With a truth, every detection with a

@@ -66,7 +66,7 @@ class Frame {
   Clock::time_point capture_time{};  // acquire() stamps "now"; a driver's timestamp is better
   std::uint32_t source_id = 0;
   std::optional<rig::RigSnapshot> rig;  // the rig at capture time; empty without a rig
-  GreyView image{};                  // into pixel_buffer() or into the source's own memory
+  detector::GreyView image{};                  // into pixel_buffer() or into the source's own memory
   // A source that delivers an unreadable frame (a broken MJPEG) publishes it
   // with corrupt_frame and a cause, so that the log records it; detection
   // skips it.
@@ -76,7 +76,7 @@ class Frame {
   // Cleared and refilled by the detector; its capacity is kept from frame to
   // frame, so it allocates only when a frame holds more markers than any
   // frame before it in this slot.
-  std::vector<Detection> detections;
+  std::vector<detector::Detection> detections;
   StageTimes times;
 
   // Why the frame is not ok (the source's or the detector's words), cut to
@@ -93,7 +93,7 @@ class Frame {
   [[nodiscard]] std::span<std::uint8_t> pixel_buffer() const noexcept { return pixel_buffer_; }
   // Points `image` at pixel_buffer() with rows of `width` bytes; throws
   // std::length_error when the image does not fit.
-  GreyView use_pixel_buffer(int width, int height);
+  detector::GreyView use_pixel_buffer(int width, int height);
 
   // Lends the frame the source's pixels: `hook` runs once when the pipeline
   // is done with the frame (written, dropped or discarded).

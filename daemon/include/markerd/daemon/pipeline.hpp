@@ -55,7 +55,7 @@ class Pipeline {
   // One worker thread per detector (detectors are not thread-safe). Starts
   // the stage threads. `sink` must outlive the pipeline. Throws
   // std::invalid_argument without a detector.
-  Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<MarkerDetector>> detectors, FrameSink& sink);
+  Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<detector::MarkerDetector>> detectors, FrameSink& sink);
   ~Pipeline();  // stop()
   Pipeline(const Pipeline&) = delete;
   Pipeline& operator=(const Pipeline&) = delete;
@@ -96,9 +96,9 @@ class Pipeline {
   // stage collects them in the same rotation, so every ticket must keep its
   // place for the order to come out right.
   struct Worker {
-    Worker(std::unique_ptr<MarkerDetector> d, std::size_t ring_capacity)
+    Worker(std::unique_ptr<detector::MarkerDetector> d, std::size_t ring_capacity)
         : detector(std::move(d)), input(ring_capacity), output(ring_capacity) {}
-    std::unique_ptr<MarkerDetector> detector;
+    std::unique_ptr<detector::MarkerDetector> detector;
     SpscRing<Frame*> input;
     SpscRing<Frame*> output;
     std::jthread thread;

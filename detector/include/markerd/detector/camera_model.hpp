@@ -11,7 +11,7 @@
 
 #include "markerd/detector/geometry.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 class CameraModelError : public std::runtime_error {
  public:
@@ -48,4 +48,4 @@ struct CameraModel {
   [[nodiscard]] Point2 normalized_to_pixel(Point2 normalized) const;
 };
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -5,7 +5,7 @@
 #include "markerd/detector/geometry.hpp"
 #include "markerd/detector/pose.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 struct Detection {
   Family family = Family::frame8;
@@ -27,4 +27,4 @@ struct Detection {
   std::optional<PoseEstimate> pose;
 };
 
-}  // namespace markerd
+}  // namespace markerd::detector

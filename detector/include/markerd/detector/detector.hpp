@@ -15,7 +15,7 @@
 #include "markerd/detector/family.hpp"
 #include "markerd/detector/image.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 class DetectorError : public std::runtime_error {
  public:
@@ -85,4 +85,4 @@ class MarkerDetector {
 
 std::unique_ptr<MarkerDetector> make_detector(const DetectorConfig& config);
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -10,7 +10,7 @@
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/render.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 struct EvalPoint {
   double distance_m = 1;
@@ -43,4 +43,4 @@ struct EvalResult {
 EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, const EvalSettings& settings,
                           const EvalPoint& point);
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -3,7 +3,7 @@
 #include <span>
 #include <string_view>
 
-namespace markerd {
+namespace markerd::detector {
 
 // Every marker family the project detects, prints and renders. frame8 is the
 // thesis's frame marker (docs/frame-marker.md); the others are comparison peers.
@@ -30,4 +30,4 @@ std::span<const FamilyInfo> all_families();
 const FamilyInfo& family_info(Family family);
 std::optional<Family> family_from_name(std::string_view name);
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -6,7 +6,7 @@
 #include <array>
 #include <cstdint>
 
-namespace markerd::frame8 {
+namespace markerd::detector::frame8 {
 
 inline constexpr int grid = 10;
 inline constexpr double hole_fraction = 0.7;       // hole side / outer side
@@ -28,4 +28,4 @@ Cell corner_cell(int k);
 // (not a ring cell).
 std::array<std::uint8_t, grid * grid> ring_cells(int id);
 
-}  // namespace markerd::frame8
+}  // namespace markerd::detector::frame8

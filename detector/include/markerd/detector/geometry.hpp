@@ -2,7 +2,7 @@
 #include <array>
 #include <cmath>
 
-namespace markerd {
+namespace markerd::detector {
 
 // Image point in pixels; pixel centres at integer coordinates (OpenCV's convention).
 struct Point2 {
@@ -18,4 +18,4 @@ inline double distance(Point2 a, Point2 b) { return std::hypot(a.x - b.x, a.y - 
 // Four corners in the marker frame's order: top-left, top-right, bottom-right, bottom-left.
 using Quad = std::array<Point2, 4>;
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -7,7 +7,7 @@
 #include <cstdint>
 #include <vector>
 
-namespace markerd {
+namespace markerd::detector {
 
 struct GreyView {
   const std::uint8_t* data = nullptr;
@@ -46,4 +46,4 @@ class GreyImage {
   std::vector<std::uint8_t> pixels_;
 };
 
-}  // namespace markerd
+}  // namespace markerd::detector

@@ -15,7 +15,7 @@
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/geometry.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 struct MarkerPose {
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();  // marker frame -> camera frame
@@ -51,4 +51,4 @@ std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& c
 // Projects a point of the marker frame through pose and camera, to pixels.
 Point2 project(const CameraModel& camera, const MarkerPose& pose, const Eigen::Vector3d& marker_point);
 
-}  // namespace markerd
+}  // namespace markerd::detector

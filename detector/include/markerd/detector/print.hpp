@@ -8,7 +8,7 @@
 #include "markerd/detector/family.hpp"
 #include "markerd/detector/image.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 class PrintError : public std::runtime_error {
  public:
@@ -34,4 +34,4 @@ struct PrintSpec {
 // 10 mm scale bar to check the printer's scale. Throws PrintError.
 void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& out);
 
-}  // namespace markerd
+}  // namespace markerd::detector

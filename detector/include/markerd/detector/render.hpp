@@ -15,7 +15,7 @@
 #include "markerd/detector/image.hpp"
 #include "markerd/detector/pose.hpp"
 
-namespace markerd {
+namespace markerd::detector {
 
 // What lies at a point of the printed marker: reflectance 0 (ink) .. 1
 // (paper), or nothing (the frame8 hole when cut out, and outside the print).
@@ -73,4 +73,4 @@ Quad project_marker_corners(const CameraModel& camera, const Scene& scene, doubl
 // Clutter only (the same background render_scene draws), for false-positive tests.
 GreyImage render_background(const CameraModel& camera, const Scene& scene);
 
-}  // namespace markerd
+}  // namespace markerd::detector

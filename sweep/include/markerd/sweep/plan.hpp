@@ -41,7 +41,7 @@ struct PlanGrid {
 };
 
 struct PlanMarker {
-  Family family = Family::frame8;
+  detector::Family family = detector::Family::frame8;
   int id = 165;
   double size_m = 0.08;
 };
@@ -85,7 +85,7 @@ SweepPlan load_plan(const std::filesystem::path& path);
 // markerd runs one family's detector, from its config: a plan for another
 // family would end "done" with nothing detected. The marker's size is no
 // problem: the runner rescales poses to it.
-[[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker, const DetectorConfig& detector);
+[[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector);
 
 // One unit of work: a measurement (repeat) at a point. A run is the plan's
 // steps in order; the journal records each one done.

@@ -46,7 +46,7 @@ struct FrameObservation {
   bool readable = true;  // false: a corrupt frame or one the detector refused
   std::optional<rig::RigSnapshot> rig;
   std::optional<rig::MarkerGroundTruth> truth;
-  std::span<const Detection> detections;
+  std::span<const detector::Detection> detections;
 };
 
 // A frame reduced to what a point record keeps: the plan's marker found or
@@ -69,7 +69,7 @@ class SweepEnvironment {
   [[nodiscard]] virtual double camera_fps() const = 0;
   // What markerd's detectors find (the family, frame8's options) and the
   // marker size their poses assume.
-  [[nodiscard]] virtual DetectorConfig detector_config() const = 0;
+  [[nodiscard]] virtual detector::DetectorConfig detector_config() const = 0;
   // Parts of the start document: the config markerd runs with, the camera
   // (source, model), where the detection log goes.
   [[nodiscard]] virtual nlohmann::json config_record() const = 0;

@@ -82,6 +82,6 @@ class ImageFileReader {
 };
 
 // One image file as grey (open() and decode()). Throws ImageFileError.
-[[nodiscard]] GreyImage read_grey_image(const std::filesystem::path& path);
+[[nodiscard]] detector::GreyImage read_grey_image(const std::filesystem::path& path);
 
 }  // namespace markerd::daemon

@@ -34,7 +34,7 @@ namespace markerd::daemon {
 struct SimCameraSettings {
   double fps = 30;  // frames per second, paced on the steady clock
   // The marker on the turntable (the config's [marker] table).
-  Family family = Family::frame8;
+  detector::Family family = detector::Family::frame8;
   int id = 165;
   double marker_size_m = 0.08;
   bool cut_hole = false;  // frame8's hole printed white (true: cut out, showing the background)
@@ -66,7 +66,7 @@ class SimCamera final : public CaptureSource {
   // positions into the marker's pose, as Rig::ground_truth does. The rig
   // positions come with each frame: the capture loop stamps frame.rig before
   // fill(); a frame without a snapshot shows the settings' fixed positions.
-  SimCamera(SimCameraSettings settings, CameraModel camera, rig::RigGeometry geometry);
+  SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry);
 
   [[nodiscard]] const std::string& name() const override { return name_; }
   [[nodiscard]] CaptureGeometry geometry() const override;
@@ -95,7 +95,7 @@ class SimCamera final : public CaptureSource {
   [[nodiscard]] std::optional<std::string> absent();
 
   SimCameraSettings settings_;
-  CameraModel camera_;
+  detector::CameraModel camera_;
   rig::RigGeometry geometry_;
   std::string name_;
   std::chrono::steady_clock::duration period_{};
@@ -108,7 +108,7 @@ class SimCamera final : public CaptureSource {
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 
-  GreyImage clean_;  // the last noise-free render
+  detector::GreyImage clean_;  // the last noise-free render
   std::optional<std::pair<double, double>> rendered_at_;  // its rail and turntable positions
   std::uint64_t renders_ = 0;
   // Sensor noise: a table of Gaussian samples (in grey levels, rounded) read
