@@ -1,98 +1,23 @@
 #include "markerd/sweep/runner.hpp"
 
-#include <unistd.h>
-
-#include <Eigen/Geometry>
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "markerd/base/utc_time.hpp"
-#include "markerd/base/read_file.hpp"
 #include "markerd/rig/motion_profile.hpp"
 #include "markerd/sweep/report.hpp"
+#include "runner_internal.hpp"
 
 #include <algorithm>
 #include <array>
-#include <exception>
 #include <cmath>
-#include <numbers>
+#include <exception>
 #include <utility>
 
 namespace markerd::sweep {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
-
-std::string_view to_string(RunState state) {
-  switch (state) {
-    case RunState::idle: return "idle";
-    case RunState::running: return "running";
-    case RunState::paused: return "paused";
-    case RunState::suspended: return "suspended";
-    case RunState::done: return "done";
-    case RunState::aborted: return "aborted";
-    case RunState::failed: return "failed";
-  }
-  return "?";
-}
-
-FrameSample make_frame_sample(const FrameObservation& frame, const PlanMarker& marker,
-                              double detector_marker_size_m) {
-  FrameSample sample;
-  sample.sequence = frame.sequence;
-  const detector::Detection* found = nullptr;
-  for (const detector::Detection& d : frame.detections) {
-    if (found == nullptr && d.family == marker.family && d.id == marker.id) {
-      found = &d;
-    } else {
-      ++sample.other_markers;
-    }
-  }
-  if (found == nullptr) return sample;
-  sample.detected = true;
-  if (!found->pose) return sample;
-  detector::MarkerPose pose = found->pose->best;
-  if (detector_marker_size_m > 0) pose.translation *= marker.size_m / detector_marker_size_m;
-  sample.has_pose = true;
-  const Eigen::Vector3d rvec = pose.rvec();
-  for (int i = 0; i < 3; ++i) {
-    sample.tvec_m[static_cast<std::size_t>(i)] = pose.translation[i];
-    sample.rvec[static_cast<std::size_t>(i)] = rvec[i];
-  }
-  sample.reprojection_error_px = pose.reprojection_error_px;
-  if (frame.truth) {
-    // The same errors as the detection log's (docs/detection-log.md).
-    const rig::PoseError error = rig::pose_error(pose.rotation, pose.translation, *frame.truth);
-    sample.has_error = true;
-    sample.translation_error_mm = error.translation_mm;
-    sample.distance_error_mm = error.distance_mm;
-    sample.rotation_error_deg = error.rotation_deg;
-  }
-  return sample;
-}
-
-nlohmann::json to_json(const SweepProgress& p) {
-  nlohmann::json j{{"state", to_string(p.state)},
-                   {"run_id", p.run_id},
-                   {"run_directory", p.run_directory.string()},
-                   {"plan", p.plan_name},
-                   {"steps_done", p.steps_done},
-                   {"steps_total", p.steps_total},
-                   {"phase", p.phase},
-                   {"frames_collected", p.frames_collected},
-                   {"frames_per_point", p.frames_per_point},
-                   {"reason", p.reason},
-                   {"elapsed_s", p.elapsed.count()}};
-  j["last_rate"] = p.last_rate ? nlohmann::json(*p.last_rate) : nlohmann::json(nullptr);
-  j["remaining_s"] = p.remaining ? nlohmann::json(p.remaining->count()) : nlohmann::json(nullptr);
-  if (p.step) {
-    j["step"] = {{"index", p.step->index}, {"point", p.step->point},       {"repeat", p.step->repeat},
-                 {"grid", p.step->grid},   {"distance_m", p.step->distance_m}, {"angle_deg", p.step->angle_deg}};
-  } else {
-    j["step"] = nullptr;
-  }
-  return j;
-}
 
 // Why the run thread left what it was doing.
 class SweepRunner::Interrupted {
@@ -105,81 +30,11 @@ class SweepRunner::Interrupted {
 
 namespace {
 
-constexpr std::string_view kJournalRunning = "running";
-constexpr std::string_view kJournalPaused = "paused";
-constexpr std::string_view kJournalStopped = "stopped";
-// A journal is read whole; anything near this is not one.
-constexpr std::size_t kMaxJournalBytes = 64 * 1024;
-// The in-place fallback must stay within the journal file's first block.
-constexpr std::size_t kMaxJournalReason = 1500;
-
-std::string journal_reason(std::string_view reason) {
-  if (reason.size() <= kMaxJournalReason) return std::string(reason);
-  return std::string(reason.substr(0, kMaxJournalReason)) + "...";
-}
-
-ExitStatus exit_status(RunState state) {
-  return state == RunState::done ? ExitStatus::done : state == RunState::aborted ? ExitStatus::aborted : ExitStatus::failed;
-}
-
-RunState run_state(ExitStatus status) {
-  switch (status) {
-    case ExitStatus::done: return RunState::done;
-    case ExitStatus::aborted: return RunState::aborted;
-    case ExitStatus::failed: return RunState::failed;
-  }
-  return RunState::failed;
-}
-
 // A run that cannot go on: its stop record says why.
 class RunFailed : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
-
-std::string this_hostname() {
-  std::array<char, 256> name{};
-  if (::gethostname(name.data(), name.size() - 1) != 0) return {};
-  return name.data();
-}
-
-const char* backend_name(const rig::DriveSettings& drive) {
-  switch (drive.index()) {
-    case 0: return "sim";
-    case 1: return "gpio";
-    default: return "modbus";
-  }
-}
-
-nlohmann::json axis_record(const rig::AxisConfig& axis) {
-  const rig::AxisSettings& a = axis.axis;
-  return {{"name", a.name},
-          {"unit", a.unit},
-          {"units_per_step", a.units_per_step},
-          {"min_position", a.min_position},
-          {"max_position", a.max_position},
-          {"max_velocity", a.max_velocity},
-          {"acceleration", a.acceleration},
-          {"backlash", a.backlash},
-          {"settle_ms", a.settle_time.count()},
-          {"backend", backend_name(axis.drive)}};
-}
-
-nlohmann::json rig_record(const rig::RigConfig& config) {
-  const rig::RigGeometry& g = config.geometry;
-  return {{"source", config.source},
-          {"geometry",
-           {{"d0_mm", g.d0_mm},
-            {"yaw0_deg", g.yaw0_deg},
-            {"rail_sign", g.rail_sign},
-            {"camera_offset_x_mm", g.camera_offset_x_mm},
-            {"camera_offset_y_mm", g.camera_offset_y_mm},
-            {"marker_offset_normal_mm", g.marker_offset_normal_mm},
-            {"marker_offset_lateral_mm", g.marker_offset_lateral_mm}}},
-          {"sim_time_scale", config.sim.time_scale},
-          {"rail", axis_record(config.rail)},
-          {"turntable", axis_record(config.turntable)}};
-}
 
 // How far an axis may be from its target and still be "there": a step (the
 // drive's resolution) plus a closed-loop drive's deadband.
@@ -187,56 +42,7 @@ double position_tolerance(const rig::AxisSettings& axis) {
   return std::abs(axis.units_per_step) * 1.01 + axis.retry_deadband;
 }
 
-// The journal's fields have the types markerd writes there; a journal
-// edited or damaged otherwise is refused naming the field, never with
-// nlohmann's own message (nor half-read).
-void check_journal_fields(const nlohmann::json& journal) {
-  if (!journal.is_object()) throw std::runtime_error("not a JSON object");
-  struct Field {
-    const char* key;
-    bool (*fits)(const nlohmann::json&);
-    const char* wanted;
-  };
-  static constexpr std::array<Field, 6> kFields{{
-      {"run_directory", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
-      {"state", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
-      {"reason", [](const nlohmann::json& v) { return v.is_string(); }, "a string"},
-      {"paused", [](const nlohmann::json& v) { return v.is_boolean(); }, "true or false"},
-      {"step", [](const nlohmann::json& v) { return v.is_number_unsigned(); }, "a whole number from 0"},
-      {"stop", [](const nlohmann::json& v) { return v.is_object(); }, "a JSON object (a stop record)"},
-  }};
-  for (const Field& f : kFields) {
-    const auto it = journal.find(f.key);
-    if (it != journal.end() && !f.fits(*it)) {
-      throw std::runtime_error(fmt::format("\"{}\" must be {}, got {}", f.key, f.wanted, it->dump()));
-    }
-  }
-}
-
-// For a message only: the stop record's status, whatever the record holds.
-std::string exit_status_in(const nlohmann::json& stop) {
-  const auto it = stop.find("exit_status");
-  return it != stop.end() && it->is_string() ? it->get<std::string>() : std::string("?");
-}
-
 }  // namespace
-
-struct SweepRunner::Run {
-  SweepPlan plan;
-  std::vector<PlanStep> steps;
-  fs::path directory;
-  std::string run_id;
-  RunRecorder recorder;
-  std::size_t done = 0;
-  bool start_paused = false;
-  std::optional<double> last_rate;
-  std::optional<PlanStep> current;
-  // This markerd's share of the run, for the estimate of what remains.
-  Clock::time_point began = Clock::now();
-  std::optional<Clock::time_point> ended;
-  std::size_t done_at_begin = 0;
-  std::chrono::duration<double> estimate_per_step{0};
-};
 
 SweepRunner::SweepRunner(rig::Rig& rig, rig::RigConfig rig_config, SweepEnvironment& environment,
                          RunnerSettings settings)
@@ -268,8 +74,7 @@ fs::path SweepRunner::start(SweepPlan plan) {
   if (fs::exists(settings_.journal, ec)) {
     nlohmann::json previous;
     try {
-      previous = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
-      check_journal_fields(previous);
+      previous = read_journal(settings_.journal);
     } catch (const std::exception&) {
       previous = nlohmann::json::object();  // unreadable: reported at markerd's start; the operator starts anew
     }
@@ -277,10 +82,10 @@ fs::path SweepRunner::start(SweepPlan plan) {
       try {
         finish_ended_run(previous);
       } catch (const std::exception& e) {
-        throw SweepError(fmt::format("the previous run {} ended, but its stop record still cannot be written ({}); "
-                                     "free space in {} first",
-                                     previous.value("run_directory", std::string()), e.what(),
-                                     settings_.runs_directory.string()));
+        throw SweepError(
+            fmt::format("the previous run {} ended, but its stop record still cannot be written ({}); "
+                        "free space in {} first",
+                        previous.value("run_directory", std::string()), e.what(), settings_.runs_directory.string()));
       }
     }
   }
@@ -336,157 +141,6 @@ fs::path SweepRunner::start(SweepPlan plan) {
                checked.points, checked.estimated_duration.count());
   launch(std::move(run));
   return directory;
-}
-
-bool SweepRunner::resume_from_journal() {
-  const std::lock_guard lock(start_mutex_);
-  std::error_code ec;
-  // A temporary left by a journal write that was cut off (a crash, a full
-  // disk) is not the journal: that is only ever replaced whole, by rename.
-  fs::remove(fs::path(settings_.journal).concat(".tmp"), ec);
-  if (!fs::exists(settings_.journal, ec)) return false;
-  nlohmann::json journal;
-  try {
-    journal = nlohmann::json::parse(read_regular_file(settings_.journal, kMaxJournalBytes, "the sweep journal"));
-    check_journal_fields(journal);
-  } catch (const std::exception& e) {
-    throw std::runtime_error(fmt::format("sweep journal {}: cannot be read: {}", settings_.journal.string(), e.what()));
-  }
-  const fs::path directory = journal.value("run_directory", "");
-  if (!fs::exists(directory / "start.json", ec)) {
-    spdlog::warn("sweep journal {}: run {} never started (markerd stopped while starting it); forgetting it",
-                 settings_.journal.string(), directory.string());
-    fs::remove(settings_.journal, ec);
-    return false;
-  }
-  if (journal.contains("stop")) {
-    // The run ended (failed, aborted, done) and markerd could not write its
-    // stop record, or stopped before it removed the journal: it is not
-    // resumed, whatever its records hold.
-    try {
-      finish_ended_run(journal);
-    } catch (const std::exception& e) {
-      spdlog::error("sweep journal {}: run {} ended ({}), and its stop record still cannot be written: {}",
-                    settings_.journal.string(), directory.string(), exit_status_in(journal["stop"]),
-                    e.what());
-    }
-    return false;
-  }
-  RunRecords records = read_run(directory);
-  if (records.stop) {
-    // The run ended but markerd stopped before it removed the journal.
-    fs::remove(settings_.journal, ec);
-    return false;
-  }
-  for (std::size_t i = 0; i < records.points.size(); ++i) {
-    if (records.points[i].step != i) {
-      throw std::runtime_error(fmt::format("sweep run {}: points.jsonl line {} holds step {}, expected {}",
-                                           directory.string(), i + 1, records.points[i].step, i));
-    }
-  }
-  auto run = std::make_unique<Run>();
-  run->plan = records.start.plan;
-  run->steps = plan_steps(run->plan);
-  if (run->steps.size() != records.start.steps) {
-    throw std::runtime_error(fmt::format("sweep run {}: its plan now expands to {} steps, it started with {}",
-                                         directory.string(), run->steps.size(), records.start.steps));
-  }
-  if (auto problem = marker_problem(run->plan.marker, environment_.detector_config())) {
-    throw std::runtime_error(fmt::format("sweep run {}: {}", directory.string(), *problem));
-  }
-  run->directory = directory;
-  run->run_id = records.start.run_id;
-  run->done = records.points.size();
-  run->done_at_begin = run->done;
-  run->start_paused = journal.value("paused", false);
-  if (!records.points.empty()) {
-    const PointRecord& last = records.points.back();
-    int detected = 0;
-    for (const FrameSample& f : last.frames) detected += f.detected ? 1 : 0;
-    if (!last.frames.empty()) run->last_rate = static_cast<double>(detected) / static_cast<double>(last.frames.size());
-  }
-  run->estimate_per_step =
-      check_plan(run->plan, rig_config_, environment_.camera_fps()).estimated_duration /
-      std::max<std::size_t>(1, run->steps.size());
-  // The interruption and its cause: markerd stopping wrote "stopped" (and a
-  // "stopped" event); a journal still saying the run was going means
-  // markerd ended without a word.
-  const std::string state = journal.value("state", std::string(kJournalRunning));
-  const std::string cause =
-      state == kJournalStopped
-          ? fmt::format("markerd stopped at step {} ({})", journal.value("step", run->done),
-                        journal.value("reason", std::string("no reason recorded")))
-          : fmt::format("markerd ended without stopping the run (a crash, kill -9 or a power cut) while it was {}",
-                        state);
-  run->recorder = RunRecorder::resume(directory);
-  run->recorder.append_event({std::chrono::system_clock::now(), "restarted",
-                              fmt::format("{}; markerd started again, continuing at step {} of {}", cause, run->done,
-                                          run->steps.size()),
-                              run->done});
-  spdlog::info("sweep {}: resuming at step {} of {} ({})", run->run_id, run->done, run->steps.size(), cause);
-  launch(std::move(run));
-  return true;
-}
-
-void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
-  const fs::path directory = journal.value("run_directory", "");
-  std::error_code ec;
-  if (!fs::exists(directory / "start.json", ec)) {
-    // Its records are gone (the operator removed them): nothing to end.
-    spdlog::warn("sweep journal {}: run {} has no records any more; forgetting it", settings_.journal.string(),
-                 directory.string());
-    fs::remove(settings_.journal, ec);
-    return;
-  }
-  const RunRecords records = read_run(directory);
-  RunStop stop;
-  if (records.stop) {
-    stop = *records.stop;
-  } else {
-    try {
-      stop = stop_from_json(journal.at("stop"));
-    } catch (const std::exception& e) {
-      throw std::runtime_error(fmt::format("sweep journal {}: \"stop\": {}", settings_.journal.string(), e.what()));
-    }
-  }
-  std::string shown = stop.reason;
-  std::exception_ptr failure;
-  if (!records.stop) {
-    stop.reason += stop.reason.empty() ? "" : " ";
-    stop.reason += "(this stop record was written from the journal when markerd started again: it had not been "
-                   "written when the run ended)";
-    try {
-      write_file_atomically(directory / "stop.json", to_json(stop).dump(2) + "\n");
-      shown = stop.reason;
-    } catch (const std::exception& e) {
-      failure = std::current_exception();
-      shown += fmt::format(" (its stop record could not be written: {}; the journal keeps it)", e.what());
-    }
-  }
-  if (!failure) fs::remove(settings_.journal, ec);
-  spdlog::warn("sweep {}: {} at step {}, not resumed: {}", records.start.run_id, to_string(stop.status),
-               stop.steps_done, shown);
-  // The runner shows how that run ended, as if it had just ended here.
-  auto run = std::make_unique<Run>();
-  run->plan = records.start.plan;
-  run->steps = plan_steps(run->plan);
-  run->directory = directory;
-  run->run_id = records.start.run_id;
-  run->done = records.points.size();
-  run->done_at_begin = run->done;
-  run->ended = Clock::now();
-  run->began = *run->ended;
-  {
-    const std::lock_guard lock(mutex_);
-    if (state_ != RunState::running && state_ != RunState::paused && state_ != RunState::suspended) {
-      run_ = std::move(run);
-      state_ = run_state(stop.status);
-      reason_ = shown;
-      phase_.clear();
-    }
-  }
-  changed_.notify_all();
-  if (failure) std::rethrow_exception(failure);
 }
 
 void SweepRunner::launch(std::unique_ptr<Run> run) {
@@ -605,7 +259,8 @@ void SweepRunner::observe(const FrameObservation& frame) noexcept {
       c.have_snapshot = true;
     }
   }
-  c.samples.push_back(make_frame_sample(frame, marker_, detector_marker_size_m_));  // within the capacity reserved for the step
+  c.samples.push_back(
+      make_frame_sample(frame, marker_, detector_marker_size_m_));  // within the capacity reserved for the step
   if (static_cast<int>(c.samples.size()) >= c.wanted) {
     c.active = false;
     collection_changed_.notify_all();
@@ -634,9 +289,7 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
         attempts = 0;
       } catch (const Interrupted& interrupted) {
         switch (interrupted.kind) {
-          case Interrupted::Kind::stop:
-            leave_for_restart();
-            return;
+          case Interrupted::Kind::stop: leave_for_restart(); return;
           case Interrupted::Kind::abort: {
             std::string reason;
             {
@@ -646,12 +299,8 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
             end_run(RunState::aborted, reason);
             return;
           }
-          case Interrupted::Kind::pause:
-            wait_paused();
-            break;
-          case Interrupted::Kind::fault:
-            suspend(interrupted.cause);
-            break;
+          case Interrupted::Kind::pause: wait_paused(); break;
+          case Interrupted::Kind::fault: suspend(interrupted.cause); break;
           case Interrupted::Kind::timeout:
             if (++attempts >= settings_.step_attempts) {
               throw RunFailed(fmt::format("step {}: {} ({} attempts)", step.index, interrupted.cause, attempts));
@@ -781,8 +430,8 @@ void SweepRunner::move_to(const PlanStep& step) {
   const rig::RigSnapshot before = rig_.snapshot();
   if (there(before)) return;  // a repeat at the same point: no move, no re-approach
   set_phase("moving");
-  const auto deadline = Clock::now() + move_allowance(targets.rail - before.rail.position,
-                                                      targets.turntable - before.turntable.position);
+  const auto deadline =
+      Clock::now() + move_allowance(targets.rail - before.rail.position, targets.turntable - before.turntable.position);
   try {
     rig_.rail().move_to(targets.rail);
     rig_.turntable().move_to(targets.turntable);
@@ -874,7 +523,8 @@ void SweepRunner::collect(const PlanStep& step, std::chrono::system_clock::time_
   for (const FrameSample& f : record.frames) detected += f.detected ? 1 : 0;
   const std::lock_guard lock(mutex_);
   ++run_->done;
-  run_->last_rate = record.frames.empty() ? 0.0 : static_cast<double>(detected) / static_cast<double>(record.frames.size());
+  run_->last_rate =
+      record.frames.empty() ? 0.0 : static_cast<double>(detected) / static_cast<double>(record.frames.size());
 }
 
 void SweepRunner::wait_paused() {
@@ -1065,50 +715,6 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
     spdlog::info("sweep {}: done, {} steps; records in {}", run_->run_id, run_->done, run_->directory.string());
   } else {
     spdlog::warn("sweep {}: {} at step {}: {}", run_->run_id, to_string(state), run_->done, ended_reason);
-  }
-}
-
-void SweepRunner::write_journal(const fs::path& run_directory, std::string_view state, bool paused,
-                                std::string_view reason) {
-  nlohmann::json journal{{"run_directory", run_directory.string()}, {"state", state}, {"paused", paused}};
-  if (run_ && run_->directory == run_directory) journal["step"] = run_->done;
-  if (!reason.empty()) journal["reason"] = journal_reason(reason);
-  write_file_atomically(settings_.journal, journal.dump() + "\n");
-}
-
-bool SweepRunner::record_end_in_journal(RunState state, const std::string& reason) noexcept {
-  try {
-    RunStop stop;
-    stop.time = std::chrono::system_clock::now();
-    stop.status = exit_status(state);
-    stop.reason = journal_reason(reason);
-    stop.steps_done = run_->done;
-    const nlohmann::json journal{{"run_directory", run_->directory.string()},
-                                 {"state", to_string(state)},
-                                 {"paused", false},
-                                 {"step", run_->done},
-                                 {"stop", to_json(stop)}};
-    const std::string text = journal.dump() + "\n";
-    try {
-      write_file_atomically(settings_.journal, text);
-    } catch (const std::exception& e) {
-      // A full disk has no room for a new temporary; the journal's own
-      // block has room for this.
-      spdlog::error("sweep {}: cannot replace the journal ({}); overwriting it in place", run_->run_id, e.what());
-      overwrite_file_in_place(settings_.journal, text);
-    }
-    return true;
-  } catch (const std::exception& e) {
-    // A journal that still says "running" would have the next markerd resume
-    // a run that ended. Without it the run is not resumed; its records end
-    // without a stop record, as an incomplete run.
-    std::error_code ec;
-    fs::remove(settings_.journal, ec);
-    spdlog::error("sweep {}: cannot record in the journal that the run {} ({}); {}", run_->run_id, to_string(state),
-                  e.what(),
-                  ec ? fmt::format("nor remove the journal ({}): the next markerd may resume the run", ec.message())
-                     : std::string("removed the journal, so that no markerd resumes the run"));
-    return false;
   }
 }
 
