@@ -39,16 +39,13 @@ struct SweepRunner::Run {
   std::chrono::duration<double> estimate_per_step{0};
 };
 
-// The journal's states (SweepRunner::write_journal) and limits.
+// The journal's states (SweepRunner::write_journal).
 inline constexpr std::string_view kJournalRunning = "running";
 inline constexpr std::string_view kJournalPaused = "paused";
 inline constexpr std::string_view kJournalStopped = "stopped";
-// A journal is read whole; anything near this is not one.
-inline constexpr std::size_t kMaxJournalBytes = 64 * 1024;
-// The in-place fallback must stay within the journal file's first block.
-inline constexpr std::size_t kMaxJournalReason = 1500;
 
-// A reason as the journal keeps it: cut to kMaxJournalReason.
+// A reason as the journal keeps it, cut to a length its file's first block
+// holds.
 std::string journal_reason(std::string_view reason);
 // The journal, read and its fields' types checked; std::runtime_error (or
 // FileError) naming what is wrong.

@@ -19,6 +19,11 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
+// A journal is read whole; anything near this is not one.
+constexpr std::size_t kMaxJournalBytes = 64 * 1024;
+// The in-place fallback must stay within the journal file's first block.
+constexpr std::size_t kMaxJournalReason = 1500;
+
 // The journal's fields have the types markerd writes there; a journal
 // edited or damaged otherwise is refused naming the field, never with
 // nlohmann's own message (nor half-read).
