@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -337,26 +338,40 @@ TEST(SimCamera, KeepsItsFrameRate) {
 }
 
 
-// What a capture loop sees of a camera with scheduled outages: frames, then
-// the camera vanishes at a frame, refuses to open while the outage lasts,
-// opens again after it and streams; and again at the next outage.
+// What a capture loop sees of a camera with scheduled outages: it opens and
+// streams, the camera vanishes at a frame, refuses to open while the outage
+// lasts, opens again after it and streams; and again at the next outage.
+// The schedule runs from the camera's creation, so a test thread held up on
+// a loaded machine may meet an outage at its first open(), or sleep through a
+// whole one: what must hold is the order of events and that outages are
+// numbered forward, not which outage comes first.
 TEST(SimCamera, DropsOutOnItsScheduleAndComesBack) {
   SimCameraSettings settings = quiet_settings();
   settings.outage_every = 300ms;
   settings.outage_for = 100ms;
   SimCamera sim(settings, detector::CameraModel::thesis_640x480(), {});
   FramePool pool({1, 640 * 480, 4});
-  sim.open();
-  // What happened, with repeats collapsed: "frame", "vanished: ...",
-  // "opened". The refusals to open while an outage lasts are checked where
-  // they happen, not counted: a test thread held up past an outage sees none.
+  // What happened, with repeats collapsed: "opened", "frame", "vanished: ...".
+  // The refusals to open while an outage lasts are checked where they
+  // happen, not counted.
   std::vector<std::string> seen;
   const auto note = [&](const std::string& what) {
     if (seen.empty() || seen.back() != what) seen.push_back(what);
   };
+  // The outage's number in a refusal or vanishing message.
+  const auto outage = [](const std::string& message) {
+    const std::string prefix = "sim 640x480@1000: dropped out (simulated outage ";
+    EXPECT_EQ(message.rfind(prefix, 0), 0U) << message;
+    const std::size_t colon = message.find(": 0.1 s every 0.3 s)", prefix.size());
+    EXPECT_NE(colon, std::string::npos) << message;
+    return std::stoi(message.substr(prefix.size(), colon - prefix.size()));
+  };
+  const auto vanishings = [&] {
+    return std::count_if(seen.begin(), seen.end(), [](const std::string& e) { return e.rfind("vanished", 0) == 0; });
+  };
   const auto deadline = std::chrono::steady_clock::now() + 20s;
   std::string last_vanish;
-  while (sim.outages() < 2 || seen.back() != "frame") {
+  while (vanishings() < 2 || seen.back() != "frame") {
     ASSERT_LT(std::chrono::steady_clock::now(), deadline) << "events so far: " << testing::PrintToString(seen);
     if (!sim.is_open()) {
       try {
@@ -364,7 +379,10 @@ TEST(SimCamera, DropsOutOnItsScheduleAndComesBack) {
         note("opened");
       } catch (const CaptureError& e) {
         EXPECT_EQ(e.kind(), CaptureError::Kind::not_found);
-        EXPECT_EQ(e.what(), last_vanish) << "open() refuses for the outage's own reason";
+        // Still the outage it vanished in, unless the thread slept through it.
+        if (!last_vanish.empty()) {
+          EXPECT_GE(outage(e.what()), outage(last_vanish));
+        }
         std::this_thread::sleep_for(5ms);
       }
       continue;
@@ -385,24 +403,15 @@ TEST(SimCamera, DropsOutOnItsScheduleAndComesBack) {
     pool.release(*frame);
     note("frame");
   }
-  // Outages are numbered by the clock: a test thread held up through a whole
-  // outage (a loaded machine) meets the next one first, so the numbers seen
-  // need only increase.
-  ASSERT_EQ(seen.size(), 7U) << testing::PrintToString(seen);
-  const auto outage = [](const std::string& vanished) {
-    const std::string prefix = "vanished: sim 640x480@1000: dropped out (simulated outage ";
-    EXPECT_EQ(vanished.rfind(prefix, 0), 0U) << vanished;
-    const std::size_t colon = vanished.find(": 0.1 s every 0.3 s)", prefix.size());
-    EXPECT_NE(colon, std::string::npos) << vanished;
-    return std::stoi(vanished.substr(prefix.size(), colon - prefix.size()));
-  };
-  const int first = outage(seen[1]);
-  const int second = outage(seen[4]);
+  ASSERT_EQ(seen.size(), 8U) << testing::PrintToString(seen);
+  const std::size_t vanished = std::string("vanished: ").size();
+  const int first = outage(seen[2].substr(vanished));
+  const int second = outage(seen[5].substr(vanished));
   EXPECT_GE(first, 1);
   EXPECT_GT(second, first);
-  const std::vector<std::string> expected{"frame", seen[1], "opened", "frame", seen[4], "opened", "frame"};
+  const std::vector<std::string> expected{"opened", "frame", seen[2], "opened", "frame", seen[5], "opened", "frame"};
   EXPECT_EQ(seen, expected);
-  EXPECT_EQ(sim.outages(), 2U);
+  EXPECT_GE(sim.outages(), 2U);  // one more if the first open() met an outage
 }
 
 }  // namespace
