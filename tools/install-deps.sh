@@ -38,6 +38,8 @@ packages=(
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd
+  # the layout check of tools/run-tests.sh (tools/check-format.sh)
+  clang-format
   # the fuzz build (tools/run-fuzz.sh): clang and its runtime libraries,
   # libFuzzer among them
   clang libclang-rt-14-dev

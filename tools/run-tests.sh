@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
-# The README's test command: installs the dependencies, builds with warnings
-# as errors, runs every test, then builds again under AddressSanitizer and
-# UndefinedBehaviorSanitizer and runs every test once more.
+# The README's test command: installs the dependencies, checks the layout of
+# the C++ files, builds with warnings as errors, runs every test, then builds
+# again under AddressSanitizer and UndefinedBehaviorSanitizer and runs every
+# test once more.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bash tools/install-deps.sh
+# The layout first: seconds, and a file .clang-format would change fails CI.
+bash tools/check-format.sh
 
 jobs=$(nproc)
 # Line tables only (-g1), as in the sanitizer build: a failure's backtrace
