@@ -8,13 +8,13 @@
 
 #include <unistd.h>
 
+#include <fmt/format.h>
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <exception>
-#include <fmt/format.h>
 #include <opencv2/core/utility.hpp>
 #include <optional>
 #include <sstream>
@@ -137,7 +137,9 @@ std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps&
     corner.push_back(r.median_corner_error_px);
     dist.push_back(r.median_distance_error_rel);
   }
-  const auto num = [](double v, const char* f) { return std::isnan(v) ? std::string("-") : fmt::format(fmt::runtime(f), v); };
+  const auto num = [](double v, const char* f) {
+    return std::isnan(v) ? std::string("-") : fmt::format(fmt::runtime(f), v);
+  };
   row += fmt::format(" {} | {} | {} |", num(median_of(corner), "{:.3f}"), num(100 * median_of(dist), "{:.2f}"),
                      num(median_of(time), "{:.3f}"));
   return row;
@@ -166,8 +168,12 @@ int main(int argc, char** argv) {
   app.add_option("--yaw", yaw_text, "yaw sweep, degrees, start:stop:step")->capture_default_str();
   app.add_option("--camera", camera_path, "OpenCV calibration file (default: the thesis camera)")
       ->check(CLI::ExistingFile);
-  app.add_option("--size", size_m, "marker size, metres (the family's size)")->check(CLI::PositiveNumber)->capture_default_str();
-  app.add_option("--noise", noise, "sensor noise sigma, grey levels")->check(CLI::NonNegativeNumber)->capture_default_str();
+  app.add_option("--size", size_m, "marker size, metres (the family's size)")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
+  app.add_option("--noise", noise, "sensor noise sigma, grey levels")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--blur", blur, "blur sigma, pixels")->check(CLI::NonNegativeNumber)->capture_default_str();
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
   bool model_small_cells = false;
@@ -221,11 +227,13 @@ int main(int argc, char** argv) {
   if (model_small_cells) {
     fmt::print("- frame8 reads cells under 3 px with the ring model, told the blur sigma above\n");
   }
-  fmt::print("- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
-             "random ids, seed {}\n",
-             frames, settings.position_jitter_px, settings.roll_jitter_deg, seed);
-  fmt::print("- rate: frames with the right id found; wrong ids: detections with another id, summed; errors and "
-             "time: medians (errors over detected frames, time of detect() alone over all frames)\n\n");
+  fmt::print(
+      "- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
+      "random ids, seed {}\n",
+      frames, settings.position_jitter_px, settings.roll_jitter_deg, seed);
+  fmt::print(
+      "- rate: frames with the right id found; wrong ids: detections with another id, summed; errors and "
+      "time: medians (errors over detected frames, time of detect() alone over all frames)\n\n");
   std::fflush(stdout);
 
   const bool progress = isatty(STDERR_FILENO) != 0;
@@ -268,8 +276,9 @@ int main(int argc, char** argv) {
   for (std::size_t i = 0; i < yaw_at.size(); ++i) fmt::print(" ---: |");
   fmt::print(" ---: | ---: | ---: |\n");
   for (const auto& row : summary) fmt::print("{}\n", row);
-  fmt::print("\nMax distance and max yaw: the farthest point of an unbroken run of points at >= 90% from the nearest "
-             "(from yaw 0); \">=\" when that run lasts to the end of the sweep. Errors and time: the median of "
-             "the per-distance medians (points with detections for the errors).\n");
+  fmt::print(
+      "\nMax distance and max yaw: the farthest point of an unbroken run of points at >= 90% from the nearest "
+      "(from yaw 0); \">=\" when that run lasts to the end of the sweep. Errors and time: the median of "
+      "the per-distance medians (points with detections for the errors).\n");
   return 0;
 }

@@ -34,7 +34,9 @@ namespace fs = std::filesystem;
 double cpu_seconds() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
-  const auto seconds = [](const timeval& t) { return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec); };
+  const auto seconds = [](const timeval& t) {
+    return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec);
+  };
   return seconds(usage.ru_utime) + seconds(usage.ru_stime);
 }
 
@@ -54,7 +56,8 @@ int main(int argc, char** argv) {
   app.add_option("--workers", workers)->capture_default_str();
   app.add_option("--policy", policy, "live or lossless")->capture_default_str();
   app.add_option("--fsync", fsync, "never, interval or every_line")->capture_default_str();
-  app.add_option("--distance", distance_m, "the marker's distance (m), shown through the default geometry")->capture_default_str();
+  app.add_option("--distance", distance_m, "the marker's distance (m), shown through the default geometry")
+      ->capture_default_str();
   app.add_option("--yaw", yaw_deg, "the marker's yaw (deg)")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::warn);

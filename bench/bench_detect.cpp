@@ -208,14 +208,15 @@ int main(int argc, char** argv) {
     for (const Entry& e : kFamilies) {
       const markerd::detector::CameraModel* cam = camera;
       const Family family = e.family;
-      benchmark::RegisterBenchmark((std::string(e.name) + "/" + res).c_str(),
-                                   [family, cam](benchmark::State& s) { run_detector(s, family, *cam); })
-          ->Unit(benchmark::kMillisecond);
+      benchmark::RegisterBenchmark((std::string(e.name) + "/" + res).c_str(), [family, cam](benchmark::State& s) {
+        run_detector(s, family, *cam);
+      })->Unit(benchmark::kMillisecond);
     }
   }
 
-  benchmark::RegisterBenchmark("BM_RenderScene/640x480", [](benchmark::State& s) { run_renderer(s, small); })
-      ->Unit(benchmark::kMillisecond);
+  benchmark::RegisterBenchmark("BM_RenderScene/640x480", [](benchmark::State& s) {
+    run_renderer(s, small);
+  })->Unit(benchmark::kMillisecond);
 
   RatioReporter reporter(benchmark::ConsoleReporter::OO_Tabular);
   benchmark::RunSpecifiedBenchmarks(&reporter);

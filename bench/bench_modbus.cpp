@@ -25,8 +25,8 @@
 
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/modbus_drive.hpp"
-#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "modbus/peers.hpp"
 
 using namespace markerd::rig;

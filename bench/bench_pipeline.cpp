@@ -14,11 +14,11 @@
 #pragma GCC diagnostic ignored "-Wnull-dereference"
 #include <CLI/CLI.hpp>
 #pragma GCC diagnostic pop
+#include <fmt/format.h>
 #include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
-#include <fmt/format.h>
 #include <string>
 #include <thread>
 #include <vector>
@@ -54,7 +54,9 @@ void count_release(void* context, std::uint64_t) noexcept {
 double cpu_seconds() {
   rusage usage{};
   getrusage(RUSAGE_SELF, &usage);
-  const auto seconds = [](const timeval& t) { return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec); };
+  const auto seconds = [](const timeval& t) {
+    return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec);
+  };
   return seconds(usage.ru_utime) + seconds(usage.ru_stime);
 }
 
@@ -90,7 +92,8 @@ int main(int argc, char** argv) {
 
   // The thesis lens at the requested resolution; markers from near to far,
   // turned, over clutter, as the simulated camera renders them.
-  const markerd::detector::CameraModel camera = markerd::detector::CameraModel::thesis_640x480().scaled_to(width, height);
+  const markerd::detector::CameraModel camera =
+      markerd::detector::CameraModel::thesis_640x480().scaled_to(width, height);
   std::vector<markerd::detector::GreyImage> images;
   const auto render_start = Clock::now();
   for (int k = 0; k < scenes; ++k) {
@@ -107,7 +110,8 @@ int main(int argc, char** argv) {
              std::chrono::duration<double>(Clock::now() - render_start).count());
 
   std::vector<std::unique_ptr<markerd::detector::MarkerDetector>> detectors;
-  for (int i = 0; i < workers; ++i) detectors.push_back(markerd::detector::make_detector(markerd::detector::DetectorConfig{}));
+  for (int i = 0; i < workers; ++i)
+    detectors.push_back(markerd::detector::make_detector(markerd::detector::DetectorConfig{}));
   CountingSink sink;
   std::atomic<std::uint64_t> released{0};
   markerd::daemon::PipelineConfig config;
@@ -137,8 +141,8 @@ int main(int argc, char** argv) {
   const double cpu = cpu_seconds() - cpu_before;
 
   const auto s = pipeline.stats();
-  fmt::print("{} s at {} fps, {}x{}, {} worker(s), {} slots, {} policy\n", seconds, fps, width, height, workers,
-             slots, policy_name);
+  fmt::print("{} s at {} fps, {}x{}, {} worker(s), {} slots, {} policy\n", seconds, fps, width, height, workers, slots,
+             policy_name);
   fmt::print("frames offered {}   detected {}   logged {}   dropped {} ({} refused at capture, {} dropped waiting)\n",
              s.capture.in, s.detect.out, s.log.out, s.dropped(), s.capture.dropped, s.detect.dropped);
   fmt::print("frames with a marker found {} of {}; capture ticks missed by the bench's own thread {}\n",

@@ -30,9 +30,9 @@
 
 #include <fmt/format.h>
 
-#include "markerd/rig/testing/gpio_recording.hpp"
 #include "markerd/rig/gpio_stepper.hpp"
 #include "markerd/rig/motion_profile.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 
 namespace {
 
@@ -42,7 +42,7 @@ using namespace std::chrono_literals;
 struct Result {
   double rate = 0;
   std::size_t steps = 0;
-  double achieved_rate = 0;  // steps/s over the cruise, from the recorded edges
+  double achieved_rate = 0;                   // steps/s over the cruise, from the recorded edges
   double p50_us = 0, p99_us = 0, max_us = 0;  // |actual - planned| per step, slips included
   double interval_p50_us = 0, interval_p99_us = 0, interval_max_us = 0;  // |actual - planned| per interval
   double max_lateness_us = 0;  // the step thread's own measure, against its slipped schedule
@@ -50,8 +50,8 @@ struct Result {
 };
 
 double percentile(std::vector<double> v, double q) {
-  const auto k = static_cast<std::size_t>(std::min<double>(static_cast<double>(v.size()) - 1,
-                                                           std::floor(q * static_cast<double>(v.size()))));
+  const auto k = static_cast<std::size_t>(
+      std::min<double>(static_cast<double>(v.size()) - 1, std::floor(q * static_cast<double>(v.size()))));
   std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
   return v[k];
 }
@@ -154,7 +154,9 @@ int main(int argc, char** argv) {
   app.add_option("--rt-priority", rt_priority, "SCHED_FIFO priority of the step thread, 0 = normal scheduling")
       ->check(CLI::Range(0, 99))
       ->capture_default_str();
-  app.add_option("--seconds", seconds, "length of each move, seconds")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--seconds", seconds, "length of each move, seconds")
+      ->check(CLI::PositiveNumber)
+      ->capture_default_str();
   app.add_option("--rates", rates, "step rates of the table, steps/s, comma-separated")
       ->delimiter(',')
       ->check(CLI::Range(1.0, kSweepMax));
@@ -173,8 +175,8 @@ int main(int argc, char** argv) {
     fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
     for (const double rate : rates) {
       const Result r = bench.run(rate, seconds);
-      fmt::print("| {:.0f} | {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {} |\n", r.rate,
-                 r.steps, r.achieved_rate, r.p50_us, r.p99_us, r.max_us, r.interval_p50_us, r.interval_p99_us,
+      fmt::print("| {:.0f} | {} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {:.1f} | {} |\n",
+                 r.rate, r.steps, r.achieved_rate, r.p50_us, r.p99_us, r.max_us, r.interval_p50_us, r.interval_p99_us,
                  r.interval_max_us, r.max_lateness_us, r.missed);
       std::fflush(stdout);
     }
@@ -192,9 +194,10 @@ int main(int argc, char** argv) {
       clean_so_far = clean_so_far && r.missed == 0;
       if (clean_so_far) highest_clean = rate;
     }
-    fmt::print("\nhighest rate without a missed deadline at it and below: {:.0f} steps/s (configurations are capped "
-               "at {:.0f})\n",
-               highest_clean, kGpioStepperMaxStepRate);
+    fmt::print(
+        "\nhighest rate without a missed deadline at it and below: {:.0f} steps/s (configurations are capped "
+        "at {:.0f})\n",
+        highest_clean, kGpioStepperMaxStepRate);
     fmt::print("load average after: {}\n", load_average());
   } catch (const std::exception& e) {
     fmt::print(stderr, "bench_step_timing: {}\n", e.what());

@@ -112,7 +112,8 @@ struct SourceRun {
 };
 
 // markerd's capture path: `warmup` frames, then `frames` measured.
-SourceRun run_source(const V4l2Settings& settings, int warmup, int frames, const std::vector<detector::GreyImage>& scenes) {
+SourceRun run_source(const V4l2Settings& settings, int warmup, int frames,
+                     const std::vector<detector::GreyImage>& scenes) {
   const auto source = make_v4l2_source(settings);
   FramePool pool({.slots = 4, .pixel_bytes = source->geometry().slot_pixel_bytes});
   source->open();

@@ -32,8 +32,8 @@
 #include <opencv2/core/utils/logger.hpp>
 #include <string>
 
-#include "markerd/daemon/daemon.hpp"
 #include "markerd/base/config_table.hpp"
+#include "markerd/daemon/daemon.hpp"
 
 #ifndef MARKERD_VERSION
 #define MARKERD_VERSION "unknown"
@@ -93,7 +93,8 @@ int run(const std::string& config_path) {
   std::string last_status;
   bool reported_unresponsive = false;
   for (;;) {
-    const timespec timeout{static_cast<time_t>(tick.count() / 1000), static_cast<long>((tick.count() % 1000) * 1'000'000)};
+    const timespec timeout{static_cast<time_t>(tick.count() / 1000),
+                           static_cast<long>((tick.count() % 1000) * 1'000'000)};
     const int sig = sigtimedwait(&signals, nullptr, &timeout);
     if (sig == SIGTERM || sig == SIGINT) {
       spdlog::info("{}: stopping", sig == SIGTERM ? "SIGTERM" : "SIGINT");
@@ -150,8 +151,8 @@ int main(int argc, char** argv) {
       markerd::daemon::check_detector_setup(config);
       std::cout << fmt::format("{}: ok (camera: {}, marker: {} id {} {} m, rig: {}, detection log: {}, control: {})\n",
                                config_path, config.camera.source_kind,
-                               markerd::detector::family_info(config.marker.family).name, config.marker.id, config.marker.size_m,
-                               config.rig ? "yes" : "none", config.log.directory.string(),
+                               markerd::detector::family_info(config.marker.family).name, config.marker.id,
+                               config.marker.size_m, config.rig ? "yes" : "none", config.log.directory.string(),
                                config.control.socket.string());
       return 0;
     } catch (const std::exception& e) {

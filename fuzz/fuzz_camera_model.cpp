@@ -17,8 +17,8 @@
 namespace {
 
 bool same(const markerd::detector::CameraModel& a, const markerd::detector::CameraModel& b) {
-  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
-         a.cy == b.cy && a.dist == b.dist;
+  return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx && a.cy == b.cy &&
+         a.dist == b.dist;
 }
 
 }  // namespace
@@ -41,10 +41,12 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const markerd::detector::CameraModel again = markerd::detector::CameraModel::load(saved);
   if (!same(model, again)) markerd::fuzz::finding("a camera model changes when saved and loaded again");
 
-  const markerd::detector::CameraModel half = model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));
+  const markerd::detector::CameraModel half =
+      model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));
   for (const auto& m : {model, half}) {
-    for (const markerd::detector::Point2 pixel : {markerd::detector::Point2{0, 0}, markerd::detector::Point2{m.cx, m.cy},
-                                        markerd::detector::Point2{static_cast<double>(m.width - 1), static_cast<double>(m.height - 1)}}) {
+    for (const markerd::detector::Point2 pixel :
+         {markerd::detector::Point2{0, 0}, markerd::detector::Point2{m.cx, m.cy},
+          markerd::detector::Point2{static_cast<double>(m.width - 1), static_cast<double>(m.height - 1)}}) {
       const markerd::detector::Point2 normalized = m.pixel_to_normalized(pixel);
       (void)m.normalized_to_pixel(normalized);
     }

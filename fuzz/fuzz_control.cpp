@@ -69,7 +69,8 @@ class Harness {
  public:
   Harness() : rig_(make_sim_rig()), stream_("fuzz.stream", 4096), server_(settings()) {
     server_.register_command("fuzz.arguments", arguments, "text: a string, number: a number, flag: a boolean");
-    server_.register_command("fuzz.sync", [](const json&) { return json(); }, "replies, with nothing");
+    server_.register_command(
+        "fuzz.sync", [](const json&) { return json(); }, "replies, with nothing");
     server_.register_stream(stream_, "a line per input while followed");
     markerd::daemon::register_rig_commands(server_, *rig_);
     server_.start();

@@ -35,19 +35,24 @@ constexpr int kMaxWidth = 640;
 constexpr int kMaxHeight = 480;
 
 bool finite(const markerd::detector::Quad& quad) {
-  return std::all_of(quad.begin(), quad.end(), [](const markerd::detector::Point2& p) { return std::isfinite(p.x) && std::isfinite(p.y); });
+  return std::all_of(quad.begin(), quad.end(),
+                     [](const markerd::detector::Point2& p) { return std::isfinite(p.x) && std::isfinite(p.y); });
 }
 
 void check(const markerd::detector::Detection& d, int width, int height) {
   using markerd::fuzz::finding;
-  if (d.family != markerd::detector::Family::frame8) finding(fmt::format("a frame8 detector reported family {}", static_cast<int>(d.family)));
-  if (d.id < 0 || d.id >= markerd::detector::family_info(markerd::detector::Family::frame8).id_count) finding(fmt::format("id {} reported", d.id));
+  if (d.family != markerd::detector::Family::frame8)
+    finding(fmt::format("a frame8 detector reported family {}", static_cast<int>(d.family)));
+  if (d.id < 0 || d.id >= markerd::detector::family_info(markerd::detector::Family::frame8).id_count)
+    finding(fmt::format("id {} reported", d.id));
   if (!finite(d.corners)) finding(fmt::format("id {}: corners that are not finite ({}x{})", d.id, width, height));
-  if (d.inner_corners && !finite(*d.inner_corners)) finding(fmt::format("id {}: inner corners that are not finite", d.id));
+  if (d.inner_corners && !finite(*d.inner_corners))
+    finding(fmt::format("id {}: inner corners that are not finite", d.id));
   if (!(d.margin >= 0 && d.margin <= 1)) finding(fmt::format("id {}: margin {}", d.id, d.margin));
   if (d.pose) {
     const auto& t = d.pose->best.translation;
-    if (!t.allFinite() || !d.pose->best.rotation.allFinite()) finding(fmt::format("id {}: a pose that is not finite", d.id));
+    if (!t.allFinite() || !d.pose->best.rotation.allFinite())
+      finding(fmt::format("id {}: a pose that is not finite", d.id));
   }
 }
 
@@ -76,8 +81,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   }
 
   const std::ptrdiff_t stride = width + (padded ? 13 : 0);
-  const std::size_t bytes = static_cast<std::size_t>(stride) * static_cast<std::size_t>(height - 1) +
-                            static_cast<std::size_t>(width);
+  const std::size_t bytes =
+      static_cast<std::size_t>(stride) * static_cast<std::size_t>(height - 1) + static_cast<std::size_t>(width);
   const std::uint8_t* pixels = data + kHeaderBytes;
   const std::size_t pixel_count = size - kHeaderBytes;
   // Exactly the bytes the view spans, on the heap: ASan sees any read past them.

@@ -39,7 +39,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   }
   if (step_count(plan) > kMaxCheckedSteps) return 0;
   const auto steps = markerd::sweep::plan_steps(plan);
-  if (steps.size() != step_count(plan)) markerd::fuzz::finding("plan_steps disagrees with the plan's grids and repeats");
+  if (steps.size() != step_count(plan))
+    markerd::fuzz::finding("plan_steps disagrees with the plan's grids and repeats");
   const markerd::sweep::PlanCheck check = markerd::sweep::check_plan(plan, rig, 30.0);
   (void)markerd::sweep::format_plan_check(plan, check);
   return 0;

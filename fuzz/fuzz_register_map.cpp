@@ -26,7 +26,8 @@ using markerd::rig::RegisterWrite;
 
 void check_span(std::string_view what, int address, int count) {
   if (count < 1 || address < 0 || address + count - 1 > 0xFFFF) {
-    markerd::fuzz::finding(fmt::format("{}: {} register(s) from {} leave the 16-bit address space", what, count, address));
+    markerd::fuzz::finding(
+        fmt::format("{}: {} register(s) from {} leave the 16-bit address space", what, count, address));
   }
 }
 
@@ -36,7 +37,8 @@ void check_value(std::string_view what, const RegisterValue& v) {
     const std::optional<std::int64_t> raw = v.to_raw(steps);
     if (!raw) continue;
     if (*raw < v.min_raw() || *raw > v.max_raw()) {
-      markerd::fuzz::finding(fmt::format("{}: to_raw({}) = {} is outside [{}, {}]", what, steps, *raw, v.min_raw(), v.max_raw()));
+      markerd::fuzz::finding(
+          fmt::format("{}: to_raw({}) = {} is outside [{}, {}]", what, steps, *raw, v.min_raw(), v.max_raw()));
     }
     std::array<std::uint16_t, 2> registers{};
     v.pack(*raw, registers);
@@ -88,9 +90,10 @@ void check_map(const RegisterMap& map) {
   std::array<std::uint16_t, 2> registers{0xA5A5, 0x5A5A};
   std::array<std::uint8_t, 32> bits{};
   for (std::size_t i = 0; i < bits.size(); i += 3) bits[i] = 1;
-  const std::uint32_t field = markerd::rig::is_bit_table(status.table)
-                                  ? status.bits_from_bits(std::span(bits).first(static_cast<std::size_t>(status.read_count())))
-                                  : status.bits_from_registers(registers);
+  const std::uint32_t field =
+      markerd::rig::is_bit_table(status.table)
+          ? status.bits_from_bits(std::span(bits).first(static_cast<std::size_t>(status.read_count())))
+          : status.bits_from_registers(registers);
   for (const auto& bit : {status.ready, status.busy, status.in_position, status.alarm, status.homed, status.enabled,
                           status.limit_min, status.limit_max, status.home_switch}) {
     (void)markerd::rig::StatusBits::test(field, bit);

@@ -26,7 +26,7 @@ inline rig::RigSnapshot snapshot(double rail_mm, double turntable_deg) {
 
 // A pose near `truth`: `offset_m` away, turned `angle_rad` further about the marker's Y.
 inline detector::MarkerPose near(const rig::MarkerGroundTruth& truth, const Eigen::Vector3d& offset_m, double angle_rad,
-                       double reprojection_px) {
+                                 double reprojection_px) {
   detector::MarkerPose p;
   p.rotation = truth.rotation * Eigen::AngleAxisd(angle_rad, Eigen::Vector3d::UnitY()).toRotationMatrix();
   p.translation = truth.translation + offset_m;
@@ -35,8 +35,8 @@ inline detector::MarkerPose near(const rig::MarkerGroundTruth& truth, const Eige
 }
 
 inline detector::Quad quad(double x0, double y0, double side) {
-  return {detector::Point2{x0 + 0.12345678, y0 + 0.98765432}, detector::Point2{x0 + side, y0 + 0.5}, detector::Point2{x0 + side - 0.25, y0 + side},
-          detector::Point2{x0 - 0.75, y0 + side + 0.0625}};
+  return {detector::Point2{x0 + 0.12345678, y0 + 0.98765432}, detector::Point2{x0 + side, y0 + 0.5},
+          detector::Point2{x0 + side - 0.25, y0 + side}, detector::Point2{x0 - 0.75, y0 + side + 0.0625}};
 }
 
 // A frame8 detection with inner corners and both pose solutions, and an

@@ -28,7 +28,7 @@ namespace {
 struct DriveLog {
   std::mutex mutex;
   std::vector<std::int64_t> targets;
-  std::atomic<bool> hold_busy{false};  // report busy forever: a drive that never arrives
+  std::atomic<bool> hold_busy{false};     // report busy forever: a drive that never arrives
   std::atomic<bool> refuse_moves{false};  // start_move fails as on a dead bus
   // status() blocks while set: a drive whose update is stuck (a simulation
   // that spins, a read that hangs) with the axis's supervisor inside it.
@@ -48,7 +48,8 @@ struct DriveLog {
 
 class RecordingDrive final : public Drive {
  public:
-  RecordingDrive(std::unique_ptr<SimDrive> sim, std::shared_ptr<DriveLog> log) : sim_(std::move(sim)), log_(std::move(log)) {}
+  RecordingDrive(std::unique_ptr<SimDrive> sim, std::shared_ptr<DriveLog> log)
+      : sim_(std::move(sim)), log_(std::move(log)) {}
   std::string_view name() const override { return sim_->name(); }
   void enable(bool on) override { sim_->enable(on); }
   void start_move(std::int64_t target, double v, double a) override {
@@ -106,8 +107,8 @@ AxisSettings rail_settings() {
 SimDriveSettings rail_sim(bool encoder = false) {
   SimDriveSettings s;
   s.name = "rail (sim)";
-  s.limit_min_steps = -80;     // -2 mm
-  s.limit_max_steps = 4080;    // 102 mm
+  s.limit_min_steps = -80;        // -2 mm
+  s.limit_max_steps = 4080;       // 102 mm
   s.start_position_steps = 1600;  // 40 mm
   s.encoder = encoder;
   return s;
@@ -159,7 +160,8 @@ bool eventually(const std::function<bool()>& pred, std::chrono::milliseconds tim
 
 TEST(Axis, ConstructorRejectsBadSettingsNamingTheAxisAndTheSetting) {
   auto make = [](AxisSettings s) {
-    return axis_error([&] { Axis axis(std::move(s), std::make_unique<SimDrive>(rail_sim(), std::make_shared<SimClock>())); });
+    return axis_error(
+        [&] { Axis axis(std::move(s), std::make_unique<SimDrive>(rail_sim(), std::make_shared<SimClock>())); });
   };
   AxisSettings s = rail_settings();
   s.units_per_step = 0;
@@ -181,15 +183,18 @@ TEST(Axis, ConstructorRejectsBadSettingsNamingTheAxisAndTheSetting) {
   EXPECT_EQ(make(s), "rail: invalid setting homing.timeout_s: must be > 0 and at most 3600 s, got 3600000 s");
   s = rail_settings();
   s.homing.search_velocity = 80;
-  EXPECT_EQ(make(s), "rail: invalid setting homing.search_velocity: must be between 0 (default) and max_velocity (50), got 80");
+  EXPECT_EQ(make(s),
+            "rail: invalid setting homing.search_velocity: must be between 0 (default) and max_velocity (50), got 80");
 }
 
 TEST(Axis, RefusesMovesWhileDisabledBeforeHomingAndOutsideTheLimits) {
   TestAxis t;
   EXPECT_EQ(t.axis->status().state, AxisState::disabled);
-  EXPECT_EQ(axis_error([&] { t.axis->move_to(50); }), "rail: move to 50 mm refused: the axis is disabled; enable() first");
+  EXPECT_EQ(axis_error([&] { t.axis->move_to(50); }),
+            "rail: move to 50 mm refused: the axis is disabled; enable() first");
   t.axis->enable();
-  EXPECT_EQ(axis_error([&] { t.axis->move_to(50); }), "rail: move to 50 mm refused: the axis is not homed; home() first");
+  EXPECT_EQ(axis_error([&] { t.axis->move_to(50); }),
+            "rail: move to 50 mm refused: the axis is not homed; home() first");
   t.home();
   EXPECT_EQ(axis_error([&] { t.axis->move_to(150); }),
             "rail: move to 150 mm refused: outside the soft limits [0, 100] mm");
@@ -331,7 +336,8 @@ TEST(Axis, TheEstopInputFaultsTheAxisAndMovesAreRefusedUntilClearFault) {
   EXPECT_EQ(s.state, AxisState::disabled);
   EXPECT_FALSE(s.homed);  // an open-loop stepper lost its reference when its output went off
   t.axis->enable();
-  EXPECT_EQ(axis_error([&] { t.axis->move_to(10); }), "rail: move to 10 mm refused: the axis is not homed; home() first");
+  EXPECT_EQ(axis_error([&] { t.axis->move_to(10); }),
+            "rail: move to 10 mm refused: the axis is not homed; home() first");
   t.home();
   t.axis->move_to(10);
   EXPECT_TRUE(t.axis->wait_settled(30s));
@@ -417,7 +423,8 @@ TEST(Axis, ADriveThatFailsACommandFaultsTheAxisAndIsDisabled) {
   TestAxis t;
   t.home();
   t.log->refuse_moves = true;
-  EXPECT_EQ(axis_error([&] { t.axis->move_to(10); }), "rail: move to 10 mm refused: the drive failed: rail (sim): no reply");
+  EXPECT_EQ(axis_error([&] { t.axis->move_to(10); }),
+            "rail: move to 10 mm refused: the drive failed: rail (sim): no reply");
   const AxisStatus s = t.axis->status();
   EXPECT_EQ(s.state, AxisState::fault);
   EXPECT_EQ(s.fault, "rail (sim): no reply");

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include <sys/stat.h>
+#include <unistd.h>
 #include <array>
 #include <cmath>
 #include <cstdlib>
@@ -11,8 +13,6 @@
 #include <iostream>
 #include <random>
 #include <string>
-#include <sys/stat.h>
-#include <unistd.h>
 #include <utility>
 #include <vector>
 
@@ -54,7 +54,7 @@ void expect_load_error(const fs::path& file, const std::string& key) {
 // Moderate lenses with every term of OpenCV's model in use.
 CameraModel with_coefficients(int n) {
   CameraModel c = CameraModel::thesis_640x480();
-  const std::array<double, 12> all = {-0.28, 0.11, 0.0012, -0.0007, -0.021, 0.05,
+  const std::array<double, 12> all = {-0.28,  0.11,  0.0012, -0.0007, -0.021, 0.05,
                                       -0.012, 0.003, 0.0015, -0.0004, 0.0009, 0.0002};
   c.dist = {};
   for (int i = 0; i < n; ++i) c.dist[static_cast<std::size_t>(i)] = all[static_cast<std::size_t>(i)];
@@ -63,9 +63,7 @@ CameraModel with_coefficients(int n) {
 
 cv::Matx33d camera_matrix(const CameraModel& c) { return {c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1}; }
 
-std::vector<double> coefficients(const CameraModel& c, int n) {
-  return {c.dist.begin(), c.dist.begin() + n};
-}
+std::vector<double> coefficients(const CameraModel& c, int n) { return {c.dist.begin(), c.dist.begin() + n}; }
 
 TEST(CameraModel, LoadsTheThesisCamera) {
   const CameraModel c = CameraModel::load(kThesisFile);
@@ -151,13 +149,15 @@ TEST(CameraModel, XmlAndJsonFilesAreRefusedByName) {
       "<?xml version=\"1.0\"?>\n<opencv_storage>\n<image_width>640</image_width>\n"
       "<image_height>480</image_height>\n</opencv_storage>\n";
   expect_load_error(dir.write("good.xml", xml), "XML camera files are not read");
-  expect_load_error(dir.write("corrupt.xml", "<?xml version=" + std::string(200, '\0') + "\"1.0\"?>\n<opencv_storage>\n<a"),
-                    "XML camera files are not read");
+  expect_load_error(
+      dir.write("corrupt.xml", "<?xml version=" + std::string(200, '\0') + "\"1.0\"?>\n<opencv_storage>\n<a"),
+      "XML camera files are not read");
   expect_load_error(dir.write("camera.json", "{ \"image_width\": 640, \"image_height\": 480 }\n"),
                     "JSON camera files are not read");
   expect_load_error(dir.write("no-header.yaml", "image_width: 640\n"), "must begin with %YAML:1.0");
   // A byte order mark before %YAML is still YAML.
-  const CameraModel c = CameraModel::load(dir.write("bom.yaml", "\xEF\xBB\xBF" + kHeader + kGoodMatrix + kGoodDistortion));
+  const CameraModel c =
+      CameraModel::load(dir.write("bom.yaml", "\xEF\xBB\xBF" + kHeader + kGoodMatrix + kGoodDistortion));
   EXPECT_EQ(c.width, 640);
 }
 
@@ -166,7 +166,8 @@ TEST(CameraModel, ImageSizeOutOfRangeIsRefused) {
   for (const std::string width : {"1e309", ".Nan", "-.Inf", "1e34", "0", "-640", "65536", "640.5"}) {
     const std::string text =
         "%YAML:1.0\n---\nimage_width: " + width + "\nimage_height: 480\n" + kGoodMatrix + kGoodDistortion;
-    expect_load_error(dir.write("width.yaml", text), "key 'image_width' must be a whole number of pixels from 1 to 65535");
+    expect_load_error(dir.write("width.yaml", text),
+                      "key 'image_width' must be a whole number of pixels from 1 to 65535");
   }
   const std::string text = "%YAML:1.0\n---\nimage_width: 65535\nimage_height: 480\n" + kGoodMatrix + kGoodDistortion;
   EXPECT_EQ(CameraModel::load(dir.write("widest.yaml", text)).width, 65535);
@@ -192,8 +193,10 @@ TEST(CameraModel, CameraMatrixOutOfRangeIsRefused) {
   };
   for (const auto& [data, words] : cases) expect_load_error(dir.write("matrix.yaml", with_camera_matrix(data)), words);
   const std::string d =
-      "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0.1, .Nan, 0., 0., 0. ]\n";
-  expect_load_error(dir.write("nan-k2.yaml", kHeader + kGoodMatrix + d), "'distortion_coefficients' holds a value that is not finite");
+      "distortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0.1, .Nan, 0., 0., 0. "
+      "]\n";
+  expect_load_error(dir.write("nan-k2.yaml", kHeader + kGoodMatrix + d),
+                    "'distortion_coefficients' holds a value that is not finite");
 }
 
 // OpenCV asserts that the top level is a map when asked for a key: its
@@ -225,7 +228,8 @@ TEST(CameraModel, DeclaredMatrixSizeIsCheckedBeforeReading) {
                     "declares 3x3 but holds 27 values");
   // A column of coefficients, as some tools write it, is read.
   const std::string column =
-      "distortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n   dt: d\n   data: [ 0.1, 0.2, 0., 0., 0.3 ]\n";
+      "distortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n   dt: d\n   data: [ 0.1, 0.2, 0., 0., 0.3 "
+      "]\n";
   EXPECT_EQ(CameraModel::load(dir.write("column.yaml", kHeader + kGoodMatrix + column)).dist[4], 0.3);
 }
 
@@ -239,8 +243,10 @@ TEST(CameraModel, WrongFilesPrintNothingOfOpenCvs) {
       kHeader + "camera_matrix: [ 1, 2\n",
       "%YAML:1.0\n\t image_width: 640\n",
       "%YAML:1.0\n- 1\n",
-      kHeader + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: q\n   data: [ 1, 2, 3, 4, 5, 6, 7, 8, 9 ]\n",
-      kHeader + "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ a, b, c, d, e, f, g, h, i ]\n",
+      kHeader +
+          "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: q\n   data: [ 1, 2, 3, 4, 5, 6, 7, 8, 9 ]\n",
+      kHeader +
+          "camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ a, b, c, d, e, f, g, h, i ]\n",
       kHeader + "camera_matrix: !!binary |\n  AAAA\n",
   };
   for (const std::string& text : wrong) {
@@ -327,8 +333,8 @@ TEST(CameraModel, UndistortAgreesWithOpenCvAndRoundTrips) {
     }
   }
   std::cout << "[ undistort] thesis camera: OpenCV converged at " << opencv_converged << "/" << px.size()
-            << " points (not beyond distorted radius " << smallest_unconverged_radius
-            << "), worst difference there " << worst_cv << "; our worst round trip " << worst_trip << " px\n";
+            << " points (not beyond distorted radius " << smallest_unconverged_radius << "), worst difference there "
+            << worst_cv << "; our worst round trip " << worst_trip << " px\n";
   EXPECT_LT(worst_cv, 1e-11);
   EXPECT_LT(worst_trip, 1e-9);
   EXPECT_GT(opencv_converged, static_cast<int>(px.size() * 99 / 100));

@@ -74,7 +74,8 @@ class ScriptedSource final : public CaptureSource {
     }
   }
   void fill(Frame& frame) override {
-    if (current_ == Step::fail_fill) throw CaptureError(CaptureError::Kind::io, "scripted: VIDIOC_DQBUF: Input/output error");
+    if (current_ == Step::fail_fill)
+      throw CaptureError(CaptureError::Kind::io, "scripted: VIDIOC_DQBUF: Input/output error");
     frame.sequence = sequence_++;
     if (current_ == Step::corrupt) {
       frame.status = FrameStatus::corrupt_frame;
@@ -336,7 +337,6 @@ TEST(SimCamera, KeepsItsFrameRate) {
   // A timeout shorter than the period is a wait without a frame.
   EXPECT_FALSE(sim.wait_frame(1ms));
 }
-
 
 // What a capture loop sees of a camera with scheduled outages: it opens and
 // streams, the camera vanishes at a frame, refuses to open while the outage

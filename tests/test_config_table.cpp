@@ -53,7 +53,9 @@ TEST(ConfigTable, ErrorsNameFileLineAndKey) {
             "rig.toml:4: rig.rail.acceleration: must be an integer");
   EXPECT_EQ(error_of([&] { (void)rail.required<double>("backlash"); }),
             "rig.toml:2: [rig.rail]: missing key 'rig.rail.backlash' (a number)");
-  EXPECT_EQ(error_of([&] { rail.allow_only({"max_velocity", "acceleration"}); }),
+  EXPECT_EQ(error_of([&] {
+              rail.allow_only({"max_velocity", "acceleration"});
+            }),
             "rig.toml:5: rig.rail.name: unknown key (known here: max_velocity, acceleration)");
   EXPECT_EQ(error_of([&] { rail.fail("acceleration", "must be > 0"); }),
             "rig.toml:4: rig.rail.acceleration: must be > 0");
@@ -65,7 +67,11 @@ TEST(ConfigTable, SyntaxErrorsAndMissingFilesAreConfigErrors) {
   const auto missing = error_of([] { (void)ConfigTable::load_file("/nonexistent/rig.toml"); });
   EXPECT_EQ(missing.rfind("/nonexistent/rig.toml", 0), 0u) << missing;
   const markerd::test_support::TempDir dir;
-  EXPECT_EQ(ConfigTable::load_file(dir.write("config_table.toml", kText)).table("rig").table("rail").required<std::string>("name"), "rail");
+  EXPECT_EQ(ConfigTable::load_file(dir.write("config_table.toml", kText))
+                .table("rig")
+                .table("rail")
+                .required<std::string>("name"),
+            "rail");
 }
 
 TEST(ConfigTable, AnythingButARegularFileIsRefusedByName) {
@@ -85,15 +91,23 @@ count = 70000
 )",
                                        "rig.toml");
   const auto axis = root.table("axis");
-  EXPECT_EQ(error_of([&] { (void)axis.required<std::int64_t>("settle_ms", {0, 60000, "ms"}); }),
+  EXPECT_EQ(error_of([&] {
+              (void)axis.required<std::int64_t>("settle_ms", {0, 60000, "ms"});
+            }),
             "rig.toml:2: axis.settle_ms: must be from 0 to 60000 ms, got 9223372036854775807");
-  EXPECT_EQ(error_of([&] { (void)axis.optional<double>("time_scale", 1.0, {1, 1000}); }),
+  EXPECT_EQ(error_of([&] {
+              (void)axis.optional<double>("time_scale", 1.0, {1, 1000});
+            }),
             "rig.toml:3: axis.time_scale: must be from 1 to 1000, got 1e+308");
-  EXPECT_EQ(error_of([&] { (void)axis.optional<double>("ratio", 1.0, {0, 1}); }),
+  EXPECT_EQ(error_of([&] {
+              (void)axis.optional<double>("ratio", 1.0, {0, 1});
+            }),
             "rig.toml:4: axis.ratio: must be a finite number, got nan");
   EXPECT_DOUBLE_EQ(axis.required<double>("speed", {0, 100, "mm/s"}), 12.5);
   EXPECT_DOUBLE_EQ(axis.optional<double>("absent", 7.0, {0, 100}), 7.0);
-  EXPECT_EQ(error_of([&] { (void)axis.required<double>("absent", {0, 100}); }),
+  EXPECT_EQ(error_of([&] {
+              (void)axis.required<double>("absent", {0, 100});
+            }),
             "rig.toml:1: [axis]: missing key 'axis.absent' (a number)");
 }
 

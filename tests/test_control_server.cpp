@@ -140,7 +140,12 @@ class RawClient {
 
 // Handlers of every kind a daemon registers.
 void register_test_commands(ControlServer& server) {
-  server.register_command("echo", [](const json& request) { return json{{"echo", request}}; }, "returns the request");
+  server.register_command(
+      "echo",
+      [](const json& request) {
+        return json{{"echo", request}};
+      },
+      "returns the request");
   server.register_command(
       "add",
       [](const json& request) {
@@ -300,7 +305,8 @@ TEST_F(ControlServerTest, EveryBadRequestGetsAnErrorNamingTheProblemAndTheConnec
   EXPECT_NE(error_for("{\"cmd\": \"\xff\xfe\"}").find("malformed JSON"), std::string::npos);
 
   // The errors echo the id when the request had a usable one.
-  client.send(R"({"cmd": "launch", "id": 99})" "\n");
+  client.send(R"({"cmd": "launch", "id": 99})"
+              "\n");
   EXPECT_EQ(client.reply()["id"], 99);
   // A line ending in \r\n (a terminal's, socat's) is a request like any other.
   client.send("{\"cmd\": \"add\", \"id\": 100, \"a\": 1, \"b\": 2}\r\n");
@@ -312,19 +318,24 @@ TEST_F(ControlServerTest, EveryBadRequestGetsAnErrorNamingTheProblemAndTheConnec
 TEST_F(ControlServerTest, ALineSplitAcrossManyWritesAndTwoRequestsInOneWrite) {
   start();
   RawClient client(socket());
-  const std::string request = R"({"cmd": "add", "id": 1, "a": 20, "b": 22})" "\n";
+  const std::string request = R"({"cmd": "add", "id": 1, "a": 20, "b": 22})"
+                              "\n";
   for (std::size_t i = 0; i < request.size(); ++i) {
     client.send(request.substr(i, 1));
     if (i % 7 == 0) std::this_thread::sleep_for(2ms);  // separate reads on the server's side
   }
   EXPECT_EQ(client.reply(), (json{{"id", 1}, {"ok", true}, {"sum", 42}}));
 
-  client.send(R"({"cmd":"add","id":2,"a":1,"b":1})" "\n" R"({"cmd":"add","id":3,"a":1,"b":2})" "\n"
+  client.send(R"({"cmd":"add","id":2,"a":1,"b":1})"
+              "\n"
+              R"({"cmd":"add","id":3,"a":1,"b":2})"
+              "\n"
               R"({"cmd":"add","id":4,)");
   EXPECT_EQ(client.reply()["id"], 2);
   EXPECT_EQ(client.reply()["id"], 3);
   EXPECT_FALSE(client.line(100ms)) << "the third request is not complete yet";
-  client.send(R"("a":2,"b":2})" "\n");
+  client.send(R"("a":2,"b":2})"
+              "\n");
   EXPECT_EQ(client.reply(), (json{{"id", 4}, {"ok", true}, {"sum", 4}}));
 }
 
@@ -351,7 +362,9 @@ TEST_F(ControlServerTest, ALineLongerThanTheLimitIsRefusedAndClosesOnlyThatConne
     RawClient client(socket());
     std::string request = R"({"cmd": "add", "id": 1, "a": 1, "b": 1)";
     request += std::string(settings_.max_request_bytes - request.size(), ' ') + "}";
-    client.send(request + "\n" + R"({"cmd":"help"})" "\n");
+    client.send(request + "\n" +
+                R"({"cmd":"help"})"
+                "\n");
     EXPECT_EQ(client.reply(), (json{{"ok", false}, {"error", kTooLarge}}));
     EXPECT_TRUE(client.ends());
   }
@@ -380,7 +393,11 @@ TEST_F(ControlServerTest, AClientThatDisconnectsMidRequestIsForgotten) {
   {
     // Requests complete before the disconnect are still answered (to nobody).
     RawClient client(socket());
-    client.send(R"({"cmd": "help"})" "\n" R"({"cmd": "help"})" "\n" R"({"cmd":)");
+    client.send(R"({"cmd": "help"})"
+                "\n"
+                R"({"cmd": "help"})"
+                "\n"
+                R"({"cmd":)");
     ::shutdown(client.fd(), SHUT_WR);
     EXPECT_EQ(client.reply()["ok"], true);
     EXPECT_EQ(client.reply()["ok"], true);
@@ -480,10 +497,11 @@ TEST_F(ControlServerTest, AnEmergencyStopGetsThroughWhenIdleClientsHoldEverySlot
   {
     RawClient late(socket());
     late.request({{"cmd", "help"}, {"id", 1}});
-    EXPECT_EQ(late.reply(),
-              (json{{"id", 1},
-                    {"ok", false},
-                    {"error", "too many clients (16 connected; beyond the limit only stop is served); try again later"}}));
+    EXPECT_EQ(
+        late.reply(),
+        (json{{"id", 1},
+              {"ok", false},
+              {"error", "too many clients (16 connected; beyond the limit only stop is served); try again later"}}));
     EXPECT_TRUE(late.ends());
   }
   // Connections beyond the limit that send nothing do not keep the stop out either.
@@ -636,7 +654,8 @@ TEST_F(ControlServerTest, AFileThatIsNotASocketIsLeftAlone) {
     server.start();
     FAIL() << "replaced a regular file";
   } catch (const ControlSocketError& e) {
-    EXPECT_EQ(std::string(e.what()), "control socket " + socket().string() + ": exists and is not a socket; it is left alone");
+    EXPECT_EQ(std::string(e.what()),
+              "control socket " + socket().string() + ": exists and is not a socket; it is left alone");
   }
   std::ifstream in(socket());
   std::string text;
@@ -848,8 +867,8 @@ TEST(LineBroadcast, KeepsLinesWholeAcrossTheRingsEndAndCountsWhatItCannotStore) 
   int stored = 0;
   while (stream.publish(std::string(500, 'x'))) ++stored;  // ends with a drop
   EXPECT_GE(stored, 6);
-  while (stream.publish("y")) ++stored;                     // the rest of the room; ends with a drop
-  EXPECT_FALSE(stream.publish(std::string(5000, 'z')));     // longer than the ring: never fits
+  while (stream.publish("y")) ++stored;                  // the rest of the room; ends with a drop
+  EXPECT_FALSE(stream.publish(std::string(5000, 'z')));  // longer than the ring: never fits
   drain();
   EXPECT_EQ(lines.size(), static_cast<std::size_t>(stored));
   EXPECT_EQ(drops, 3U);
@@ -963,24 +982,30 @@ TEST_F(ControlServerTest, ArgumentsAreReadByNameTypeAndRangeWithErrorsThatNameTh
     EXPECT_EQ(reply.value("ok", true), false) << reply;
     return reply.value("error", std::string());
   };
-  EXPECT_EQ(client.call({{"cmd", "set"}, {"id", 1}, {"count", 3.0}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"},
-                         {"on", true}}),
-            (json{{"id", 1}, {"ok", true}, {"count", 3}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"}, {"on", true}}));
-  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", "3"}}), R"(argument 'count' must be a whole number, got a string ("3"))");
+  EXPECT_EQ(
+      client.call(
+          {{"cmd", "set"}, {"id", 1}, {"count", 3.0}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"}, {"on", true}}),
+      (json{{"id", 1}, {"ok", true}, {"count", 3}, {"gain", 2.5}, {"axis", "rail"}, {"label", "x"}, {"on", true}}));
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"count", "3"}}),
+            R"(argument 'count' must be a whole number, got a string ("3"))");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 2.5}}), "argument 'count' must be a whole number, got a number (2.5)");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 0}}), "argument 'count' must be from 1 to 100, got 0");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 18446744073709551615ULL}}),
             "argument 'count' must be from 1 to 100, got 18446744073709551615");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"count", 1e300}}), "argument 'count' must be from 1 to 100, got 1e+300");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"gain", 3}}), "argument 'gain' must be from 0 to 2.5 dB, got 3");
-  EXPECT_EQ(error_for({{"cmd", "set"}, {"gain", json::array({1})}}), "argument 'gain' must be a number, got an array ([1])");
-  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", "rial"}}), "argument 'axis' must be rail, turntable or both, got 'rial'");
-  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", 1}}), "argument 'axis' must be rail, turntable or both, got a number (1)");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"gain", json::array({1})}}),
+            "argument 'gain' must be a number, got an array ([1])");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", "rial"}}),
+            "argument 'axis' must be rail, turntable or both, got 'rial'");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"axis", 1}}),
+            "argument 'axis' must be rail, turntable or both, got a number (1)");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"label", std::string(100, 'y')}, {"on", "yes"}}),
             R"(argument 'on' must be true or false, got a string ("yes"))");
   EXPECT_EQ(error_for({{"cmd", "set"}, {"label", json::object({{"text", std::string(100, 'y')}})}}),
             "argument 'label' must be a string, got an object ({\"text\":\"" + std::string(51, 'y') + "...)");
-  EXPECT_EQ(error_for({{"cmd", "set"}, {"colour", "red"}}), "unknown argument 'colour' (for set: count, gain, axis, label, on)");
+  EXPECT_EQ(error_for({{"cmd", "set"}, {"colour", "red"}}),
+            "unknown argument 'colour' (for set: count, gain, axis, label, on)");
   EXPECT_EQ(error_for({{"cmd", "help"}, {"verbose", true}}), "unknown argument 'verbose': help takes none");
   EXPECT_EQ(error_for({{"cmd", "raw"}, {"reason", 42}}),
             "raw: an argument has the wrong type or value: type must be string, but is number");

@@ -124,7 +124,8 @@ TEST_F(DaemonTest, TheExampleConfigLoads) {
 TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
   {
     const auto [error, where] = error_with("source = \"sim\"", "source = \"webcam\"");
-    EXPECT_EQ(error, where + ": camera.source: must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"webcam\"");
+    EXPECT_EQ(error,
+              where + ": camera.source: must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"webcam\"");
   }
   {
     const auto [error, where] = error_with("fps = 30", "fps = -1");
@@ -153,8 +154,9 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     const auto [error, where] = error_with("noise_sigma = 2.0", "noise_sigma = 2.0\nnoise_sigm = 2.0");
-    const std::string expected = fmt::format("{}:{}: camera.sim.noise_sigm: unknown key",
-                                             where.substr(0, where.rfind(':')), std::stoi(where.substr(where.rfind(':') + 1)) + 1);
+    const std::string expected =
+        fmt::format("{}:{}: camera.sim.noise_sigm: unknown key", where.substr(0, where.rfind(':')),
+                    std::stoi(where.substr(where.rfind(':') + 1)) + 1);
     EXPECT_EQ(error.substr(0, expected.size()), expected) << error;
   }
   {
@@ -172,7 +174,8 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     const auto [error, where] = error_with("policy = \"lossless\"", "policy = \"lossless\"\nslots = 4294967298");
-    EXPECT_EQ(error, where.substr(0, where.rfind(':')) + ":" + std::to_string(std::stoi(where.substr(where.rfind(':') + 1)) + 1) +
+    EXPECT_EQ(error, where.substr(0, where.rfind(':')) + ":" +
+                         std::to_string(std::stoi(where.substr(where.rfind(':') + 1)) + 1) +
                          ": pipeline.slots: must be from 2 to 256, got 4294967298");
   }
   {
@@ -188,8 +191,8 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": camera.model: " + dir_.string() + ": the camera model is a directory, not a file");
   }
   {
-    const auto [error, where] = error_with(
-        fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"", MARKERD_SOURCE_DIR), "");
+    const auto [error, where] =
+        error_with(fmt::format("model = \"{}/config/cameras/thesis-640x480.yaml\"", MARKERD_SOURCE_DIR), "");
     EXPECT_NE(error.find("camera.model: is required by the simulated camera"), std::string::npos) << error;
   }
   {
@@ -214,11 +217,13 @@ TEST_F(DaemonTest, TheDetectorOptionsRangesAreTheDetectors) {
   };
   {
     const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nthreshold_offset = 0\n[pipeline]");
-    EXPECT_EQ(error, line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 0");
+    EXPECT_EQ(error,
+              line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 0");
   }
   {
     const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nthreshold_offset = 101\n[pipeline]");
-    EXPECT_EQ(error, line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 101");
+    EXPECT_EQ(error,
+              line_after(where) + ": detector.frame8.threshold_offset: must be from 1 to 100 grey levels, got 101");
   }
   {
     const auto [error, where] = error_with("[pipeline]", "[detector.frame8]\nblur_sigma_px = 7.5\n[pipeline]");
@@ -259,7 +264,8 @@ fps = 60
   EXPECT_NE(detector::make_detector(detector), nullptr);
 
   // With the model, the marker size goes with it: poses.
-  const DaemonConfig with_model = parse_daemon_config(ConfigTable::parse(base_config(), (dir_ / "markerd.toml").string()));
+  const DaemonConfig with_model =
+      parse_daemon_config(ConfigTable::parse(base_config(), (dir_ / "markerd.toml").string()));
   EXPECT_EQ(detector_config(with_model).marker_size_m, 0.08);
 }
 
@@ -295,7 +301,7 @@ TEST_F(DaemonTest, SimulatedCameraRigDetectorAndLogEndToEnd) {
   rig.turntable().home();
   ASSERT_TRUE(rig.rail().wait_settled(60s)) << rig.rail().status().fault;
   ASSERT_TRUE(rig.turntable().wait_settled(60s)) << rig.turntable().status().fault;
-  rig.rail().move_to(650.0);    // d = 300 + 650 mm
+  rig.rail().move_to(650.0);  // d = 300 + 650 mm
   rig.turntable().move_to(30.0);
   ASSERT_TRUE(rig.rail().wait_settled(60s));
   ASSERT_TRUE(rig.turntable().wait_settled(60s));
@@ -496,18 +502,18 @@ TEST_F(DaemonTest, CheckConfigFindsWhatWouldKeepTheControlSocketFromStarting) {
   {
     const auto [outcome, line] = check_with("socket = \"nodir/c.sock\"");
     EXPECT_EQ(outcome.code, 1);
-    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.socket: {}: its directory {}: No such file or directory",
-                                           path.string(), line, (dir_ / "nodir/c.sock").string(),
-                                           (dir_ / "nodir").string())),
-              std::string::npos)
+    EXPECT_NE(
+        outcome.err.find(fmt::format("{}:{}: control.socket: {}: its directory {}: No such file or directory",
+                                     path.string(), line, (dir_ / "nodir/c.sock").string(), (dir_ / "nodir").string())),
+        std::string::npos)
         << outcome.err;
   }
   {
     write_file(dir_ / "not-a-socket", "text");
     const auto [outcome, line] = check_with("socket = \"not-a-socket\"");
     EXPECT_EQ(outcome.code, 1);
-    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.socket: {}: exists and is not a socket", path.string(),
-                                           line, (dir_ / "not-a-socket").string())),
+    EXPECT_NE(outcome.err.find(fmt::format("{}:{}: control.socket: {}: exists and is not a socket", path.string(), line,
+                                           (dir_ / "not-a-socket").string())),
               std::string::npos)
         << outcome.err;
   }
@@ -530,8 +536,8 @@ TEST_F(DaemonTest, CheckConfigFindsWhatWouldKeepTheControlSocketFromStarting) {
   // The process's own group, and settings in range: fine.
   const group* own = ::getgrgid(::getegid());
   ASSERT_NE(own, nullptr);
-  const auto [good, line] = check_with(fmt::format(
-      "socket = \"control.sock\"\ngroup = \"{}\"\nmax_clients = 4\nidle_timeout_ms = 5000", own->gr_name));
+  const auto [good, line] = check_with(
+      fmt::format("socket = \"control.sock\"\ngroup = \"{}\"\nmax_clients = 4\nidle_timeout_ms = 5000", own->gr_name));
   EXPECT_EQ(good.code, 0) << good.err;
   const DaemonConfig config = load_daemon_config(path);
   EXPECT_EQ(config.control.max_clients, 4U);

@@ -229,8 +229,7 @@ TEST(DetectionRecord, UtcTimes) {
     in.capture_utc = t;
     return parse_line(formatter.format(in)).at("frame").at("capture_utc").get<std::string>();
   };
-  EXPECT_EQ(utc_of(sys_days(year{2038} / 1 / 19) + hours(3) + minutes(14) + seconds(8)),
-            "2038-01-19T03:14:08.000000Z");
+  EXPECT_EQ(utc_of(sys_days(year{2038} / 1 / 19) + hours(3) + minutes(14) + seconds(8)), "2038-01-19T03:14:08.000000Z");
   // Microseconds are truncated towards the past, also before 1970.
   EXPECT_EQ(utc_of(system_clock::time_point(nanoseconds(1'999))), "1970-01-01T00:00:00.000001Z");
   EXPECT_EQ(utc_of(system_clock::time_point(microseconds(-1))), "1969-12-31T23:59:59.999999Z");

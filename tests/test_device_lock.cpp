@@ -86,7 +86,8 @@ TEST(DeviceClaims, TwoNamesOfOneSerialDeviceLockOneFile) {
   EXPECT_EQ(claims[0].what, "rail's and turntable's " + by_id.string());
   const auto named = DeviceLock::file_for(claim("serial", fs::weakly_canonical(device).string(), ""), dir.path());
   EXPECT_EQ(DeviceLock::file_for(claims[0], dir.path()), named);
-  EXPECT_EQ(DeviceLock::file_for(claim("serial", "/dev/ttyUSB0", ""), "/locks"), fs::path("/locks/serial-dev_ttyUSB0.lock"));
+  EXPECT_EQ(DeviceLock::file_for(claim("serial", "/dev/ttyUSB0", ""), "/locks"),
+            fs::path("/locks/serial-dev_ttyUSB0.lock"));
   EXPECT_EQ(DeviceLock::file_for(claim("tcp", "[::1]:502", ""), "/locks"), fs::path("/locks/tcp-1__502.lock"));
 }
 
@@ -94,7 +95,7 @@ TEST(DeviceLock, CreatesItsDirectoryAndRecordsTheHolder) {
   markerd::test_support::TempDir dir;
   const fs::path locks = dir.path() / "run" / "markerd";
   DeviceLock lock({claim("gpio", "/dev/gpiochip0", "rail's GPIO chip gpiochip0")}, locks);
-  EXPECT_EQ((fs::status(locks).permissions() & fs::perms::all) , fs::perms::all);
+  EXPECT_EQ((fs::status(locks).permissions() & fs::perms::all), fs::perms::all);
   ASSERT_EQ(lock.files().size(), 1u);
   EXPECT_EQ(lock.files()[0], locks / "gpio-dev_gpiochip0.lock");
   const std::string record = read_file(lock.files()[0]);
@@ -121,8 +122,8 @@ TEST(DeviceLock, AllOrNoneAndTheRefusalNamesTheHolder) {
   // gpio-... sorts before serial-...: the chip is taken first, then released
   // when the serial device is refused.
   const std::string error = refusal({serial, chip}, dir.path());
-  const std::string expected = "turntable's /dev/ttyUSB0 is in use by test_device_lock (pid " +
-                               std::to_string(::getpid()) + ": ";
+  const std::string expected =
+      "turntable's /dev/ttyUSB0 is in use by test_device_lock (pid " + std::to_string(::getpid()) + ": ";
   EXPECT_EQ(error.rfind(expected, 0), 0u) << error;
   EXPECT_NE(error.find("(lock file " + (dir.path() / "serial-dev_ttyUSB0.lock").string() + ")"), std::string::npos)
       << error;
@@ -168,10 +169,10 @@ TEST(DeviceLock, AnotherProcessIsRefusedUntilTheHolderEnds) {
   char ready = 0;
   ASSERT_EQ(::read(locked[0], &ready, 1), 1) << "the child did not take the lock";
   const std::string error = refusal({sim}, dir.path());
-  EXPECT_EQ(error.rfind("rail's simulated rig /etc/rig.toml is in use by test_device_lock (pid " +
-                            std::to_string(child) + ": ",
-                        0),
-            0u)
+  EXPECT_EQ(
+      error.rfind(
+          "rail's simulated rig /etc/rig.toml is in use by test_device_lock (pid " + std::to_string(child) + ": ", 0),
+      0u)
       << error;
   ::close(release[1]);  // the child ends
   int status = 0;

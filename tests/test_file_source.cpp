@@ -22,10 +22,10 @@
 #include <unistd.h>
 
 #include "image_fixtures.hpp"
+#include "markerd/base/config_table.hpp"
 #include "markerd/daemon/capture/file_source.hpp"
 #include "markerd/daemon/frame_pool.hpp"
 #include "markerd/detector/render.hpp"
-#include "markerd/base/config_table.hpp"
 #include "support/temp_dir.hpp"
 
 namespace markerd::daemon {
@@ -82,8 +82,8 @@ class FileSourceTest : public testing::Test {
 
   void start(const FileSourceSettings& settings) {
     source_ = make_file_source(settings);
-    pool_ = std::make_unique<FramePool>(
-        FramePoolConfig{.slots = 2, .pixel_bytes = source_->geometry().slot_pixel_bytes});
+    pool_ =
+        std::make_unique<FramePool>(FramePoolConfig{.slots = 2, .pixel_bytes = source_->geometry().slot_pixel_bytes});
     source_->open();
   }
   void start(const fs::path& path, double fps = 0, bool loop = false) {
@@ -294,12 +294,11 @@ TEST_F(FileSourceTest, DamagedJpegsAndBombsAreCorruptFramesSayingWhy) {
 
   start(frames());
   EXPECT_EQ(source_->geometry().width, 160);
-  const std::vector<std::pair<std::string, std::string>> expected = {
-      {"frame_.png", "declares 30000x30000 pixels"},
-      {"frame_0000.png", ""},
-      {"frame_0001.jpg", "the JPEG is truncated"},
-      {"frame_0002.jpg", "the JPEG is corrupt"},
-      {"frame_0003.png", ""}};
+  const std::vector<std::pair<std::string, std::string>> expected = {{"frame_.png", "declares 30000x30000 pixels"},
+                                                                     {"frame_0000.png", ""},
+                                                                     {"frame_0001.jpg", "the JPEG is truncated"},
+                                                                     {"frame_0002.jpg", "the JPEG is corrupt"},
+                                                                     {"frame_0003.png", ""}};
   for (const auto& [file, cause] : expected) {
     Frame* frame = next();
     ASSERT_NE(frame, nullptr) << file;
@@ -369,7 +368,7 @@ TEST_F(FileSourceTest, ColourImagesAreConvertedToGrey) {
   cv::Mat difference;
   cv::absdiff(as_mat(frame->image), converted, difference);
   cv::minMaxLoc(difference, nullptr, &max_difference);
-  EXPECT_LE(max_difference, 2.0);  // libpng's and OpenCV's weights round differently
+  EXPECT_LE(max_difference, 2.0);                                // libpng's and OpenCV's weights round differently
   EXPECT_NE(cv::countNonZero(as_mat(frame->image) != grey), 0);  // really converted, not one channel
   done(frame);
 
@@ -508,9 +507,11 @@ TEST(FileSourceSettingsTest, ReadsTheTableAndResolvesRelativePaths) {
 
 TEST(FileSourceSettingsTest, ErrorsNameTheFileLineAndKey) {
   EXPECT_EQ(parse_error("path = \"x\"\nfps = -5\n"),
-            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, got -5");
+            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, "
+            "got -5");
   EXPECT_EQ(parse_error("path = \"x\"\nfps = 1e308\n"),
-            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, got 1e+308");
+            "markerd.toml:3: camera.file.fps: must be >= 0 (0: as fast as the pipeline takes frames) and at most 1000, "
+            "got 1e+308");
   const std::string unknown = parse_error("path = \"x\"\nrate = 5\n");
   EXPECT_NE(unknown.find("markerd.toml:3: camera.file.rate: unknown key"), std::string::npos) << unknown;
   const std::string missing = parse_error("fps = 5\n");

@@ -87,8 +87,9 @@ TEST(Frame8, RoundTripAllIdsAllRotations) {
       if (!ok) {
         ++failures;
         ADD_FAILURE() << "id " << id << " turn " << turn << ": " << found.size() << " detections"
-                      << (found.empty() ? "" : ", first id " + std::to_string(found[0].id) + " turns " +
-                                                    std::to_string(found[0].quarter_turns));
+                      << (found.empty() ? ""
+                                        : ", first id " + std::to_string(found[0].id) + " turns " +
+                                              std::to_string(found[0].quarter_turns));
       }
       if (failures > 10) return;
     }
@@ -101,7 +102,8 @@ void cover_cells(GreyImage& img, const Scene& s, const std::vector<frame8::Cell>
   cv::Mat m(img.height(), img.width(), CV_8U, img.data());
   for (const frame8::Cell c : cells) {
     std::vector<cv::Point> poly;
-    for (const auto& [gx, gy] : {std::pair{c.col, c.row}, {c.col + 1, c.row}, {c.col + 1, c.row + 1}, {c.col, c.row + 1}}) {
+    for (const auto& [gx, gy] :
+         {std::pair{c.col, c.row}, {c.col + 1, c.row}, {c.col + 1, c.row + 1}, {c.col, c.row + 1}}) {
       // Grid (0..10, y down) to the marker frame (metres, y up).
       const double u = (gx - 5.0) / 10.0, v = (5.0 - gy) / 10.0;
       const Point2 p = project(kCamera, s.pose, Eigen::Vector3d(u * s.marker_size_m, v * s.marker_size_m, 0));
@@ -259,7 +261,8 @@ TEST(Frame8, CellsOfOnePointSixPixelsAreRead) {
         EXPECT_LT(mean_corner_error(d.corners, project_marker_corners(kCamera, s)), 1.0) << "frame " << k;
       } else {
         ++wrong;
-        misreads += " frame " + std::to_string(k) + ": id " + std::to_string(d.id) + " for " + std::to_string(s.id) + ";";
+        misreads +=
+            " frame " + std::to_string(k) + ": id " + std::to_string(d.id) + " for " + std::to_string(s.id) + ";";
       }
     }
   }

@@ -124,10 +124,10 @@ TEST(RecordingGpio, MissingChipsAndLinesAreNamed) {
 TEST(Gpiod1Backend, MissingChipByPathNameAndLabel) {
   auto gpio = make_gpiod1_backend();
   auto error = error_of([&] { (void)gpio->request_output({"/dev/gpiochip977", "17"}, false, "test"); });
-  EXPECT_NE(error.find("GPIO chip '/dev/gpiochip977' (/dev/gpiochip977): No such file or directory"),
-            std::string::npos)
+  EXPECT_NE(error.find("GPIO chip '/dev/gpiochip977' (/dev/gpiochip977): No such file or directory"), std::string::npos)
       << error;
-  EXPECT_TRUE(error.find("no GPIO chips") != std::string::npos || error.find("chips on this system:") != std::string::npos)
+  EXPECT_TRUE(error.find("no GPIO chips") != std::string::npos ||
+              error.find("chips on this system:") != std::string::npos)
       << error;
   error = error_of([&] { (void)gpio->request_input({"gpiochip977", "LIMIT"}, true, "test"); });
   EXPECT_NE(error.find("GPIO chip 'gpiochip977' (/dev/gpiochip977)"), std::string::npos) << error;

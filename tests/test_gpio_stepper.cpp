@@ -22,9 +22,9 @@
 #include <utility>
 #include <vector>
 
-#include "markerd/rig/testing/gpio_recording.hpp"
 #include "markerd/rig/gpio_stepper.hpp"
 #include "markerd/rig/motion_profile.hpp"
+#include "markerd/rig/testing/gpio_recording.hpp"
 
 #ifndef MARKERD_SOURCE_DIR
 #error "MARKERD_SOURCE_DIR must be defined"
@@ -443,8 +443,7 @@ TEST_F(GpioStepper, HomingWithoutASwitchTimesOutWithItsCause) {
   const auto s = d.status();
   EXPECT_TRUE(s.alarm);
   EXPECT_FALSE(s.homed);
-  EXPECT_NE(s.alarm_cause.find("homing (search): home did not activate within the timeout of 0.3 s"),
-            std::string::npos)
+  EXPECT_NE(s.alarm_cause.find("homing (search): home did not activate within the timeout of 0.3 s"), std::string::npos)
       << s.alarm_cause;
 }
 
@@ -623,16 +622,19 @@ enable = { line = 22 }
 )")
                 .find("missing table 'dir'"),
             std::string::npos);
-  EXPECT_NE(config_error(kMinimal + "home = { line = 17 }\n").find("rig.rail.gpio.home: line '17' is already used by step"),
-            std::string::npos)
+  EXPECT_NE(
+      config_error(kMinimal + "home = { line = 17 }\n").find("rig.rail.gpio.home: line '17' is already used by step"),
+      std::string::npos)
       << config_error(kMinimal + "home = { line = 17 }\n");
-  EXPECT_NE(config_error(kMinimal + "home = { line = 12, pull = \"up\" }\n").find("rig.rail.gpio.home.pull: unknown key"),
-            std::string::npos);
+  EXPECT_NE(
+      config_error(kMinimal + "home = { line = 12, pull = \"up\" }\n").find("rig.rail.gpio.home.pull: unknown key"),
+      std::string::npos);
   EXPECT_NE(config_error(kMinimal + "step_pulse_us = 300\nmax_step_rate = 2000\n").find("does not fit a step period"),
             std::string::npos);
   EXPECT_NE(config_error(kMinimal + "rt_priority = 120\n").find("rig.rail.gpio.rt_priority: must be 0"),
             std::string::npos);
-  EXPECT_NE(config_error(kMinimal + "debounce_ms = -1\n").find("rig.rail.gpio.debounce_ms: must be from 0 to 1000 ms, got -1"),
+  EXPECT_NE(config_error(kMinimal + "debounce_ms = -1\n")
+                .find("rig.rail.gpio.debounce_ms: must be from 0 to 1000 ms, got -1"),
             std::string::npos);
   // Durations are checked before they are converted: no overflow into a short one.
   EXPECT_NE(config_error(kMinimal + "enable_settle_ms = 1e300\n")

@@ -79,8 +79,8 @@ TEST_F(ImageFile, EveryFormatDecodesAsImreadDecodesIt) {
   cv::Mat deep;
   grey.convertTo(deep, CV_16U, 257.0);
   const std::vector<std::pair<std::string, cv::Mat>> files = {
-      {"colour.png", colour}, {"grey.png", grey},  {"deep.png", deep},   {"colour.jpg", colour},
-      {"grey.jpg", grey},     {"grey.pgm", grey},  {"colour.ppm", colour}, {"colour.bmp", colour},
+      {"colour.png", colour}, {"grey.png", grey},     {"deep.png", deep},     {"colour.jpg", colour},
+      {"grey.jpg", grey},     {"grey.pgm", grey},     {"colour.ppm", colour}, {"colour.bmp", colour},
       {"grey.bmp", grey},     {"colour.tif", colour}, {"grey.tiff", grey}};
   for (const auto& [name, image] : files) {
     ASSERT_TRUE(cv::imwrite(path(name).string(), image)) << name;

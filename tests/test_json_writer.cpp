@@ -50,13 +50,14 @@ TEST(JsonWriter, StringsEscapeControlsAndReplaceWhatIsNotUtf8) {
   JsonWriter json(out);
   json.begin_array();
   json.string("quote \" backslash \\ newline \n tab \t bell \x07");
-  json.string("caf\xC3\xA9 \xE2\x82\xAC \xF0\x9F\x98\x80");  // valid: kept
+  json.string("caf\xC3\xA9 \xE2\x82\xAC \xF0\x9F\x98\x80");    // valid: kept
   json.string("\xC0\xAF \xED\xA0\x80 \xF4\x90\x80\x80 \xC3");  // overlong, surrogate, beyond U+10FFFF, cut short
   json.end_array();
   EXPECT_EQ(out,
             "[\"quote \\\" backslash \\\\ newline \\n tab \\t bell \\u0007\","
             "\"caf\xC3\xA9 \xE2\x82\xAC \xF0\x9F\x98\x80\","
-            "\"\xEF\xBF\xBD\xEF\xBF\xBD \xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD \xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD "
+            "\"\xEF\xBF\xBD\xEF\xBF\xBD \xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD "
+            "\xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD\xEF\xBF\xBD "
             "\xEF\xBF\xBD\"]");
 }
 

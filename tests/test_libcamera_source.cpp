@@ -16,8 +16,8 @@
 #include <thread>
 #include <vector>
 
-#include "markerd/daemon/capture/libcamera_source.hpp"
 #include "markerd/base/config_table.hpp"
+#include "markerd/daemon/capture/libcamera_source.hpp"
 
 namespace markerd::daemon {
 namespace {
@@ -115,10 +115,12 @@ TEST(LibcameraSettingsTest, ErrorsNameTheFileLineAndKey) {
             "markerd.toml:3: camera.libcamera.height: must be > 0 and at most 16384, got 0");
   EXPECT_EQ(parse_error("width = 2147483646\nheight = 480\n"),
             "markerd.toml:2: camera.libcamera.width: must be > 0 and at most 16384, got 2147483646");
-  EXPECT_EQ(parse_error("width = 640\nheight = 480\nfps = -1\n"),
-            "markerd.toml:4: camera.libcamera.fps: must be >= 0 (0: the camera's own frame rate) and at most 1000, got -1");
+  EXPECT_EQ(
+      parse_error("width = 640\nheight = 480\nfps = -1\n"),
+      "markerd.toml:4: camera.libcamera.fps: must be >= 0 (0: the camera's own frame rate) and at most 1000, got -1");
   EXPECT_EQ(parse_error("width = 640\nheight = 480\nfps = 1e308\n"),
-            "markerd.toml:4: camera.libcamera.fps: must be >= 0 (0: the camera's own frame rate) and at most 1000, got 1e+308");
+            "markerd.toml:4: camera.libcamera.fps: must be >= 0 (0: the camera's own frame rate) and at most 1000, got "
+            "1e+308");
   EXPECT_EQ(parse_error("width = 640\nheight = 480\nbuffers = 0\n"),
             "markerd.toml:4: camera.libcamera.buffers: must be between 1 and 32, got 0");
   EXPECT_NE(parse_error("width = 640\nheight = 480\nformat = \"YUYV\"\n")

@@ -69,7 +69,8 @@ TEST(LogWriter, AppendsWholeLinesToTheRunsFirstFile) {
     EXPECT_EQ(s.bytes, 3 * numbered_line(0).size());
     EXPECT_EQ(s.files_opened, 1U);
   }
-  EXPECT_EQ(read_file(dir.path() / "detections-run1-000.jsonl"), numbered_line(0) + numbered_line(1) + numbered_line(2));
+  EXPECT_EQ(read_file(dir.path() / "detections-run1-000.jsonl"),
+            numbered_line(0) + numbered_line(1) + numbered_line(2));
 }
 
 TEST(LogWriter, TakesOnlyOneCompleteLine) {
@@ -191,9 +192,10 @@ TEST(LogWriter, APartialLastLineIsCutOffOnOpen) {
   };
   const std::string long_tail(10'000, 'z');  // longer than one read chunk
   const std::string zeros(5'000, '\0');      // a tail a power cut left as zero bytes
-  for (const Case& k : {Case{numbered_line(0) + numbered_line(1) + "{\"n\":2,\"pa", numbered_line(0) + numbered_line(1)},
-                        Case{"{\"n\":0", ""}, Case{numbered_line(0) + long_tail, numbered_line(0)},
-                        Case{numbered_line(0) + zeros, numbered_line(0)}, Case{numbered_line(0), numbered_line(0)}}) {
+  for (const Case& k :
+       {Case{numbered_line(0) + numbered_line(1) + "{\"n\":2,\"pa", numbered_line(0) + numbered_line(1)},
+        Case{"{\"n\":0", ""}, Case{numbered_line(0) + long_tail, numbered_line(0)},
+        Case{numbered_line(0) + zeros, numbered_line(0)}, Case{numbered_line(0), numbered_line(0)}}) {
     write_file(file, k.before);
     {
       LogWriter writer(config_for(dir.path()));
@@ -305,7 +307,7 @@ TEST(LogWriterFsync, IntervalSyncsEveryLineWithinItsInterval) {
   *now = t0 + 5s;
   writer.append(numbered_line(2));
   EXPECT_EQ(*writer.sync_deadline(), t0 + 6s);
-  *now = t0 + 7s;                   // the owner was late; the next append syncs
+  *now = t0 + 7s;  // the owner was late; the next append syncs
   writer.append(numbered_line(3));
   EXPECT_EQ(writer.stats().fsyncs, 2U);
   EXPECT_FALSE(writer.sync_deadline());
@@ -530,8 +532,8 @@ TEST(LogWriterKill, SigkillAtRandomMomentsNeverLeavesATornOrMissingLine) {
       // The only damage a kill can do: the next record, begun and not ended.
       DetectionRecordFormatter formatter;
       const std::string_view next = formatter.format(stream.at(content.next));
-      EXPECT_TRUE(next.starts_with(content.tail)) << "round " << round << ": the tail is no prefix of record "
-                                                  << content.next;
+      EXPECT_TRUE(next.starts_with(content.tail))
+          << "round " << round << ": the tail is no prefix of record " << content.next;
     }
   }
   // The last writer's leftovers are repaired by the next one to open the run.

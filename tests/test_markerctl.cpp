@@ -121,8 +121,8 @@ class Markerctl : public ::testing::Test {
 
 TEST_F(Markerctl, SweepCheckOfflineListsThePlanAndRefusesPointsBeyondTheRail) {
   const std::string source = MARKERD_SOURCE_DIR;
-  const Outcome ok = run({"sweep", "check", source + "/config/plans/thesis.toml", "--config",
-                          source + "/config/markerd-sim.toml"});
+  const Outcome ok =
+      run({"sweep", "check", source + "/config/plans/thesis.toml", "--config", source + "/config/markerd-sim.toml"});
   EXPECT_EQ(ok.code, 0) << ok.describe();
   EXPECT_NE(ok.out.find("62 points in 3 grids"), std::string::npos) << ok.describe();
   EXPECT_NE(ok.out.find("estimated duration"), std::string::npos) << ok.describe();
@@ -168,8 +168,8 @@ TEST_F(Markerctl, SweepCheckAndStartRefuseWhatIsNotAPlanFileBeforeSending) {
               std::string::npos)
         << large.describe();
   }
-  const Outcome offline = run({"sweep", "check", path("big.toml"), "--config",
-                               std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
+  const Outcome offline = run(
+      {"sweep", "check", path("big.toml"), "--config", std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
   EXPECT_EQ(offline.code, 1) << offline.describe();
   EXPECT_NE(offline.err.find("larger than the 128 KiB allowed"), std::string::npos) << offline.describe();
 }
@@ -180,8 +180,8 @@ TEST_F(Markerctl, SweepCheckOfflineRefusesAPlanForAFamilyTheConfigDoesNotDetect)
     out << "name = \"tag\"\n[marker]\nfamily = \"tag36h11\"\nid = 5\nsize_m = 0.16\n"
            "[[grid]]\ndistance_m = [0.5]\nangle_deg = [0]\n";
   }
-  const Outcome r = run({"sweep", "check", path("tag.toml"), "--config",
-                         std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
+  const Outcome r = run(
+      {"sweep", "check", path("tag.toml"), "--config", std::string(MARKERD_SOURCE_DIR) + "/config/markerd-sim.toml"});
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_NE(r.err.find("tag36h11"), std::string::npos) << r.describe();
   EXPECT_NE(r.err.find("markerd detects frame8"), std::string::npos) << r.describe();
@@ -358,7 +358,8 @@ TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
   for (const char* yaw : {"0", "30"}) {
     SCOPED_TRACE(std::string("yaw ") + yaw);
     const std::string file = path(std::string("yaw") + yaw + ".png");
-    const json truth = render(file.substr(dir_.path().string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
+    const json truth =
+        render(file.substr(dir_.path().string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
     const Outcome r = run({"detect", "--camera", thesis_camera_file, "--size", "0.08", file});
     ASSERT_EQ(r.code, 0) << r.describe();
     const auto lines = json_lines(r);
@@ -435,12 +436,9 @@ TEST_F(Markerctl, DamagedImagesAreErrorsInMarkerctlsOwnWords) {
   fs::create_directory(path("dir.png"));
   ASSERT_TRUE(markerd::test_support::make_fifo(path("fifo.jpg")));
   const std::vector<std::pair<std::string, std::string>> cases = {
-      {"half.jpg", "the JPEG is truncated"},
-      {"corrupt.jpg", "the JPEG is corrupt"},
-      {"half.png", "the PNG is truncated"},
-      {"bomb.png", "the PNG declares 30000x30000 pixels"},
-      {"dir.png", "is a directory, not a file"},
-      {"fifo.jpg", "is a FIFO, not a file"}};
+      {"half.jpg", "the JPEG is truncated"},     {"corrupt.jpg", "the JPEG is corrupt"},
+      {"half.png", "the PNG is truncated"},      {"bomb.png", "the PNG declares 30000x30000 pixels"},
+      {"dir.png", "is a directory, not a file"}, {"fifo.jpg", "is a FIFO, not a file"}};
   for (const auto& [name, cause] : cases) {
     const Outcome r = run({"detect", "--verbose", path(name)});
     EXPECT_EQ(r.code, 1) << name << "\n" << r.describe();

@@ -30,8 +30,8 @@
 #include <vector>
 
 #include "markerd/rig/device_lock.hpp"
-#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "modbus/peers.hpp"
 #include "support/files.hpp"
 #include "support/process.hpp"
@@ -55,8 +55,8 @@ using markerd::test_support::read_file;
 std::unique_ptr<CapturedProcess> start_markerctl(const std::vector<std::string>& args, const fs::path& lock_dir) {
   std::vector<std::string> argv{MARKERCTL_PATH};
   argv.insert(argv.end(), args.begin(), args.end());
-  return std::make_unique<CapturedProcess>(argv, markerd::test_support::ProcessOptions{
-                                                     {"MARKERD_LOCK_DIR=" + lock_dir.string()}, std::nullopt});
+  return std::make_unique<CapturedProcess>(
+      argv, markerd::test_support::ProcessOptions{{"MARKERD_LOCK_DIR=" + lock_dir.string()}, std::nullopt});
 }
 
 class MarkerctlRig : public ::testing::Test {
@@ -141,7 +141,8 @@ TEST_F(MarkerctlRig, ValuesNeedTheirUnits) {
   };
   const Case cases[] = {
       {{"move", "--rail", "250"}, "markerctl: --rail: '250' needs a unit: mm, cm or m (examples: 250mm, 25cm, 0.25m)"},
-      {{"move", "--turntable", "30mm"}, "markerctl: --turntable: '30mm': unknown unit 'mm' for the turntable (use deg or rad)"},
+      {{"move", "--turntable", "30mm"},
+       "markerctl: --turntable: '30mm': unknown unit 'mm' for the turntable (use deg or rad)"},
       {{"move", "--rail", "30deg"}, "markerctl: --rail: '30deg': unknown unit 'deg' for the rail (use mm, cm or m)"},
       {{"jog", "--turntable", "2"}, "markerctl: --turntable: '2' needs a unit: deg or rad"},
       {{"move", "--rail", "far"}, "markerctl: --rail: 'far' is not a value with a unit"},
@@ -161,7 +162,8 @@ TEST_F(MarkerctlRig, AMoveBeforeHomingIsRefused) {
   const std::string config = sim_config(50);
   const Outcome r = run({"rig", "--config", config, "move", "--rail", "250mm"});
   EXPECT_EQ(r.code, 1) << r.describe();
-  EXPECT_EQ(r.err.rfind("markerctl: rig move: rail is not homed: home it first, or pass --home", 0), 0u) << r.describe();
+  EXPECT_EQ(r.err.rfind("markerctl: rig move: rail is not homed: home it first, or pass --home", 0), 0u)
+      << r.describe();
   EXPECT_EQ(r.out, "") << "nothing moved";
 
   // Outside the soft limits: refused before anything homes.
@@ -203,13 +205,15 @@ TEST_F(MarkerctlRig, ASecondProcessIsRefusedWhileTheFirstHoldsTheRig) {
       },
       30s))
       << lock_file << ": " << record;
-  ASSERT_TRUE(markerd::test_support::wait_for([&] { return first->out().find("rail: homing") != std::string::npos; }, 30s));
+  ASSERT_TRUE(
+      markerd::test_support::wait_for([&] { return first->out().find("rail: homing") != std::string::npos; }, 30s));
 
   const Outcome second = run({"rig", "--config", config, "status"});
   EXPECT_EQ(second.code, 1) << second.describe();
   EXPECT_NE(second.err.find("is in use by markerctl (pid " + std::to_string(first->pid()) + ": "), std::string::npos)
       << second.describe();
-  EXPECT_EQ(second.err.rfind("markerctl: rig status: rail's and turntable's simulated rig ", 0), 0u) << second.describe();
+  EXPECT_EQ(second.err.rfind("markerctl: rig status: rail's and turntable's simulated rig ", 0), 0u)
+      << second.describe();
 
   // SIGINT: a controlled stop, the axes disabled, a non-zero exit.
   ASSERT_EQ(::kill(first->pid(), SIGINT), 0);
@@ -300,7 +304,9 @@ class OnTerminal {
   OnTerminal& operator=(const OnTerminal&) = delete;
 
   [[nodiscard]] pid_t pid() const { return pid_; }
-  void type(const std::string& keys) { ASSERT_EQ(::write(master_, keys.data(), keys.size()), static_cast<ssize_t>(keys.size())); }
+  void type(const std::string& keys) {
+    ASSERT_EQ(::write(master_, keys.data(), keys.size()), static_cast<ssize_t>(keys.size()));
+  }
 
   // Reads the screen until `text` appears after `from` (true) or the time is up.
   bool wait_for(const std::string& text, std::chrono::seconds timeout = 30s) {

@@ -107,7 +107,7 @@ TEST(RegisterMap, WordOrderAndSign) {
 TEST(RegisterMap, ScalesAndRanges) {
   // Leadshine's units at 10000 pulses/rev: rpm and ms per 1000 rpm.
   const auto m = load_register_map(kSourceDir / "config/drives/leadshine-pr.toml");
-  EXPECT_EQ(m.velocity.to_raw(50000), 300);     // 50000 steps/s = 300 rpm
+  EXPECT_EQ(m.velocity.to_raw(50000), 300);    // 50000 steps/s = 300 rpm
   EXPECT_EQ(m.acceleration.to_raw(1e6), 167);  // 6000 rpm/s: 1000 rpm in 167 ms
   EXPECT_NEAR(m.acceleration.to_steps(167), 998024, 1);
   EXPECT_EQ(m.velocity.to_raw(2e7), std::nullopt);  // 120000 rpm: beyond 16 bits
@@ -131,8 +131,9 @@ TEST(RegisterMap, ErrorsNameFileLineAndKey) {
             "map.toml:18: [commands.enable]: missing key 'commands.enable.off_value' (an integer)");
   EXPECT_EQ(error_of([] { parse(kMinimal + "[drive]\nword_order = \"big\"\n"); }),
             "map.toml:19: drive.word_order: must be \"high_first\" or \"low_first\", got \"big\"");
-  EXPECT_EQ(error_of([] { parse(kMinimal + "[velocity2]\naddress = 9\n"); }).rfind("map.toml:18: velocity2: unknown key", 0),
-            0u);
+  EXPECT_EQ(
+      error_of([] { parse(kMinimal + "[velocity2]\naddress = 9\n"); }).rfind("map.toml:18: velocity2: unknown key", 0),
+      0u);
   std::string no_busy = kMinimal;
   no_busy.replace(no_busy.find("busy = 1"), 8, "ready = 0");
   EXPECT_EQ(error_of([&] { parse(no_busy); }),
@@ -191,8 +192,8 @@ TEST(ModbusConfig, BusAndDriveErrorsNameFileLineAndKey) {
             "rig.toml:4: rig.buses.rtu0.baud: must be a standard rate (1200 to 921600), got 14400");
   EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"/dev/ttyS0\"\nparity = \"E\"\n"),
             "rig.toml:4: rig.buses.rtu0.parity: must be \"none\", \"even\" or \"odd\", got \"E\"");
-  EXPECT_EQ(bus("type = \"tcp\"\nhost = \"10.0.0.2\"\ndevice = \"/dev/ttyS0\"\n").rfind(
-                "rig.toml:4: rig.buses.rtu0.device: unknown key", 0),
+  EXPECT_EQ(bus("type = \"tcp\"\nhost = \"10.0.0.2\"\ndevice = \"/dev/ttyS0\"\n")
+                .rfind("rig.toml:4: rig.buses.rtu0.device: unknown key", 0),
             0u);
   // Refused when markerd starts otherwise: --check-config must say so.
   EXPECT_EQ(bus("type = \"rtu\"\ndevice = \"\"\n"),

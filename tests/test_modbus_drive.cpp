@@ -16,8 +16,8 @@
 #include "markerd/rig/axis.hpp"
 #include "markerd/rig/modbus_bus.hpp"
 #include "markerd/rig/modbus_drive.hpp"
-#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/register_map.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "modbus/peers.hpp"
 
 using namespace markerd::rig;
@@ -322,9 +322,10 @@ TEST(ModbusDriveTcp, ValuesOutsideTheRegistersAreRefusedBeforeAnyWrite) {
   drive.enable(true);
   rig.sim.clear_writes(1);
   const auto message = error_of([&] { drive.start_move(3'000'000'000LL, 5000, 50000); });
-  EXPECT_NE(message.find("target position 3000000000 is 3000000000 in the drive's units (holding register 0x0000, scale 1), "
-                         "outside its range -2147483648..2147483647"),
-            std::string::npos)
+  EXPECT_NE(
+      message.find("target position 3000000000 is 3000000000 in the drive's units (holding register 0x0000, scale 1), "
+                   "outside its range -2147483648..2147483647"),
+      std::string::npos)
       << message;
   EXPECT_TRUE(rig.sim.writes(1).empty());
   EXPECT_FALSE(drive.status().alarm);

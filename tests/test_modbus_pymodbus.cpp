@@ -118,14 +118,14 @@ TEST(ModbusPymodbus, WritesAMoveInTheConfiguredWordOrderAndPulsesTheTrigger) {
   markerd::test_support::TempDir dir;
   const auto port_file = dir.path() / "port";
   const auto log = dir.path() / "writes.jsonl";
-  markerd::test_support::PeerProcess server({kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(),
-                                      "--port-file", port_file.string(), "--log", log.string(), "--target",
-                                      std::to_string(kTarget), "--position", std::to_string(kPosition), "--start-coil",
-                                      std::to_string(kStartCoil)},
-                                     dir.path() / "server.out");
+  markerd::test_support::PeerProcess server(
+      {kDebianPython.string(), (kSourceDir / "tests/modbus/pymodbus_server.py").string(), "--port-file",
+       port_file.string(), "--log", log.string(), "--target", std::to_string(kTarget), "--position",
+       std::to_string(kPosition), "--start-coil", std::to_string(kStartCoil)},
+      dir.path() / "server.out");
   ASSERT_TRUE(wait_for([&] { return std::filesystem::exists(port_file) || !server.running(); }));
-  ASSERT_TRUE(std::filesystem::exists(port_file)) << "the pymodbus server did not start; see its output in "
-                                                  << (dir.path() / "server.out");
+  ASSERT_TRUE(std::filesystem::exists(port_file))
+      << "the pymodbus server did not start; see its output in " << (dir.path() / "server.out");
   int port = 0;
   std::ifstream(port_file) >> port;
   ASSERT_GT(port, 0);

@@ -8,9 +8,9 @@
 #include <cstdint>
 #include <cstring>
 #include <numbers>
-#include <stdexcept>
 #include <opencv2/aruco.hpp>
 #include <opencv2/core.hpp>
+#include <stdexcept>
 #include <vector>
 
 #include "../detector/src/peers.hpp"

@@ -102,7 +102,7 @@ std::vector<std::unique_ptr<detector::MarkerDetector>> detectors(std::vector<Num
 // `count` detectors that each announce a frame at `entered`, then wait at
 // `gate`: the test holds the workers with frames in hand.
 std::vector<std::unique_ptr<detector::MarkerDetector>> gated_detectors(std::size_t count, Gate& gate,
-                                                             std::counting_semaphore<1000>& entered) {
+                                                                       std::counting_semaphore<1000>& entered) {
   std::vector<std::unique_ptr<detector::MarkerDetector>> out;
   for (std::size_t i = 0; i < count; ++i) {
     auto detector = std::make_unique<NumberDetector>();
@@ -169,7 +169,8 @@ struct Releases {
 
 // Plays a capture source that lends its pixels: acquire, fill, publish.
 // False when the pipeline dropped the frame at acquire.
-bool offer(Pipeline& pipeline, const std::vector<detector::GreyImage>& images, Releases& releases, std::uint64_t sequence) {
+bool offer(Pipeline& pipeline, const std::vector<detector::GreyImage>& images, Releases& releases,
+           std::uint64_t sequence) {
   Frame* frame = pipeline.acquire();
   if (frame == nullptr) return false;
   frame->sequence = sequence;
@@ -307,7 +308,7 @@ TEST(Pipeline, LosslessRestoresOrderWhenALaterFrameFinishesFirst) {
   Gate first_done;
   auto* slow = new NumberDetector;
   auto* fast = new NumberDetector;
-  slow->gate = &first_done;        // worker 0 waits on frame 0...
+  slow->gate = &first_done;            // worker 0 waits on frame 0...
   fast->open_when_done = &first_done;  // ...until worker 1 has finished frame 1
   Pipeline pipeline(config(DropPolicy::lossless, 4), detectors({slow, fast}), sink);
   for (int k = 0; k < 4; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));
@@ -375,7 +376,7 @@ TEST(Pipeline, LiveKeepsOnlyTheNewestFrameWaitingAndCountsTheDrops) {
   std::counting_semaphore<1000> entered(0);
   Pipeline pipeline(config(DropPolicy::live, 4), gated_detectors(1, gate, entered), sink);
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
-  ASSERT_TRUE(entered.try_acquire_for(kPatience));  // frame 0 is in the detector, which is stuck
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));    // frame 0 is in the detector, which is stuck
   ASSERT_TRUE(offer(pipeline, images, releases, 1));  // waits, with slots to spare
   for (int k = 2; k <= 5; ++k) {
     ASSERT_TRUE(offer(pipeline, images, releases, k)) << "live capture never waits";
@@ -409,7 +410,7 @@ TEST(Pipeline, LiveKeepsEachWorkersNewestFrameAndTheOrder) {
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
-  ASSERT_TRUE(entered.try_acquire_for(kPatience));  // both workers are stuck
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));                                 // both workers are stuck
   for (int k = 2; k <= 3; ++k) ASSERT_TRUE(offer(pipeline, images, releases, k));  // one waiting for each
   for (int k = 4; k <= 7; ++k) {
     ASSERT_TRUE(offer(pipeline, images, releases, k));
@@ -437,7 +438,7 @@ TEST(Pipeline, LiveTakesTheOldestWaitingSlotWhenThePoolIsEmpty) {
   ASSERT_TRUE(offer(pipeline, images, releases, 0));
   ASSERT_TRUE(offer(pipeline, images, releases, 1));
   ASSERT_TRUE(entered.try_acquire_for(kPatience));
-  ASSERT_TRUE(entered.try_acquire_for(kPatience));  // both workers are stuck
+  ASSERT_TRUE(entered.try_acquire_for(kPatience));    // both workers are stuck
   ASSERT_TRUE(offer(pipeline, images, releases, 2));  // the last slot, waiting for worker 0
   ASSERT_TRUE(offer(pipeline, images, releases, 3));  // for worker 1: takes frame 2's slot
   EXPECT_EQ(releases.counts[2].load(), 1);

@@ -77,14 +77,11 @@ bool in_image(const CameraModel& cam, const MarkerPose& pose, const Quad& q) {
   for (const auto& m : model_corners()) {
     if ((pose.rotation * m + pose.translation).z() <= 0) return false;
   }
-  return std::all_of(q.begin(), q.end(), [&](Point2 p) {
-    return p.x >= 0 && p.y >= 0 && p.x <= cam.width - 1 && p.y <= cam.height - 1;
-  });
+  return std::all_of(q.begin(), q.end(),
+                     [&](Point2 p) { return p.x >= 0 && p.y >= 0 && p.x <= cam.width - 1 && p.y <= cam.height - 1; });
 }
 
-double rotation_error(const Matrix3d& a, const Matrix3d& b) {
-  return Eigen::AngleAxisd(a.transpose() * b).angle();
-}
+double rotation_error(const Matrix3d& a, const Matrix3d& b) { return Eigen::AngleAxisd(a.transpose() * b).angle(); }
 
 double translation_error_rel(const MarkerPose& est, const MarkerPose& truth) {
   return (est.translation - truth.translation).norm() / truth.translation.norm();
@@ -126,8 +123,8 @@ TEST(Pose, NoiseFreeSweepThroughTheThesisDistortion) {
             worst_trans = std::max(worst_trans, trans);
             EXPECT_LT(rot, 1e-6) << "d " << d << " yaw " << yaw << " pitch " << pitch << " roll " << roll << " at "
                                  << c.transpose();
-            EXPECT_LT(trans, 1e-8) << "d " << d << " yaw " << yaw << " pitch " << pitch << " roll " << roll
-                                   << " at " << c.transpose();
+            EXPECT_LT(trans, 1e-8) << "d " << d << " yaw " << yaw << " pitch " << pitch << " roll " << roll << " at "
+                                   << c.transpose();
             EXPECT_LT(est->best.reprojection_error_px, 1e-6);
             if (est->alternative) {
               EXPECT_LE(est->best.reprojection_error_px, est->alternative->reprojection_error_px);
@@ -229,8 +226,7 @@ TEST(Pose, CornerNoiseAtOneMetre) {
     for (auto& p : q) p = {p.x + noise(rng), p.y + noise(rng)};
     const auto est = estimate_square_pose(cam, q, kSide);
     ASSERT_TRUE(est.has_value());
-    dist_err.push_back(std::abs(est->best.translation.norm() - truth.translation.norm()) /
-                       truth.translation.norm());
+    dist_err.push_back(std::abs(est->best.translation.norm() - truth.translation.norm()) / truth.translation.norm());
     rms.push_back(est->best.reprojection_error_px);
   }
   const double med = median(dist_err);
@@ -414,8 +410,8 @@ TEST(Pose, RvecAndQuaternionAgreeWithOpenCvRodrigues) {
     // At a half turn v and -v are the same rotation; elsewhere they must
     // match. OpenCV returns exactly zero for angles below 1e-5 rad (sin(angle)
     // < 1e-5); ours keeps them, so there only the 1e-5 agreement holds.
-    const double diff = std::abs(th.norm() - kPi) < 1e-6 ? std::min((ours - th).norm(), (ours + th).norm())
-                                                          : (ours - th).norm();
+    const double diff =
+        std::abs(th.norm() - kPi) < 1e-6 ? std::min((ours - th).norm(), (ours + th).norm()) : (ours - th).norm();
     const double tolerance = th.norm() == 0 ? 1e-5 : 1e-9;
     EXPECT_LT(diff, tolerance) << "rotation\n" << r << "\nours " << ours.transpose() << " opencv " << th.transpose();
     const double true_angle = Eigen::AngleAxisd(r).angle();

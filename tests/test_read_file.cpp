@@ -45,9 +45,11 @@ TEST(ReadRegularFile, RefusesWhatIsNotARegularFileByKind) {
 TEST(ReadRegularFile, RefusesAFileOverTheLimitWithItsSize) {
   const markerd::test_support::TempDir dir;
   const auto path = dir.write("large", std::string(70 * 1024, 'x'));
-  EXPECT_EQ(error_of(path, 64 * 1024), path.string() + ": the plan is 70 KiB (71680 bytes), larger than the 64 KiB allowed");
+  EXPECT_EQ(error_of(path, 64 * 1024),
+            path.string() + ": the plan is 70 KiB (71680 bytes), larger than the 64 KiB allowed");
 }
 
 TEST(ReadRegularFile, NamesAMissingFileAndItsCause) {
-  EXPECT_EQ(error_of("/nonexistent/plan.toml", 1000), "/nonexistent/plan.toml: the plan cannot be read: No such file or directory");
+  EXPECT_EQ(error_of("/nonexistent/plan.toml", 1000),
+            "/nonexistent/plan.toml: the plan cannot be read: No such file or directory");
 }

@@ -130,7 +130,7 @@ TEST(ProjectMarkerCorners, MatchOpenCvProjectPoints) {
   const CameraModel cam = CameraModel::thesis_640x480();
   const cv::Matx33d k(cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1);
   const std::vector<double> dist(cam.dist.begin(), cam.dist.begin() + 5);
-  const std::vector<MarkerPose> poses = {facing_pose(0.4, 0),         facing_pose(0.6, 35, 10, 20, 0.05, -0.03),
+  const std::vector<MarkerPose> poses = {facing_pose(0.4, 0), facing_pose(0.6, 35, 10, 20, 0.05, -0.03),
                                          facing_pose(0.3, -50, 0, 90), facing_pose(0.8, 10, -30, -45, -0.15, 0.1),
                                          facing_pose(0.25, 60, 20, 5)};
   for (const auto& pose : poses) {
@@ -282,7 +282,7 @@ TEST(RenderScene, EdgePixelIsTheAreaMix) {
   s.exposure = 0.5;
   const GreyImage dim = render_scene(cam, s);
   EXPECT_EQ(dim.at(99, y), 64);
-  EXPECT_EQ(dim.at(101, y), 6);  // 6.375
+  EXPECT_EQ(dim.at(101, y), 6);      // 6.375
   EXPECT_EQ(dim.at(130, 240), 112);  // hole: 0.5 * 224.4
 }
 
@@ -429,8 +429,8 @@ TEST(RenderScene, AprilTagDetectorReadsRenderedTag36h11) {
       for (int k = 0; k < 4; ++k) {
         const Point2 p{d->p[3 - k][0] - 0.5, d->p[3 - k][1] - 0.5};
         const Point2 t = truth[static_cast<std::size_t>(k)];
-        EXPECT_LT(distance(p, t), 0.15) << "roll " << roll << " corner " << k << ": " << p.x << "," << p.y
-                                        << " vs " << t.x << "," << t.y;
+        EXPECT_LT(distance(p, t), 0.15) << "roll " << roll << " corner " << k << ": " << p.x << "," << p.y << " vs "
+                                        << t.x << "," << t.y;
         mean_x += (p.x - t.x) / 4;
         mean_y += (p.y - t.y) / 4;
       }
@@ -547,7 +547,7 @@ TEST(IdealMarkerImage, AreaCoverageOffTheGrid) {
   bool grey = false;
   for (int i = 0; i < 15 * 15; ++i) grey = grey || (img.data()[i] != 0 && img.data()[i] != 255);
   EXPECT_TRUE(grey);
-  EXPECT_EQ(img.at(0, 0), 0);    // C0
+  EXPECT_EQ(img.at(0, 0), 0);     // C0
   EXPECT_EQ(img.at(14, 0), 255);  // C1
   EXPECT_EQ(img.at(7, 7), 255);   // hole
 }
@@ -640,13 +640,13 @@ TEST(PrintableMarker, PngHasDpiSizeAndPhys) {
   const auto at_mm = [&](double x, double y) {
     return img.at<std::uint8_t>(static_cast<int>(y * 300 / 25.4), static_cast<int>(x * 300 / 25.4));
   };
-  EXPECT_LT(at_mm(14, 14), 30);   // C0 black
-  EXPECT_GT(at_mm(86, 14), 225);  // C1 white
-  EXPECT_LT(at_mm(86, 86), 30);   // C2 black
-  EXPECT_LT(at_mm(50, 20), 30);   // the line, 1.0..1.5 cells in: 18..22 mm
-  EXPECT_GT(at_mm(50, 50), 225);  // hole
-  EXPECT_GT(at_mm(9.7, 50), 225);   // just outside the marker's left edge
-  EXPECT_LT(at_mm(10.3, 50), 30);   // just inside: left edge row 5 is bit 4 of 165, black
+  EXPECT_LT(at_mm(14, 14), 30);    // C0 black
+  EXPECT_GT(at_mm(86, 14), 225);   // C1 white
+  EXPECT_LT(at_mm(86, 86), 30);    // C2 black
+  EXPECT_LT(at_mm(50, 20), 30);    // the line, 1.0..1.5 cells in: 18..22 mm
+  EXPECT_GT(at_mm(50, 50), 225);   // hole
+  EXPECT_GT(at_mm(9.7, 50), 225);  // just outside the marker's left edge
+  EXPECT_LT(at_mm(10.3, 50), 30);  // just inside: left edge row 5 is bit 4 of 165, black
   // The scale bar: 10 mm of ink starting at the margin, in the bottom margin.
   EXPECT_LT(at_mm(15, 95), 60);
   EXPECT_GT(at_mm(15, 93), 200);

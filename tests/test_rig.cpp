@@ -23,7 +23,9 @@ using namespace std::chrono_literals;
 
 namespace {
 
-double px_distance(markerd::detector::Point2 a, markerd::detector::Point2 b) { return std::hypot(a.x - b.x, a.y - b.y); }
+double px_distance(markerd::detector::Point2 a, markerd::detector::Point2 b) {
+  return std::hypot(a.x - b.x, a.y - b.y);
+}
 
 }  // namespace
 
@@ -82,8 +84,8 @@ TEST(Geometry, CameraOffsetsMoveTheMarkerTheOtherWay) {
 TEST(Geometry, MarkerOffsetsTurnWithTheMarkerAndTheRailSignFlipsTheRail) {
   RigGeometry g;
   g.d0_mm = 1000;
-  g.marker_offset_normal_mm = 10;   // the printed face 10 mm in front of the axis
-  g.marker_offset_lateral_mm = 5;   // and its centre 5 mm to its right
+  g.marker_offset_normal_mm = 10;  // the printed face 10 mm in front of the axis
+  g.marker_offset_lateral_mm = 5;  // and its centre 5 mm to its right
   MarkerGroundTruth t = ground_truth(g, 0, 0);
   EXPECT_LT((t.translation - Eigen::Vector3d(0.005, 0, 0.990)).norm(), 1e-12);
   // Turned by 90 deg the face points to the camera's right (+x) and the
@@ -137,11 +139,11 @@ TEST(SeqlockCell, ReadersNeverSeeATornSnapshot) {
         if (k != last && ++distinct == kSnapshotsSeen) satisfied.fetch_add(1);
         last = k;
         if (k == 0) continue;  // the writer has not begun
-        const bool consistent = s.time.time_since_epoch() == std::chrono::nanoseconds(k * 7) &&
-                                s.rail.position == static_cast<double>(k) && s.rail.target == -static_cast<double>(k) &&
-                                s.rail.homed == ((k & 1U) != 0) && s.rail.state == static_cast<AxisState>(k % 6) &&
-                                s.turntable.position == 0.5 * static_cast<double>(k) &&
-                                s.turntable.target == 3.0 * static_cast<double>(k) && s.turntable.settled == (k % 3 == 0);
+        const bool consistent =
+            s.time.time_since_epoch() == std::chrono::nanoseconds(k * 7) && s.rail.position == static_cast<double>(k) &&
+            s.rail.target == -static_cast<double>(k) && s.rail.homed == ((k & 1U) != 0) &&
+            s.rail.state == static_cast<AxisState>(k % 6) && s.turntable.position == 0.5 * static_cast<double>(k) &&
+            s.turntable.target == 3.0 * static_cast<double>(k) && s.turntable.settled == (k % 3 == 0);
         if (!consistent) torn.fetch_add(1);
       }
       reads.fetch_add(count);
@@ -208,12 +210,14 @@ TEST(Rig, ASimulatedRigFromTheShippedConfigHomesMovesAndPublishesSnapshots) {
   // Snapshots keep coming while nothing changes (the periodic publication).
   const std::uint64_t before = rig->snapshot().sequence;
   const auto until = std::chrono::steady_clock::now() + 10s;
-  while (rig->snapshot().sequence == before && std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(1ms);
+  while (rig->snapshot().sequence == before && std::chrono::steady_clock::now() < until)
+    std::this_thread::sleep_for(1ms);
   EXPECT_GT(rig->snapshot().sequence, before);
 
   rig->emergency_stop();
   const auto stop_deadline = std::chrono::steady_clock::now() + 10s;
-  while (!rig->snapshot().rail.fault && std::chrono::steady_clock::now() < stop_deadline) std::this_thread::sleep_for(1ms);
+  while (!rig->snapshot().rail.fault && std::chrono::steady_clock::now() < stop_deadline)
+    std::this_thread::sleep_for(1ms);
   EXPECT_TRUE(rig->snapshot().rail.fault);
   EXPECT_TRUE(rig->snapshot().turntable.fault);
 }

@@ -202,15 +202,23 @@ TEST_F(RigCommands, RefusedMovesNameTheAxisAndTheReasonAndMoveNothing) {
   EXPECT_EQ(s["rail"]["state"], "idle") << "a refused move of both axes moved the rail: " << s;
   EXPECT_NEAR(s["rail"]["target"].get<double>(), -3.0, 0.05);
 
-  EXPECT_EQ(error({{"cmd", "rig.move"}, {"camera", 5}}), "unknown argument 'camera' (for rig.move: rail, turntable, relative)");
-  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", "250mm"}}), R"(argument 'rail' must be a number, got a string ("250mm"))");
-  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", 250}, {"relative", 1}}), "argument 'relative' must be true or false, got a number (1)");
-  EXPECT_EQ(error({{"cmd", "rig.move"}}), "rig.move needs a target: rail, turntable or both (numbers in the axes' units)");
-  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", "camera"}}), "argument 'axis' must be rail, turntable or both, got 'camera'");
-  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", 1}}), "argument 'axis' must be rail, turntable or both, got a number (1)");
-  EXPECT_EQ(error({{"cmd", "rig.stop"}, {"emergency", "yes"}}), R"(argument 'emergency' must be true or false, got a string ("yes"))");
+  EXPECT_EQ(error({{"cmd", "rig.move"}, {"camera", 5}}),
+            "unknown argument 'camera' (for rig.move: rail, turntable, relative)");
+  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", "250mm"}}),
+            R"(argument 'rail' must be a number, got a string ("250mm"))");
+  EXPECT_EQ(error({{"cmd", "rig.move"}, {"rail", 250}, {"relative", 1}}),
+            "argument 'relative' must be true or false, got a number (1)");
+  EXPECT_EQ(error({{"cmd", "rig.move"}}),
+            "rig.move needs a target: rail, turntable or both (numbers in the axes' units)");
+  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", "camera"}}),
+            "argument 'axis' must be rail, turntable or both, got 'camera'");
+  EXPECT_EQ(error({{"cmd", "rig.home"}, {"axis", 1}}),
+            "argument 'axis' must be rail, turntable or both, got a number (1)");
+  EXPECT_EQ(error({{"cmd", "rig.stop"}, {"emergency", "yes"}}),
+            R"(argument 'emergency' must be true or false, got a string ("yes"))");
   EXPECT_EQ(error({{"cmd", "rig.status"}, {"verbose", true}}), "unknown argument 'verbose': rig.status takes none");
-  EXPECT_EQ(error({{"cmd", "rig.enable"}, {"axis", "camera"}}), "argument 'axis' must be rail, turntable or both, got 'camera'");
+  EXPECT_EQ(error({{"cmd", "rig.enable"}, {"axis", "camera"}}),
+            "argument 'axis' must be rail, turntable or both, got 'camera'");
 }
 
 TEST_F(RigCommands, StopRampsDownAndAnEmergencyStopFaultsUntilHomed) {
@@ -333,8 +341,9 @@ TEST_F(MarkerctlRigOnTheDaemon, StatusHomeMoveJogAndStopGoThroughTheSocket) {
   ASSERT_EQ(r.code, 0) << r.describe();
   EXPECT_NE(r.out.find("rail: homing\n"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("rail: moving to 250.000 mm\n"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("rail: at 250.000 mm\nturntable: at 28.650 deg\nground truth: distance 0.5500 m, yaw 28.650 deg\n"),
-            std::string::npos)
+  EXPECT_NE(
+      r.out.find("rail: at 250.000 mm\nturntable: at 28.650 deg\nground truth: distance 0.5500 m, yaw 28.650 deg\n"),
+      std::string::npos)
       << r.out;
   EXPECT_NEAR(rig_->rail().status().position, 250.0, 1e-9);
   EXPECT_NEAR(rig_->turntable().status().position, 28.65, 1e-9);
@@ -368,8 +377,9 @@ TEST_F(MarkerctlRigOnTheDaemon, StatusHomeMoveJogAndStopGoThroughTheSocket) {
 
   r = run({"jog"});
   EXPECT_EQ(r.code, 2) << r.describe();
-  EXPECT_EQ(r.err, "markerctl: rig jog: give --rail or --turntable (the interactive jog needs --config: it drives the "
-                   "rig itself)\n");
+  EXPECT_EQ(r.err,
+            "markerctl: rig jog: give --rail or --turntable (the interactive jog needs --config: it drives the "
+            "rig itself)\n");
 }
 
 TEST_F(MarkerctlRigOnTheDaemon, AnInterruptWhileWaitingStopsTheRig) {
@@ -381,7 +391,8 @@ TEST_F(MarkerctlRigOnTheDaemon, AnInterruptWhileWaitingStopsTheRig) {
   const Outcome r = finish(*markerctl);
   EXPECT_EQ(r.code, 1) << r.describe();
   EXPECT_NE(r.err.find("markerctl: rig move: SIGINT: stopping the rig\n"), std::string::npos) << r.err;
-  EXPECT_NE(r.err.find("markerctl: rig move: interrupted by SIGINT: rig stopped (rail at "), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("markerctl: rig move: interrupted by SIGINT: rig stopped (rail at "), std::string::npos)
+      << r.err;
   const json s = status();
   EXPECT_EQ(s["rail"]["state"], "idle") << "the daemon's axes stay enabled: " << s;
   EXPECT_TRUE(s["rail"]["homed"].get<bool>());

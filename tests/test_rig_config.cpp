@@ -4,15 +4,15 @@
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
+#include <unistd.h>
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
-#include <unistd.h>
 
-#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "markerd/rig/rig_config.hpp"
+#include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "support/files.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -162,7 +162,8 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
   }
   {
     const auto [error, where] = error_with("switch = \"limit_min\"", "switch = \"limit_mid\"");
-    EXPECT_EQ(error, where + ": rig.rail.homing.switch: unknown switch 'limit_mid' (known: home, limit_min, limit_max)");
+    EXPECT_EQ(error,
+              where + ": rig.rail.homing.switch: unknown switch 'limit_mid' (known: home, limit_min, limit_max)");
   }
   {
     const auto [error, where] = error_with("max_velocity = 50.0", "max_velocty = 50.0");
@@ -182,22 +183,32 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": rig.rail.units_per_step: must be a number");
   }
   {
-    const auto [error, where] = error_with("direction = -1\nswitch = \"limit_min\"", "direction = 0\nswitch = \"limit_min\"");
+    const auto [error, where] =
+        error_with("direction = -1\nswitch = \"limit_min\"", "direction = 0\nswitch = \"limit_min\"");
     EXPECT_EQ(error, where + ": rig.rail.homing.direction: must be 1 or -1, got 0");
   }
   {
     // Caught here rather than by an alarm at the other end of the rail.
-    const auto [error, where] = error_with("direction = -1\nswitch = \"limit_min\"", "direction = 1\nswitch = \"limit_min\"");
-    EXPECT_EQ(error, where + ": rig.rail.homing.direction: homing on limit_min searches towards it: direction must be -1, got 1");
+    const auto [error, where] =
+        error_with("direction = -1\nswitch = \"limit_min\"", "direction = 1\nswitch = \"limit_min\"");
+    EXPECT_EQ(
+        error,
+        where + ": rig.rail.homing.direction: homing on limit_min searches towards it: direction must be -1, got 1");
   }
   {
     const auto [error, where] = error_with("switch = \"limit_min\"", "switch = \"home\"");
-    EXPECT_EQ(error, where + ": rig.rail.homing.switch: the simulated rail has no home switch (set home_switch_at in [rig.rail.sim])");
+    EXPECT_EQ(
+        error,
+        where +
+            ": rig.rail.homing.switch: the simulated rail has no home switch (set home_switch_at in [rig.rail.sim])");
   }
   {
     const auto [error, where] = error_with("d0_mm = 300.0", "d0_mm = 300.0\nrail_sign = -1");
-    EXPECT_EQ(error, where + ": rig.geometry.d0_mm: puts the camera at d = -2200 mm from the turntable axis at rail position 2500 mm "
-                    "(must be > 0 over the rail's soft limits)");
+    EXPECT_EQ(
+        error,
+        where +
+            ": rig.geometry.d0_mm: puts the camera at d = -2200 mm from the turntable axis at rail position 2500 mm "
+            "(must be > 0 over the rail's soft limits)");
   }
 }
 
@@ -224,9 +235,11 @@ TEST_F(RigConfigFile, NumbersOutsideTheirPhysicalRangesAreRefused) {
       {"units_per_step = 0.025", "units_per_step = 1e-300",
        "rig.rail.units_per_step: must be from 1e-09 to 1000 mm, got 1e-300"},
       {"max_velocity = 50.0", "max_velocity = inf", "rig.rail.max_velocity: must be a finite number, got inf"},
-      {"acceleration = 60.0", "acceleration = 1e12", "rig.turntable.acceleration: must be from 1e-06 to 100000000 deg/s^2, got 1000000000000"},
+      {"acceleration = 60.0", "acceleration = 1e12",
+       "rig.turntable.acceleration: must be from 1e-06 to 100000000 deg/s^2, got 1000000000000"},
       {"d0_mm = 300.0", "d0_mm = 1e200", "rig.geometry.d0_mm: must be from -100000 to 100000 mm, got 1e+200"},
-      {"limit_max_at = 95.0", "limit_max_at = 1e20", "rig.turntable.sim.limit_max_at: must be from -1000000 to 1000000 deg, got 1e+20"},
+      {"limit_max_at = 95.0", "limit_max_at = 1e20",
+       "rig.turntable.sim.limit_max_at: must be from -1000000 to 1000000 deg, got 1e+20"},
       {"settle_ms = 200", "settle_ms = 200\nmax_retries = 2147483648",
        "rig.rail.max_retries: must be from 0 to 100, got 2147483648"},
   };
@@ -249,9 +262,10 @@ TEST_F(RigConfigFile, EachAxisTableBelongsToItsBackend) {
   // The table of another backend than the one chosen is a mistake, whichever backend.
   {
     const auto [error, where] = error_with("[rig.rail.sim]", "[rig.rail.modbus]\nunit_id = 1\n[rig.rail.sim]");
-    EXPECT_EQ(error, where + ": rig.rail.modbus: unknown key (known here: backend, unit, units_per_step, min_position, "
-                    "max_position, max_velocity, acceleration, backlash, approach_direction, retry_deadband, "
-                    "max_retries, settle_ms, homing, sim)");
+    EXPECT_EQ(error, where +
+                         ": rig.rail.modbus: unknown key (known here: backend, unit, units_per_step, min_position, "
+                         "max_position, max_velocity, acceleration, backlash, approach_direction, retry_deadband, "
+                         "max_retries, settle_ms, homing, sim)");
   }
   {
     const std::string sim_rail = "backend = \"sim\"\nunit = \"mm\"";
@@ -262,7 +276,8 @@ TEST_F(RigConfigFile, EachAxisTableBelongsToItsBackend) {
       load_rig_config(path_);
       FAIL() << "no error";
     } catch (const ConfigError& e) {
-      EXPECT_EQ(std::string(e.what()).rfind(path_.string() + ":22: rig.rail.sim: unknown key (known here: backend,", 0), 0u)
+      EXPECT_EQ(std::string(e.what()).rfind(path_.string() + ":22: rig.rail.sim: unknown key (known here: backend,", 0),
+                0u)
           << e.what();
       EXPECT_NE(std::string(e.what()).find("homing, gpio)"), std::string::npos) << e.what();
     }
@@ -270,7 +285,8 @@ TEST_F(RigConfigFile, EachAxisTableBelongsToItsBackend) {
 }
 
 TEST_F(RigConfigFile, MisspelledTablesAndSyntaxErrorsAreReported) {
-  EXPECT_NE(error_with("[rig.turntable]", "[rig.turntabel]").error.find("rig.turntabel: unknown key"), std::string::npos);
+  EXPECT_NE(error_with("[rig.turntable]", "[rig.turntabel]").error.find("rig.turntabel: unknown key"),
+            std::string::npos);
   const auto [syntax, where] = error_with("acceleration = 60.0", "acceleration = ");
   EXPECT_EQ(syntax.rfind(where + ":", 0), 0U) << syntax;
 }
@@ -365,8 +381,8 @@ TEST(RigConfig, TheGpioRigNamesTheMissingChip) {
     FAIL() << "a rig without its GPIO chip";
   } catch (const DriveError& e) {
     const std::string error = e.what();
-    EXPECT_EQ(error.rfind("rail (gpio gpiochip0): GPIO chip 'gpiochip0' (/dev/gpiochip0): No such file or directory", 0),
-              0u)
+    EXPECT_EQ(
+        error.rfind("rail (gpio gpiochip0): GPIO chip 'gpiochip0' (/dev/gpiochip0): No such file or directory", 0), 0u)
         << error;
   }
 }
@@ -406,7 +422,7 @@ TEST_F(WrittenConfig, TheModbusTcpRigHomesAndMovesBothAxes) {
   EXPECT_NEAR(rig->rail().status().position, 250.0, 0.05);
   EXPECT_NEAR(rig->turntable().status().position, 30.0, 0.05);
   // What the drives did, seen from the servers.
-  EXPECT_EQ(rail_drive.state(1).target_steps, 25000);  // 250 mm at 0.01 mm per step
+  EXPECT_EQ(rail_drive.state(1).target_steps, 25000);     // 250 mm at 0.01 mm per step
   EXPECT_EQ(turntable_drive.state(1).target_steps, 833);  // 30 deg at 0.036 deg per step
   EXPECT_EQ(rail_drive.state(1).homings, 1);
   EXPECT_EQ(turntable_drive.state(1).homings, 1);
@@ -426,17 +442,20 @@ TEST_F(WrittenConfig, BusesAndModbusAxesAreCheckedTogether) {
     std::string text = rtu;
     replace_once(text, "[rig.rail]", "[rig.buses.spare]\ntype = \"tcp\"\nhost = \"10.0.0.9\"\n\n[rig.rail]");
     const auto [error, where] = error_at(text, "[rig.buses.spare]");
-    EXPECT_EQ(error, where + ": rig.buses.spare: no axis uses bus 'spare' (check the bus keys of [rig.rail.modbus] "
-                             "and [rig.turntable.modbus], or remove the bus)");
+    EXPECT_EQ(error, where +
+                         ": rig.buses.spare: no axis uses bus 'spare' (check the bus keys of [rig.rail.modbus] "
+                         "and [rig.turntable.modbus], or remove the bus)");
   }
   {
     std::string text = rtu;
     replace_once(text, "bus = \"rtu0\"\nunit_id = 2", "bus = \"rtu0\"\nunit_id = 1");
     const auto [error, table_at] = error_at(text, "[rig.turntable.modbus]");
     const auto colon = table_at.rfind(':');
-    const std::string where = fmt::format("{}:{}", table_at.substr(0, colon), std::stoi(table_at.substr(colon + 1)) + 2);
-    EXPECT_EQ(error, where + ": rig.turntable.modbus.unit_id: unit 1 on bus 'rtu0' is the rail's drive already "
-                             "(drives sharing a bus need their own unit ids)");
+    const std::string where =
+        fmt::format("{}:{}", table_at.substr(0, colon), std::stoi(table_at.substr(colon + 1)) + 2);
+    EXPECT_EQ(error, where +
+                         ": rig.turntable.modbus.unit_id: unit 1 on bus 'rtu0' is the rail's drive already "
+                         "(drives sharing a bus need their own unit ids)");
   }
   {
     // A mistake in the drive's map is a config error too, naming the map's line.
@@ -459,21 +478,24 @@ TEST_F(WrittenConfig, GpioAxesAreCheckedAgainstTheirLines) {
     std::string text = gpio;
     replace_once(text, "max_velocity = 50.0 ", "max_velocity = 70.0 ");
     const auto [error, where] = error_at(text, "max_velocity = 70.0");
-    EXPECT_EQ(error, where + ": rig.rail.max_velocity: 70 mm/s is 2800 steps/s at 0.025 mm per step, above the GPIO "
-                             "stepper's max_step_rate of 2500 steps/s in [rig.rail.gpio]");
+    EXPECT_EQ(error, where +
+                         ": rig.rail.max_velocity: 70 mm/s is 2800 steps/s at 0.025 mm per step, above the GPIO "
+                         "stepper's max_step_rate of 2500 steps/s in [rig.rail.gpio]");
   }
   {
     std::string text = gpio;
     replace_once(text, "home = { line = \"GPIO16\", active_low = true }", "");
     const auto [error, where] = error_at(text, "switch = \"home\"\nsearch_velocity = 5.0");
-    EXPECT_EQ(error, where + ": rig.turntable.homing.switch: homing on home needs the home input, and "
-                             "[rig.turntable.gpio] has no home line");
+    EXPECT_EQ(error, where +
+                         ": rig.turntable.homing.switch: homing on home needs the home input, and "
+                         "[rig.turntable.gpio] has no home line");
   }
   {
     std::string text = gpio;
     replace_once(text, "estop = { line = \"GPIO19\" }", "estop = { line = \"GPIO26\" }");
     const auto [error, where] = error_at(text, "estop = { line = \"GPIO26\" }                       # pin 35");
-    EXPECT_EQ(error, where + ": rig.turntable.gpio.estop.line: line 'GPIO26' of gpiochip0 is also the rail's estop "
-                             "line (a GPIO line has one user: wire a shared switch to one input per axis)");
+    EXPECT_EQ(error, where +
+                         ": rig.turntable.gpio.estop.line: line 'GPIO26' of gpiochip0 is also the rail's estop "
+                         "line (a GPIO line has one user: wire a shared switch to one input per axis)");
   }
 }

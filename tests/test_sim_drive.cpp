@@ -8,8 +8,8 @@
 #include <cmath>
 #include <functional>
 #include <limits>
-#include <stdexcept>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <thread>
 
@@ -180,7 +180,8 @@ TEST(SimDrive, RefusesMovesWhileDisabledOrBusy) {
             "rail (sim): cannot start a move: the drive is not enabled");
   sim.drive->enable(true);
   sim.drive->start_move(1000, 100, 100);
-  EXPECT_EQ(drive_error([&] { sim.drive->start_move(10, 100, 100); }), "rail (sim): cannot start a move: the drive is busy");
+  EXPECT_EQ(drive_error([&] { sim.drive->start_move(10, 100, 100); }),
+            "rail (sim): cannot start a move: the drive is busy");
 }
 
 TEST(SimDrive, StopBrakesAtTheMoveAcceleration) {

@@ -158,9 +158,7 @@ std::size_t count_events(const sweep::RunRecords& records, std::string_view kind
 
 class SweepKillTest : public testing::Test {
  protected:
-  static int failures() {
-    return testing::UnitTest::GetInstance()->current_test_info()->result()->total_part_count();
-  }
+  static int failures() { return testing::UnitTest::GetInstance()->current_test_info()->result()->total_part_count(); }
 
   // Starts the plan; the run's directory, or empty (a failure).
   static fs::path start_sweep(ControlClient& client) {
@@ -219,7 +217,7 @@ class SweepKillTest : public testing::Test {
 
 TEST_F(SweepKillTest, KilledAtRandomMomentsTheRunCompletesAsIfUninterrupted) {
   // The reference: one run, uninterrupted.
-  std::string reference_csv;              // per point
+  std::string reference_csv;               // per point
   std::string reference_measurements_csv;  // per measurement (appendix C)
   {
     const Workspace setup(root_ / "reference");
@@ -267,8 +265,8 @@ TEST_F(SweepKillTest, KilledAtRandomMomentsTheRunCompletesAsIfUninterrupted) {
       std::this_thread::sleep_for(pause);
       client.reset();
       const int status = markerd.kill9();
-      ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL)
-          << describe(status) << "\n" << read_file(setup.output());
+      ASSERT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == SIGKILL) << describe(status) << "\n"
+                                                                      << read_file(setup.output());
       const sweep::RunRecords at_kill = sweep::read_run(run);
       const bool cut_off = !at_kill.stop.has_value();
       moments.push_back(fmt::format("kill {} after {} ms: {} of {} steps recorded, {} torn line(s){}", k + 1,

@@ -47,8 +47,8 @@ markerd::rig::RigConfig sim_rig() { return markerd::rig::load_rig_config(kSource
 
 // A plan with the given grids and everything else at small, round values.
 std::string plan_text(const std::string& grids, int repeats = 1) {
-  return "name = \"test\"\nframes_per_point = 10\nrepeats = " + std::to_string(repeats) +
-         "\nsettle_s = 0.5\n\n" + grids;
+  return "name = \"test\"\nframes_per_point = 10\nrepeats = " + std::to_string(repeats) + "\nsettle_s = 0.5\n\n" +
+         grids;
 }
 
 std::vector<std::pair<double, double>> visits(const std::vector<PlanStep>& steps) {
@@ -86,7 +86,8 @@ TEST(SweepPlan, ShippedDistancePlanIsTheThesisSweep) {
 }
 
 TEST(SweepPlan, ShippedAnglePlansAreTheThesisSweeps) {
-  for (const auto& [file, distance] : {std::pair{"thesis-angle-50cm.toml", 0.5}, std::pair{"thesis-angle-95cm.toml", 0.95}}) {
+  for (const auto& [file, distance] :
+       {std::pair{"thesis-angle-50cm.toml", 0.5}, std::pair{"thesis-angle-95cm.toml", 0.95}}) {
     SCOPED_TRACE(file);
     const SweepPlan plan = load_plan(kSourceDir / "config/plans" / file);
     EXPECT_EQ(plan.repeats, 5);
@@ -187,7 +188,8 @@ TEST(SweepPlan, EveryNumberHasARangeThatMeansSomething) {
             "<string>:2: frames_per_point: must be from 1 to 10000 frames, got 1000000");
   EXPECT_EQ(plan_error("name = \"x\"\nrepeats = 9223372036854775807\n" + grid),
             "<string>:2: repeats: must be an integer from -2147483648 to 2147483647, got 9223372036854775807");
-  EXPECT_EQ(plan_error("name = \"x\"\nsettle_s = 1e9\n" + grid), "<string>:2: settle_s: must be from 0 to 600 s, got 1000000000");
+  EXPECT_EQ(plan_error("name = \"x\"\nsettle_s = 1e9\n" + grid),
+            "<string>:2: settle_s: must be from 0 to 600 s, got 1000000000");
   EXPECT_EQ(plan_error("name = \"x\"\npoint_timeout_s = inf\n" + grid),
             "<string>:2: point_timeout_s: must be a finite number, got inf");
   EXPECT_EQ(plan_error("name = \"x\"\nfault_timeout_s = 1e7\n" + grid),
@@ -385,8 +387,8 @@ TEST(SweepPlan, GridOrderRunsTheFastAxisTheSameWayEveryRow) {
 distance_m = [0.5, 1.0]
 angle_deg = [0, 10, 20]
 )"));
-  EXPECT_EQ(visits(plan_steps(plan)), (std::vector<std::pair<double, double>>{
-                                          {0.5, 0}, {0.5, 10}, {0.5, 20}, {1.0, 0}, {1.0, 10}, {1.0, 20}}));
+  EXPECT_EQ(visits(plan_steps(plan)),
+            (std::vector<std::pair<double, double>>{{0.5, 0}, {0.5, 10}, {0.5, 20}, {1.0, 0}, {1.0, 10}, {1.0, 20}}));
 }
 
 TEST(SweepPlan, SnakeOrderReversesTheFastAxisOnOddRows) {
@@ -502,10 +504,12 @@ angle_deg = [0, 89.5]
   turned.geometry.yaw0_deg = 5.0;
   const PlanCheck turned_check = check_plan(plan, turned, 0);
   ASSERT_EQ(turned_check.problems.size(), 5U);
-  EXPECT_EQ(turned_check.problems[2], "point 3 (grid \"far\": 2.8 m, 89.5 deg): turntable 94.5 deg is beyond its "
-                                      "max_position 90 deg");
-  EXPECT_EQ(turned_check.problems[4], "point 5 (grid \"far\": 3 m, 89.5 deg): rail 2700 mm is beyond its "
-                                      "max_position 2500 mm; turntable 94.5 deg is beyond its max_position 90 deg");
+  EXPECT_EQ(turned_check.problems[2],
+            "point 3 (grid \"far\": 2.8 m, 89.5 deg): turntable 94.5 deg is beyond its "
+            "max_position 90 deg");
+  EXPECT_EQ(turned_check.problems[4],
+            "point 5 (grid \"far\": 3 m, 89.5 deg): rail 2700 mm is beyond its "
+            "max_position 2500 mm; turntable 94.5 deg is beyond its max_position 90 deg");
 }
 
 // The hand-computed estimates use config/rig-sim.toml: rail 50 mm/s, 100

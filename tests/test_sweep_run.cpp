@@ -231,7 +231,8 @@ TEST_F(SweepRunTest, ACameraUnpluggedMidRunSuspendsItAndItCompletesWhenTheCamera
   ASSERT_GE(count_events(records, "suspended"), 1U);
   EXPECT_GE(count_events(records, "fault_cleared"), 1U);
   bool named = false;
-  for (const auto& e : records.events) named |= e.kind == "suspended" && e.reason.find("unplugged") != std::string::npos;
+  for (const auto& e : records.events)
+    named |= e.kind == "suspended" && e.reason.find("unplugged") != std::string::npos;
   EXPECT_TRUE(named) << "the suspension's record names the cause";
   for (const auto& p : records.points) {
     for (const auto& f : p.frames) EXPECT_TRUE(f.detected) << "step " << p.step;
@@ -255,7 +256,8 @@ TEST_F(SweepRunTest, ADriveAlarmMidRunSuspendsItAndItCompletesOnceTheAlarmIsRese
   const sweep::RunRecords records = sweep::read_run(run);
   expect_every_step_once(records);
   bool named = false;
-  for (const auto& e : records.events) named |= e.kind == "suspended" && e.reason.find("overcurrent") != std::string::npos;
+  for (const auto& e : records.events)
+    named |= e.kind == "suspended" && e.reason.find("overcurrent") != std::string::npos;
   EXPECT_TRUE(named);
   EXPECT_GE(count_events(records, "fault_cleared"), 1U);
   for (const auto& p : records.points) EXPECT_NEAR(p.truth_distance_m, p.distance_m, 1e-6) << "step " << p.step;
@@ -522,8 +524,8 @@ TEST_F(SweepRunTest, APlanForAFamilyTheDaemonDoesNotDetectIsRefusedAtCheckAndSta
   std::string text = kPlan;
   text.replace(text.find("family = \"frame8\""), 17, "family = \"tag36h11\"");
   const sweep::SweepPlan plan = sweep::parse_plan(text, "tag.toml");
-  for (const auto& attempt : {std::function<void()>([&] { (void)r.check(plan); }),
-                              std::function<void()>([&] { (void)r.start(plan); })}) {
+  for (const auto& attempt :
+       {std::function<void()>([&] { (void)r.check(plan); }), std::function<void()>([&] { (void)r.start(plan); })}) {
     try {
       attempt();
       ADD_FAILURE() << "a tag36h11 plan passed on a frame8 markerd";
@@ -573,8 +575,8 @@ TEST_F(SweepRunTest, AJournalNamingARunThatNeverStartedIsForgotten) {
   // markerd killed inside sweep.start, after the journal and before the
   // run's start record.
   fs::create_directories(dir_ / "state/runs/20261201T000000Z-small");
-  write_file(dir_ / "state/sweep-journal.json",
-             fmt::format(R"({{"run_directory": "{}", "paused": false}})", (dir_ / "state/runs/20261201T000000Z-small").string()));
+  write_file(dir_ / "state/sweep-journal.json", fmt::format(R"({{"run_directory": "{}", "paused": false}})",
+                                                            (dir_ / "state/runs/20261201T000000Z-small").string()));
   auto d = make_daemon();
   EXPECT_EQ(runner(*d).progress().state, RunState::idle);
   EXPECT_FALSE(fs::exists(dir_ / "state/sweep-journal.json"));
@@ -590,13 +592,16 @@ TEST_F(SweepRunTest, AJournalNamingAnEndedRunWhoseRecordsAreGoneDoesNotBlockANew
   auto& r = runner(*d);
   // A run that ended without its stop record, whose directory the operator
   // has since removed.
-  const nlohmann::json stop{{"schema", 1}, {"time", "2026-12-01T00:00:00.000Z"}, {"exit_status", "failed"},
-                            {"reason", "no space left"}, {"steps_done", 3}};
-  write_file(dir_ / "state/sweep-journal.json",
-             nlohmann::json{{"run_directory", (dir_ / "state/runs/20261201T000000Z-gone").string()},
-                            {"state", "failed"},
-                            {"stop", stop}}
-                 .dump());
+  const nlohmann::json stop{{"schema", 1},
+                            {"time", "2026-12-01T00:00:00.000Z"},
+                            {"exit_status", "failed"},
+                            {"reason", "no space left"},
+                            {"steps_done", 3}};
+  write_file(
+      dir_ / "state/sweep-journal.json",
+      nlohmann::json{
+          {"run_directory", (dir_ / "state/runs/20261201T000000Z-gone").string()}, {"state", "failed"}, {"stop", stop}}
+          .dump());
   const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
   EXPECT_TRUE(fs::exists(run / "start.json"));
   EXPECT_EQ(nlohmann::json::parse(read_file(dir_ / "state/sweep-journal.json"))["run_directory"], run.string());
@@ -712,8 +717,9 @@ TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
   const std::string time = start.substr(time_at + 9, 24);
 
   replace_in(run / "start.json", "\"time\": \"" + time.substr(0, 4), "\"time\": \"1013");
-  EXPECT_EQ(error_reading(), fmt::format("{}: year 1013 is outside 1678 to 2261, the years markerd's clock holds: \"1013{}\"",
-                                         (run / "start.json").string(), time.substr(4)));
+  EXPECT_EQ(error_reading(),
+            fmt::format("{}: year 1013 is outside 1678 to 2261, the years markerd's clock holds: \"1013{}\"",
+                        (run / "start.json").string(), time.substr(4)));
   replace_in(run / "start.json", "\"time\": \"1013", "\"time\": \"2262");
   EXPECT_NE(error_reading().find("year 2262 is outside 1678 to 2261"), std::string::npos) << error_reading();
   replace_in(run / "start.json", "\"time\": \"2262", "\"time\": \"1678");
@@ -736,7 +742,8 @@ TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
       << error_reading();
   write_file(run / "points.jsonl", points);
   replace_in(run / "points.jsonl", "\"repeat\":", "\"repeat\":\"one\",\"was\":");
-  EXPECT_EQ(error_reading(), (run / "points.jsonl").string() + ":1: not a record: \"repeat\" must be a whole number, got \"one\"");
+  EXPECT_EQ(error_reading(),
+            (run / "points.jsonl").string() + ":1: not a record: \"repeat\" must be a whole number, got \"one\"");
 }
 
 TEST_F(SweepRunTest, TheControlSocketsSweepCommands) {

@@ -439,7 +439,8 @@ TEST(SweepReport, WritesTheReportCsvsAndThreePlots) {
     EXPECT_TRUE(fs::exists(options.output_directory / (std::string(name) + ".gp"))) << name;
   }
   EXPECT_EQ(test_support::read_file(options.output_directory / "summary.csv"), points_csv(summarize(reported_run())));
-  EXPECT_EQ(test_support::read_file(options.output_directory / "translation.csv"), translation_csv(summarize(reported_run())));
+  EXPECT_EQ(test_support::read_file(options.output_directory / "translation.csv"),
+            translation_csv(summarize(reported_run())));
   // Thesis-shaped (a row and two columns of distance x angle): curves of rate
   // against angle, one per distance swept, not a heat map.
   const std::string rate_map = test_support::read_file(options.output_directory / "rate-map.gp");

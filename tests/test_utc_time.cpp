@@ -51,7 +51,8 @@ TEST(UtcTime, WhatIsNotATimeIsNamed) {
   EXPECT_EQ(error("1677-12-31T23:59:59.999Z"),
             "year 1677 is outside 1678 to 2261, the years markerd's clock holds: \"1677-12-31T23:59:59.999Z\"");
   EXPECT_EQ(error("2262-01-01T00:00:00.000Z").substr(0, 34), "year 2262 is outside 1678 to 2261,");
-  for (const std::string clock : {"24:00:00.000Z", "06:60:00.000Z", "06:15:60.000Z", "06:-1:00.000Z", "06:15:00.-12Z"}) {
+  for (const std::string clock :
+       {"24:00:00.000Z", "06:60:00.000Z", "06:15:60.000Z", "06:-1:00.000Z", "06:15:00.-12Z"}) {
     EXPECT_EQ(error("2026-12-01T" + clock), "not a time of day: \"2026-12-01T" + clock + "\"");
   }
 }

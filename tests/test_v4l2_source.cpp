@@ -10,8 +10,8 @@
 
 #include <algorithm>
 #include <array>
-#include <cstdio>
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -24,11 +24,11 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "markerd/base/config_table.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
-#include "markerd/daemon/frame_pool.hpp"
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
-#include "markerd/base/config_table.hpp"
+#include "markerd/daemon/frame_pool.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 

@@ -73,10 +73,14 @@ namespace {
 
 template <class T>
 constexpr std::string_view type_name() {
-  if constexpr (std::is_same_v<T, bool>) return "a boolean";
-  else if constexpr (std::is_same_v<T, double>) return "a number";
-  else if constexpr (std::is_integral_v<T>) return "an integer";
-  else return "a string";
+  if constexpr (std::is_same_v<T, bool>)
+    return "a boolean";
+  else if constexpr (std::is_same_v<T, double>)
+    return "a number";
+  else if constexpr (std::is_integral_v<T>)
+    return "an integer";
+  else
+    return "a string";
 }
 
 // Converts a node to T, or nothing when its type does not fit.
@@ -173,9 +177,9 @@ ConfigTable ConfigTable::table(std::string_view key) const {
   return *t;
 }
 
-#define MARKERD_CONFIG_TYPE(T)                                          \
+#define MARKERD_CONFIG_TYPE(T)                                             \
   template std::optional<T> ConfigTable::maybe<T>(std::string_view) const; \
-  template T ConfigTable::required<T>(std::string_view) const;            \
+  template T ConfigTable::required<T>(std::string_view) const;             \
   template T ConfigTable::optional<T>(std::string_view, T) const;
 MARKERD_CONFIG_TYPE(bool)
 MARKERD_CONFIG_TYPE(int)
@@ -184,9 +188,9 @@ MARKERD_CONFIG_TYPE(double)
 MARKERD_CONFIG_TYPE(std::string)
 #undef MARKERD_CONFIG_TYPE
 
-#define MARKERD_CONFIG_RANGED_TYPE(T)                                                          \
-  template std::optional<T> ConfigTable::maybe<T>(std::string_view, Range<T>) const;          \
-  template T ConfigTable::required<T>(std::string_view, Range<T>) const;                      \
+#define MARKERD_CONFIG_RANGED_TYPE(T)                                                \
+  template std::optional<T> ConfigTable::maybe<T>(std::string_view, Range<T>) const; \
+  template T ConfigTable::required<T>(std::string_view, Range<T>) const;             \
   template T ConfigTable::optional<T>(std::string_view, T, Range<T>) const;
 MARKERD_CONFIG_RANGED_TYPE(int)
 MARKERD_CONFIG_RANGED_TYPE(std::int64_t)

@@ -30,7 +30,8 @@ std::string_view kind_of(mode_t mode) {
   return "not a regular file";
 }
 
-void check_stat(const std::filesystem::path& path, const struct stat& st, std::size_t max_bytes, std::string_view what) {
+void check_stat(const std::filesystem::path& path, const struct stat& st, std::size_t max_bytes,
+                std::string_view what) {
   if (!S_ISREG(st.st_mode)) {
     const auto kind = kind_of(st.st_mode);
     if (kind == "not a regular file") fail(path, what, "is not a regular file");
@@ -88,7 +89,8 @@ std::string read_regular_file(const std::filesystem::path& path, std::size_t max
     if (n == 0) break;
     used += static_cast<std::size_t>(n);
   }
-  if (used > max_bytes) fail(path, what, fmt::format("grew beyond the {} allowed while it was read", format_bytes(max_bytes)));
+  if (used > max_bytes)
+    fail(path, what, fmt::format("grew beyond the {} allowed while it was read", format_bytes(max_bytes)));
   text.resize(used);
   return text;
 }

@@ -54,15 +54,16 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
       case CaptureState::waiting:
         return fmt::format("{}: {}", s.source, s.last_error.empty() ? std::string(to_string(s.state)) : s.last_error);
       case CaptureState::ended:
-      case CaptureState::stopped:
-        return fmt::format("{}: {}", s.source, to_string(s.state));
+      case CaptureState::stopped: return fmt::format("{}: {}", s.source, to_string(s.state));
     }
     return std::nullopt;
   }
 
   [[nodiscard]] double camera_fps() const override { return configured_fps(daemon_.config_.camera.source); }
 
-  [[nodiscard]] detector::DetectorConfig detector_config() const override { return daemon::detector_config(daemon_.config_); }
+  [[nodiscard]] detector::DetectorConfig detector_config() const override {
+    return daemon::detector_config(daemon_.config_);
+  }
 
   [[nodiscard]] nlohmann::json config_record() const override {
     return {{"file", daemon_.config_.source}, {"text", config_text_}};
@@ -276,8 +277,8 @@ bool Daemon::responsive() const {
 std::string Daemon::status_line() const {
   const CaptureStatus c = capture_loop_->status();
   const PipelineStats p = pipeline_->stats();
-  std::string line = fmt::format("camera {}: {}, {} frames, {} dropped", c.source, to_string(c.state), c.frames,
-                                 p.dropped());
+  std::string line =
+      fmt::format("camera {}: {}, {} frames, {} dropped", c.source, to_string(c.state), c.frames, p.dropped());
   if (c.state == CaptureState::waiting && !c.last_error.empty()) line += fmt::format(" ({})", c.last_error);
   if (rig_) {
     const rig::RigSnapshot s = rig_->snapshot();

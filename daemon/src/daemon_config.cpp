@@ -82,7 +82,8 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
   c.source_kind = t.required<std::string>("source");
   constexpr std::array kinds{"sim", "v4l2", "libcamera", "file"};
   if (std::find(kinds.begin(), kinds.end(), c.source_kind) == kinds.end()) {
-    t.fail("source", fmt::format("must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"{}\"", c.source_kind));
+    t.fail("source",
+           fmt::format("must be one of \"v4l2\", \"libcamera\", \"file\", \"sim\"; got \"{}\"", c.source_kind));
   }
   // Only the chosen backend's table is read; another one present is a
   // leftover worth pointing out.
@@ -126,14 +127,17 @@ DetectorSettings parse_detector(const ConfigTable& t) {
                    "blur_sigma_px"});
     detector::Frame8Options& o = d.frame8;
     o.decimate = int_in(*f, "decimate", o.decimate, 0, 8, "(0: automatic)");
-    o.threshold_offset = int_in(*f, "threshold_offset", o.threshold_offset, detector::Frame8Options::kMinThresholdOffset,
-                                detector::Frame8Options::kMaxThresholdOffset, "grey levels");
+    o.threshold_offset =
+        int_in(*f, "threshold_offset", o.threshold_offset, detector::Frame8Options::kMinThresholdOffset,
+               detector::Frame8Options::kMaxThresholdOffset, "grey levels");
     o.min_hole_side_px = f->optional<double>("min_hole_side_px", o.min_hole_side_px, {2, 1000, "px"});
     o.min_margin = f->optional<double>("min_margin", o.min_margin);
-    if (!(o.min_margin >= 0 && o.min_margin < 1)) f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
+    if (!(o.min_margin >= 0 && o.min_margin < 1))
+      f->fail("min_margin", fmt::format("must be 0 .. 1, got {}", o.min_margin));
     o.uniform_ids = f->optional<bool>("uniform_ids", o.uniform_ids);
     o.model_small_cells = f->optional<bool>("model_small_cells", o.model_small_cells);
-    o.blur_sigma_px = f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, detector::Frame8Options::kMaxBlurSigmaPx, "px"});
+    o.blur_sigma_px =
+        f->optional<double>("blur_sigma_px", o.blur_sigma_px, {0, detector::Frame8Options::kMaxBlurSigmaPx, "px"});
   }
   return d;
 }
@@ -163,7 +167,8 @@ LogSettings parse_log(const ConfigTable& t, const std::filesystem::path& dir) {
   }
   l.prefix = t.optional<std::string>("prefix", l.prefix);
   if (l.prefix.empty() || l.prefix.find_first_of("/\n") != std::string::npos || l.prefix.front() == '.') {
-    t.fail("prefix", fmt::format("must be a file name prefix without '/', not starting with '.', got \"{}\"", l.prefix));
+    t.fail("prefix",
+           fmt::format("must be a file name prefix without '/', not starting with '.', got \"{}\"", l.prefix));
   }
   const auto mb = t.optional<std::int64_t>("max_file_mb", 256, {0, 1'000'000, "MiB (0: no limit)"});
   l.max_file_bytes = static_cast<std::uint64_t>(mb) << 20;
@@ -198,7 +203,8 @@ ControlConfig parse_control(const ConfigTable& t, const std::filesystem::path& d
     c.socket_is_runtime_default = std::getenv("RUNTIME_DIRECTORY") == nullptr;  // NOLINT(concurrency-mt-unsafe)
   }
   // sockaddr_un's path holds 107 characters and a NUL.
-  if (c.socket.string().size() > 107) t.fail("socket", fmt::format("is longer than 107 characters: {}", c.socket.string()));
+  if (c.socket.string().size() > 107)
+    t.fail("socket", fmt::format("is longer than 107 characters: {}", c.socket.string()));
   c.group = t.optional<std::string>("group", "");
   // Each client is a file descriptor and up to 2 MiB of buffers.
   c.max_clients = static_cast<std::size_t>(t.optional<int>("max_clients", 16, {1, 256, "clients"}));

@@ -18,23 +18,25 @@ nlohmann::json to_json(const StageCounts& c) {
 }
 
 nlohmann::json to_json(const LatencySummary& l) {
-  return {{"count", l.count}, {"p50_ms", ms(l.p50)}, {"p99_ms", ms(l.p99)}, {"max_ms", ms(l.max)}, {"mean_ms", ms(l.mean)}};
+  return {
+      {"count", l.count}, {"p50_ms", ms(l.p50)}, {"p99_ms", ms(l.p99)}, {"max_ms", ms(l.max)}, {"mean_ms", ms(l.mean)}};
 }
 
 nlohmann::json to_json(const rig::AxisSnapshot& a) {
-  return {{"position", a.position}, {"target", a.target}, {"state", rig::to_string(a.state)}, {"homed", a.homed},
-          {"settled", a.settled},   {"fault", a.fault},   {"moving", a.moving}};
+  return {{"position", a.position}, {"target", a.target},   {"state", rig::to_string(a.state)},
+          {"homed", a.homed},       {"settled", a.settled}, {"fault", a.fault},
+          {"moving", a.moving}};
 }
-
 
 }  // namespace
 
 nlohmann::json to_json(const CaptureStatus& s) {
-  nlohmann::json j = {{"state", to_string(s.state)}, {"source", s.source},     {"frames", s.frames},
-                      {"dropped", s.dropped},        {"corrupt", s.corrupt},   {"stalls", s.stalls},
+  nlohmann::json j = {{"state", to_string(s.state)}, {"source", s.source},   {"frames", s.frames},
+                      {"dropped", s.dropped},        {"corrupt", s.corrupt}, {"stalls", s.stalls},
                       {"failures", s.failures},      {"reopens", s.reopens}};
   j["last_error"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(s.last_error);
-  j["last_error_utc"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(format_utc(s.last_error_time, UtcForm::seconds));
+  j["last_error_utc"] =
+      s.last_error.empty() ? nlohmann::json() : nlohmann::json(format_utc(s.last_error_time, UtcForm::seconds));
   if (s.last_frame_time.time_since_epoch().count() > 0 && s.frames > 0) {
     j["last_frame_age_ms"] = ms(std::chrono::steady_clock::now() - s.last_frame_time);
   } else {
@@ -68,7 +70,10 @@ nlohmann::json to_json(const DetectionLogSinkStats& s) {
 }
 
 nlohmann::json to_json(const rig::RigSnapshot& s) {
-  return {{"sequence", s.sequence}, {"settled", s.settled()}, {"rail", to_json(s.rail)}, {"turntable", to_json(s.turntable)}};
+  return {{"sequence", s.sequence},
+          {"settled", s.settled()},
+          {"rail", to_json(s.rail)},
+          {"turntable", to_json(s.turntable)}};
 }
 
 nlohmann::json status_json(const Daemon& daemon) {

@@ -26,11 +26,11 @@ namespace {
 // Decimal places per quantity (docs/detection-log.md states the same): at
 // least ten times finer than what the measurement can resolve, so that
 // rounding never shows in an analysis.
-constexpr int kPixelDecimals = 4;     // corners: 1e-4 px
-constexpr int kPoseDecimals = 7;      // rvec (rad), tvec (m), quaternion, distances in m: 1e-7
-constexpr int kMmDecimals = 4;        // rail positions and translation errors: 1e-4 mm
-constexpr int kDegreeDecimals = 5;    // angles in degrees: 1e-5 deg (2e-7 rad)
-constexpr int kRatioDecimals = 5;     // margin, percentages
+constexpr int kPixelDecimals = 4;        // corners: 1e-4 px
+constexpr int kPoseDecimals = 7;         // rvec (rad), tvec (m), quaternion, distances in m: 1e-7
+constexpr int kMmDecimals = 4;           // rail positions and translation errors: 1e-4 mm
+constexpr int kDegreeDecimals = 5;       // angles in degrees: 1e-5 deg (2e-7 rad)
+constexpr int kRatioDecimals = 5;        // margin, percentages
 constexpr int kMillisecondDecimals = 6;  // times in ms: to the nanosecond
 
 std::int64_t nanoseconds_since_epoch(std::chrono::steady_clock::time_point t) {
@@ -107,7 +107,8 @@ void pose_error(JsonWriter& json, const detector::MarkerPose& pose, const rig::M
   json.end_object();
 }
 
-void marker_pose(JsonWriter& json, const detector::MarkerPose& pose, const std::optional<rig::MarkerGroundTruth>& truth) {
+void marker_pose(JsonWriter& json, const detector::MarkerPose& pose,
+                 const std::optional<rig::MarkerGroundTruth>& truth) {
   json.begin_object();
   rotation_translation(json, pose);
   json.key("reprojection_error_px").number(pose.reprojection_error_px, kPixelDecimals);

@@ -27,8 +27,8 @@ FramePool::FramePool(const FramePoolConfig& config)
   // line so that two threads writing neighbouring slots never share one.
   const std::size_t stride = round_up_to_line(config.pixel_bytes);
   if (stride > 0) {
-    pixels_.reset(static_cast<std::uint8_t*>(
-        ::operator new[](stride * config.slots, std::align_val_t{kCacheLineBytes})));
+    pixels_.reset(
+        static_cast<std::uint8_t*>(::operator new[](stride* config.slots, std::align_val_t{kCacheLineBytes})));
   }
   for (std::size_t i = 0; i < config.slots; ++i) {
     Frame& frame = frames_[i];

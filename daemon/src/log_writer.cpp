@@ -4,13 +4,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
 #include <algorithm>
 #include <array>
 #include <cerrno>
 #include <cstring>
 #include <exception>
-#include <fmt/format.h>
-#include <spdlog/spdlog.h>
 #include <utility>
 
 #include "markerd/base/errno_text.hpp"
@@ -31,8 +31,8 @@ void check_name_part(std::string_view what, std::string_view name) {
            c == '-';
   });
   if (!valid) {
-    throw std::invalid_argument(fmt::format(
-        "detection log {} '{}': use letters, digits, '.', '_' and '-', not starting with '.'", what, name));
+    throw std::invalid_argument(
+        fmt::format("detection log {} '{}': use letters, digits, '.', '_' and '-', not starting with '.'", what, name));
   }
 }
 
@@ -229,8 +229,9 @@ void LogWriter::cut_partial_last_line() {
   file_bytes_ = keep;
   counters_.tails_repaired.fetch_add(1, std::memory_order_relaxed);
   counters_.tail_bytes_cut.fetch_add(cut, std::memory_order_relaxed);
-  spdlog::warn("detection log {}: cut off a partial last line of {} bytes (a write interrupted by a kill or a power cut)",
-               path_.string(), cut);
+  spdlog::warn(
+      "detection log {}: cut off a partial last line of {} bytes (a write interrupted by a kill or a power cut)",
+      path_.string(), cut);
   sync();  // the cut is on disk before any line follows it
 }
 
@@ -302,11 +303,9 @@ void LogWriter::write_whole(std::string_view line) {
     if (written > 0) {
       // O_APPEND put the part at the file's end, wherever that was.
       struct stat st {};
-      if (::fstat(fd_.get(), &st) != 0 ||
-          ::ftruncate(fd_.get(), st.st_size - static_cast<off_t>(written)) != 0) {
+      if (::fstat(fd_.get(), &st) != 0 || ::ftruncate(fd_.get(), st.st_size - static_cast<off_t>(written)) != 0) {
         // Left for the repair on open: close, and the next append reopens.
-        spdlog::error("detection log {}: cannot cut off a partly written line: {}", path_.string(),
-                      errno_text(errno));
+        spdlog::error("detection log {}: cannot cut off a partly written line: {}", path_.string(), errno_text(errno));
         fd_.reset();
       }
     }
@@ -364,8 +363,8 @@ void LogWriter::start_run(std::string run_id) {
 
 LogWriterStats LogWriter::stats() const {
   constexpr auto r = std::memory_order_relaxed;
-  return {counters_.lines.load(r),          counters_.bytes.load(r),          counters_.fsyncs.load(r),
-          counters_.files_opened.load(r),   counters_.tails_repaired.load(r), counters_.tail_bytes_cut.load(r),
+  return {counters_.lines.load(r),        counters_.bytes.load(r),          counters_.fsyncs.load(r),
+          counters_.files_opened.load(r), counters_.tails_repaired.load(r), counters_.tail_bytes_cut.load(r),
           counters_.write_errors.load(r)};
 }
 

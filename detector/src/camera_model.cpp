@@ -3,8 +3,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/core/persistence.hpp>
 
-#include <cmath>
 #include <fmt/format.h>
+#include <cmath>
 #include <string_view>
 #include <tuple>
 
@@ -119,8 +119,8 @@ int read_image_side(const cv::FileNode& root, const std::filesystem::path& path,
   const double value = node.real();
   // Checked before the conversion: 1e309 (inf), NaN or 1e34 do not fit an int.
   if (!(value >= 1 && value <= kMaxImageSide) || value != std::floor(value)) {
-    fail(path, fmt::format("key '{}' must be a whole number of pixels from 1 to {}, got {}", key, kMaxImageSide,
-                           value));
+    fail(path,
+         fmt::format("key '{}' must be a whole number of pixels from 1 to {}, got {}", key, kMaxImageSide, value));
   }
   return static_cast<int>(value);
 }
@@ -151,8 +151,8 @@ void check_intrinsics(const CameraModel& cam, const cv::Mat& k, const std::files
   if (std::abs(k.at<double>(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
   // The last row and the zeros are what any calibration writes; anything
   // else is not a pinhole camera's matrix and would be silently ignored.
-  const bool pinhole = k.at<double>(1, 0) == 0 && k.at<double>(2, 0) == 0 && k.at<double>(2, 1) == 0 &&
-                       k.at<double>(2, 2) == 1;
+  const bool pinhole =
+      k.at<double>(1, 0) == 0 && k.at<double>(2, 0) == 0 && k.at<double>(2, 1) == 0 && k.at<double>(2, 2) == 1;
   if (!pinhole) fail(path, "key 'camera_matrix' must be fx, 0, cx / 0, fy, cy / 0, 0, 1");
 }
 
@@ -291,9 +291,7 @@ Point2 CameraModel::undistort(Point2 d) const {
   return p;
 }
 
-Point2 CameraModel::pixel_to_normalized(Point2 px) const {
-  return undistort({(px.x - cx) / fx, (px.y - cy) / fy});
-}
+Point2 CameraModel::pixel_to_normalized(Point2 px) const { return undistort({(px.x - cx) / fx, (px.y - cy) / fy}); }
 
 Point2 CameraModel::normalized_to_pixel(Point2 n) const {
   const Point2 d = distort(n);

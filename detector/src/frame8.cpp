@@ -8,10 +8,10 @@ Cell data_cell(int edge, int bit) {
   // Position along the edge in reading order: 0 for the most significant bit.
   const int k = 7 - bit;
   switch (edge) {
-    case 0: return {1 + k, 0};         // top, left to right
-    case 1: return {9, 1 + k};         // right, top to bottom
-    case 2: return {8 - k, 9};         // bottom, right to left
-    case 3: return {0, 8 - k};         // left, bottom to top
+    case 0: return {1 + k, 0};  // top, left to right
+    case 1: return {9, 1 + k};  // right, top to bottom
+    case 2: return {8 - k, 9};  // bottom, right to left
+    case 3: return {0, 8 - k};  // left, bottom to top
     default: throw std::out_of_range("frame8::data_cell: edge");
   }
 }

@@ -11,9 +11,9 @@
 #include <cstring>
 #include <limits>
 #include <numbers>
-#include <optional>
 #include <opencv2/aruco.hpp>
 #include <opencv2/core.hpp>
+#include <optional>
 #include <string>
 #include <vector>
 

@@ -69,7 +69,8 @@ Mat3 exp_so3(const Vec3& w) {
 bool is_proper_quad(const Corners2& p) {
   double scale2 = 0;
   for (int i = 0; i < 4; ++i) {
-    scale2 = std::max(scale2, (p[static_cast<std::size_t>((i + 2) % 4)] - p[static_cast<std::size_t>(i)]).squaredNorm());
+    scale2 =
+        std::max(scale2, (p[static_cast<std::size_t>((i + 2) % 4)] - p[static_cast<std::size_t>(i)]).squaredNorm());
   }
   if (!(scale2 > 0) || !std::isfinite(scale2)) return false;
   // Relative to the squared diagonal, a marker slanted at 89 degrees still
@@ -158,9 +159,7 @@ bool in_front(const MarkerPose& pose, const std::array<Vec3, 4>& model) {
 // Two poses closer than this (radians, and relative translation) are one.
 constexpr double kSamePoseRad = 1e-6;
 
-double rotation_angle_between(const Mat3& a, const Mat3& b) {
-  return Eigen::AngleAxisd(a.transpose() * b).angle();
-}
+double rotation_angle_between(const Mat3& a, const Mat3& b) { return Eigen::AngleAxisd(a.transpose() * b).angle(); }
 
 bool same_pose(const MarkerPose& a, const MarkerPose& b) {
   return rotation_angle_between(a.rotation, b.rotation) < kSamePoseRad &&
@@ -255,7 +254,7 @@ Mat2 distortion_jacobian(const CameraModel& cam, const Vec2& n) {
   const double dden = k[5] + 2 * k[6] * r2 + 3 * k[7] * r4;
   const double radial = num / den;
   const double dradial = (dnum * den - num * dden) / (den * den);  // d radial / d r2
-  const double dpx = k[8] + 2 * k[9] * r2;                          // d prism_x / d r2
+  const double dpx = k[8] + 2 * k[9] * r2;                         // d prism_x / d r2
   const double dpy = k[10] + 2 * k[11] * r2;
   Mat2 j;
   j(0, 0) = radial + 2 * x * x * dradial + 2 * k[2] * y + 6 * k[3] * x + 2 * x * dpx;
@@ -363,9 +362,8 @@ MarkerPose polish(const CameraModel& cam, const MarkerPose& start, const std::ar
 // rms(d). Ambiguous when it is under kAmbiguityZ sigma, i.e. when noise of a
 // quarter pixel would swap the solutions more than about 2 percent of the time.
 bool decide_ambiguity(const MarkerPose& best, const MarkerPose& alt) {
-  const double excess =
-      std::sqrt(std::max(0.0, alt.reprojection_error_px * alt.reprojection_error_px -
-                                  best.reprojection_error_px * best.reprojection_error_px));
+  const double excess = std::sqrt(std::max(0.0, alt.reprojection_error_px * alt.reprojection_error_px -
+                                                    best.reprojection_error_px * best.reprojection_error_px));
   return excess < kAmbiguityZ * kCornerSigmaPx;
 }
 
@@ -390,11 +388,10 @@ std::optional<PoseEstimate> estimate_impl(const CameraModel& camera, const Corne
     // seen close): polishing carried it into the other solution. Keep IPPE's
     // flip as it was, so that the alternative still is the mirrored tilt and
     // its error says how well that hypothesis explains the corners.
-    const std::size_t flip =
-        rotation_angle_between(ippe->poses[0].rotation, polished[0].rotation) >
-                rotation_angle_between(ippe->poses[1].rotation, polished[1].rotation)
-            ? 0
-            : 1;
+    const std::size_t flip = rotation_angle_between(ippe->poses[0].rotation, polished[0].rotation) >
+                                     rotation_angle_between(ippe->poses[1].rotation, polished[1].rotation)
+                                 ? 0
+                                 : 1;
     polished[flip] = ippe->poses[flip];
     polished[flip].reprojection_error_px =
         std::sqrt(cost_of(camera, polished[flip].rotation, polished[flip].translation, model, observed_px) / 4);
@@ -430,8 +427,7 @@ Eigen::Quaterniond MarkerPose::quaternion() const {
   return q;
 }
 
-std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vector2d, 4>& normalized,
-                                                      double side) {
+std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vector2d, 4>& normalized, double side) {
   // Both or nothing: a solution with a corner behind the camera is no pose.
   // (estimate_square_pose keeps the other one alone.)
   const auto result = ippe_impl(normalized, side);
@@ -439,8 +435,7 @@ std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vec
   return result->poses;
 }
 
-std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, const Quad& corners_px,
-                                                 double side) {
+std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, const Quad& corners_px, double side) {
   // IPPE needs ideal coordinates; the polish compares against the measured
   // pixels themselves rather than their undistort-distort round trip.
   Corners2 normalized;

@@ -29,7 +29,7 @@ constexpr double kMmPerInch = 25.4;
 constexpr double kPointsPerMm = 72.0 / kMmPerInch;
 constexpr double kMinMarginMm = 5;  // room for the label and the scale bar
 constexpr double kMaxPageMm = 5000;
-constexpr int kMaxPngSide = 32767;  // cairo's image surface limit
+constexpr int kMaxPngSide = 32767;    // cairo's image surface limit
 constexpr double kCutLineMm = 0.025;  // a cutter's hairline (0.001 in)
 
 // Paper/ink from the rendering pattern, with the hole printed white.
@@ -41,8 +41,8 @@ bool is_white(const MarkerPattern& pattern, double u, double v) {
 void check_id(Family family, int id, const std::string& where) {
   const FamilyInfo& info = family_info(family);
   if (id < 0 || id >= info.id_count) {
-    throw PrintError(fmt::format("{}: id {} is out of range for {} (valid: 0..{})", where, id, info.name,
-                                 info.id_count - 1));
+    throw PrintError(
+        fmt::format("{}: id {} is out of range for {} (valid: 0..{})", where, id, info.name, info.id_count - 1));
   }
 }
 
@@ -220,9 +220,10 @@ GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet
   }
   const FamilyInfo& info = family_info(family);
   const MarkerPattern pattern(family, id, false);
-  const int quiet_px = with_quiet_zone ? static_cast<int>(std::lround(static_cast<double>(side_px) *
-                                                                      info.quiet_zone_cells / info.size_cells))
-                                       : 0;
+  const int quiet_px =
+      with_quiet_zone
+          ? static_cast<int>(std::lround(static_cast<double>(side_px) * info.quiet_zone_cells / info.size_cells))
+          : 0;
   const int total = side_px + 2 * quiet_px;
   GreyImage img(total, total, 255);
   // Pattern units per pixel; pixel x covers [x, x+1) from the marker's left edge.
@@ -261,8 +262,8 @@ GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet
 void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& out) {
   const std::string ext = ascii_lower(out.extension().string());
   if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
-    throw PrintError(fmt::format("{}: unsupported extension '{}' (use .svg, .pdf or .png)", out.string(),
-                                 out.extension().string()));
+    throw PrintError(
+        fmt::format("{}: unsupported extension '{}' (use .svg, .pdf or .png)", out.string(), out.extension().string()));
   }
   check_id(spec.family, spec.id, out.string());
   if (!std::isfinite(spec.size_mm) || spec.size_mm <= 0) {
@@ -287,12 +288,10 @@ void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& 
     cairo_surface_finish(surface.get());
     check_status(cairo_surface_status(surface.get()), out);
   } else if (ext == ".pdf") {
-    const SurfacePtr surface(cairo_pdf_surface_create_for_stream(append_to_string, &bytes,
-                                                                 l.page_w_mm * kPointsPerMm,
+    const SurfacePtr surface(cairo_pdf_surface_create_for_stream(append_to_string, &bytes, l.page_w_mm * kPointsPerMm,
                                                                  l.page_h_mm * kPointsPerMm),
                              cairo_surface_destroy);
-    const std::string title =
-        fmt::format("{} id {}, {:g} mm", family_info(spec.family).name, spec.id, spec.size_mm);
+    const std::string title = fmt::format("{} id {}, {:g} mm", family_info(spec.family).name, spec.id, spec.size_mm);
     cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_TITLE, title.c_str());
     cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_CREATOR, "markerd");
     render_to(surface.get(), kPointsPerMm, false, spec, l, out);
@@ -305,12 +304,11 @@ void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& 
     const double px_per_mm = spec.dpi / kMmPerInch;
     const double w = std::round(l.page_w_mm * px_per_mm), h = std::round(l.page_h_mm * px_per_mm);
     if (w < 1 || h < 1 || w > kMaxPngSide || h > kMaxPngSide) {
-      throw PrintError(fmt::format("{}: {:g} x {:g} px at {:g} dpi is outside 1..{} px", out.string(), w, h,
-                                   spec.dpi, kMaxPngSide));
+      throw PrintError(
+          fmt::format("{}: {:g} x {:g} px at {:g} dpi is outside 1..{} px", out.string(), w, h, spec.dpi, kMaxPngSide));
     }
-    const SurfacePtr surface(
-        cairo_image_surface_create(CAIRO_FORMAT_RGB24, static_cast<int>(w), static_cast<int>(h)),
-        cairo_surface_destroy);
+    const SurfacePtr surface(cairo_image_surface_create(CAIRO_FORMAT_RGB24, static_cast<int>(w), static_cast<int>(h)),
+                             cairo_surface_destroy);
     render_to(surface.get(), px_per_mm, true, spec, l, out);
     cairo_surface_flush(surface.get());
     std::string png;

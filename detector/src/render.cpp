@@ -40,9 +40,7 @@ class Random {
   std::uint64_t bits() { return engine_(); }
   double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
   double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
-  int integer(int lo, int hi_inclusive) {
-    return lo + static_cast<int>(uniform() * (hi_inclusive - lo + 1));
-  }
+  int integer(int lo, int hi_inclusive) { return lo + static_cast<int>(uniform() * (hi_inclusive - lo + 1)); }
 
  private:
   std::mt19937_64 engine_;
@@ -95,8 +93,7 @@ double deg(double d) { return d * std::numbers::pi / 180.0; }
 void check_id(Family family, int id) {
   const FamilyInfo& info = family_info(family);
   if (id < 0 || id >= info.id_count) {
-    throw std::out_of_range(
-        fmt::format("{}: id {} is out of range (0..{})", info.name, id, info.id_count - 1));
+    throw std::out_of_range(fmt::format("{}: id {} is out of range (0..{})", info.name, id, info.id_count - 1));
   }
 }
 
@@ -113,9 +110,7 @@ struct Drawer {
   }
 
   double grey() { return rng.uniform(8, 248); }
-  cv::Point2d centre() {
-    return {rng.uniform(-0.1, 1.1) * img.cols, rng.uniform(-0.1, 1.1) * img.rows};
-  }
+  cv::Point2d centre() { return {rng.uniform(-0.1, 1.1) * img.cols, rng.uniform(-0.1, 1.1) * img.rows}; }
 
   // A rectangle (lu0..lu1, lv0..lv1) of a frame centred at c, rotated by `angle`.
   std::array<cv::Point, 4> quad(cv::Point2d c, double angle, double lu0, double lv0, double lu1, double lv1) const {
@@ -197,7 +192,8 @@ struct Drawer {
     static constexpr std::string_view chars = "ABCDEFGHKMNPRSTUVXYZ0123456789";
     std::string s;
     const int len = rng.integer(2, 8);
-    for (int i = 0; i < len; ++i) s += chars[static_cast<std::size_t>(rng.integer(0, static_cast<int>(chars.size()) - 1))];
+    for (int i = 0; i < len; ++i)
+      s += chars[static_cast<std::size_t>(rng.integer(0, static_cast<int>(chars.size()) - 1))];
     const auto c = centre();
     cv::putText(img, s, cv::Point(static_cast<int>(c.x), static_cast<int>(c.y)), cv::FONT_HERSHEY_SIMPLEX,
                 rng.uniform(0.4, 2.0) * scale / 480.0, cv::Scalar(grey()), rng.integer(1, 3), cv::LINE_AA);
@@ -308,7 +304,7 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
     for (int side = 0; side < 4 && !behind; ++side) {
       for (int i = 0; i < kSteps; ++i) {
         const double a = -e + 2 * e * i / kSteps;
-        const std::array<double, 2> uv = side == 0 ? std::array{a, e}
+        const std::array<double, 2> uv = side == 0   ? std::array{a, e}
                                          : side == 1 ? std::array{e, -a}
                                          : side == 2 ? std::array{-a, -e}
                                                      : std::array{-e, a};
@@ -469,8 +465,7 @@ MarkerPattern::MarkerPattern(Family family, int id, bool cut_hole) : family_(fam
       break;
     }
     case Family::tag36h11: {
-      const std::unique_ptr<apriltag_family_t, void (*)(apriltag_family_t*)> fam(tag36h11_create(),
-                                                                                 tag36h11_destroy);
+      const std::unique_ptr<apriltag_family_t, void (*)(apriltag_family_t*)> fam(tag36h11_create(), tag36h11_destroy);
       if (fam->width_at_border != grid_ || fam->reversed_border ||
           fam->total_width != grid_ + 2 * info.quiet_zone_cells) {
         throw std::logic_error("tag36h11: unexpected layout in libapriltag");
@@ -521,9 +516,7 @@ MarkerPose facing_pose(double distance_m, double yaw_deg, double pitch_deg, doub
 
 GreyImage render_scene(const CameraModel& camera, const Scene& scene) { return render_impl(camera, scene, true); }
 
-GreyImage render_background(const CameraModel& camera, const Scene& scene) {
-  return render_impl(camera, scene, false);
-}
+GreyImage render_background(const CameraModel& camera, const Scene& scene) { return render_impl(camera, scene, false); }
 
 Quad project_marker_corners(const CameraModel& camera, const Scene& scene, double scale) {
   const double h = scene.marker_size_m * scale / 2;

@@ -64,7 +64,8 @@ bool in_position(const AxisSettings& settings, std::int64_t position_steps, std:
 // long travel) must not overflow the clock's nanosecond count.
 Clock::duration seconds(double s) {
   constexpr double kMax = 86400;
-  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(std::isnan(s) ? kMax : std::clamp(s, 0.0, kMax)));
+  return std::chrono::duration_cast<Clock::duration>(
+      std::chrono::duration<double>(std::isnan(s) ? kMax : std::clamp(s, 0.0, kMax)));
 }
 
 }  // namespace
@@ -88,7 +89,8 @@ std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& s) {
   auto positive = [](double v) { return std::isfinite(v) && v > 0; };
   auto non_negative = [](double v) { return std::isfinite(v) && v >= 0; };
   if (s.name.empty()) return problem("name", "must not be empty");
-  if (!positive(s.units_per_step)) return problem("units_per_step", fmt::format("must be > 0, got {}", s.units_per_step));
+  if (!positive(s.units_per_step))
+    return problem("units_per_step", fmt::format("must be > 0, got {}", s.units_per_step));
   if (!std::isfinite(s.min_position)) return problem("min_position", "must be a finite number");
   if (!std::isfinite(s.max_position)) return problem("max_position", "must be a finite number");
   if (!(s.min_position < s.max_position)) {
@@ -104,30 +106,34 @@ std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& s) {
   if (!positive(s.acceleration)) return problem("acceleration", fmt::format("must be > 0, got {}", s.acceleration));
   if (!non_negative(s.backlash)) return problem("backlash", fmt::format("must be >= 0, got {}", s.backlash));
   if (s.backlash >= s.max_position - s.min_position) {
-    return problem("backlash", fmt::format("must be shorter than the travel ({} {})", s.max_position - s.min_position, s.unit));
+    return problem("backlash",
+                   fmt::format("must be shorter than the travel ({} {})", s.max_position - s.min_position, s.unit));
   }
   if (s.approach_direction != 1 && s.approach_direction != -1) {
     return problem("approach_direction", fmt::format("must be 1 or -1, got {}", s.approach_direction));
   }
-  if (!non_negative(s.retry_deadband)) return problem("retry_deadband", fmt::format("must be >= 0, got {}", s.retry_deadband));
+  if (!non_negative(s.retry_deadband))
+    return problem("retry_deadband", fmt::format("must be >= 0, got {}", s.retry_deadband));
   if (s.retry_deadband > 0 && s.retry_deadband < s.units_per_step / 2) {
-    return problem("retry_deadband", fmt::format("must be 0 (off) or at least half a step ({} {})", s.units_per_step / 2, s.unit));
+    return problem("retry_deadband",
+                   fmt::format("must be 0 (off) or at least half a step ({} {})", s.units_per_step / 2, s.unit));
   }
   if (s.max_retries < 0) return problem("max_retries", fmt::format("must be >= 0, got {}", s.max_retries));
   if (s.settle_time.count() < 0 || s.settle_time > kMaxSettleTime) {
-    return problem("settle_ms", fmt::format("must be from 0 to {} ms, got {}", kMaxSettleTime.count(), s.settle_time.count()));
+    return problem("settle_ms",
+                   fmt::format("must be from 0 to {} ms, got {}", kMaxSettleTime.count(), s.settle_time.count()));
   }
   const HomingSettings& h = s.homing;
   if (h.direction != 1 && h.direction != -1) {
     return problem("homing.direction", fmt::format("must be 1 or -1, got {}", h.direction));
   }
   if (!non_negative(h.search_velocity) || h.search_velocity > s.max_velocity) {
-    return problem("homing.search_velocity",
-                   fmt::format("must be between 0 (default) and max_velocity ({}), got {}", s.max_velocity, h.search_velocity));
+    return problem("homing.search_velocity", fmt::format("must be between 0 (default) and max_velocity ({}), got {}",
+                                                         s.max_velocity, h.search_velocity));
   }
   if (!non_negative(h.latch_velocity) || h.latch_velocity > s.max_velocity) {
-    return problem("homing.latch_velocity",
-                   fmt::format("must be between 0 (default) and max_velocity ({}), got {}", s.max_velocity, h.latch_velocity));
+    return problem("homing.latch_velocity", fmt::format("must be between 0 (default) and max_velocity ({}), got {}",
+                                                        s.max_velocity, h.latch_velocity));
   }
   if (!non_negative(h.backoff)) return problem("homing.backoff", fmt::format("must be >= 0, got {}", h.backoff));
   if (h.backoff / s.units_per_step >= kMaxSteps) return problem("homing.backoff", "is more than 2^53 steps");
@@ -136,8 +142,9 @@ std::optional<AxisSettingsProblem> check_axis_settings(const AxisSettings& s) {
     return problem("homing.home_offset", "is more than 2^53 steps away from 0");
   }
   if (h.timeout.count() <= 0 || h.timeout > kMaxHomingTimeout) {
-    return problem("homing.timeout_s", fmt::format("must be > 0 and at most {} s, got {} s", kMaxHomingTimeout.count() / 1000,
-                                                   std::chrono::duration<double>(h.timeout).count()));
+    return problem("homing.timeout_s",
+                   fmt::format("must be > 0 and at most {} s, got {} s", kMaxHomingTimeout.count() / 1000,
+                               std::chrono::duration<double>(h.timeout).count()));
   }
   return std::nullopt;
 }
@@ -154,7 +161,7 @@ struct Axis::Impl {
   // The state machine (command_mutex).
   AxisState state = AxisState::disabled;
   std::string fault;
-  double target = 0;                      // user units
+  double target = 0;  // user units
   std::int64_t target_steps = 0;
   std::optional<std::int64_t> final_leg;  // backlash: the final approach, still to go
   std::int64_t leg_steps = 0;
@@ -229,7 +236,8 @@ void Axis::enable() {
   const auto lock = lock_command("enable");
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
-  if (m.state == AxisState::fault) refuse("enable", fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
+  if (m.state == AxisState::fault)
+    refuse("enable", fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
   if (ds.inputs.estop) refuse("enable", "the e-stop input is active");
   if (m.state != AxisState::disabled) return;
   try {
@@ -264,10 +272,12 @@ void Axis::home() {
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
   constexpr std::string_view command = "home";
-  if (m.state == AxisState::fault) refuse(command, fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
+  if (m.state == AxisState::fault)
+    refuse(command, fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
   if (ds.inputs.estop) refuse(command, "the e-stop input is active");
   if (m.state == AxisState::disabled) refuse(command, "the axis is disabled; enable() first");
-  if (m.state != AxisState::idle) refuse(command, fmt::format("the axis is busy ({}); wait or stop() first", to_string(m.state)));
+  if (m.state != AxisState::idle)
+    refuse(command, fmt::format("the axis is busy ({}); wait or stop() first", to_string(m.state)));
 
   const HomingSettings& h = settings_.homing;
   const double ups = settings_.units_per_step;
@@ -302,10 +312,12 @@ void Axis::move_to(double position) {
   const DriveStatus ds = read_drive_for_command();
   Impl& m = *impl_;
   if (!std::isfinite(position)) refuse(command, "the target is not a finite number");
-  if (m.state == AxisState::fault) refuse(command, fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
+  if (m.state == AxisState::fault)
+    refuse(command, fmt::format("the axis is in fault ({}); clear_fault() first", m.fault));
   if (ds.inputs.estop) refuse(command, "the e-stop input is active");
   if (m.state == AxisState::disabled) refuse(command, "the axis is disabled; enable() first");
-  if (m.state != AxisState::idle) refuse(command, fmt::format("the axis is busy ({}); wait or stop() first", to_string(m.state)));
+  if (m.state != AxisState::idle)
+    refuse(command, fmt::format("the axis is busy ({}); wait or stop() first", to_string(m.state)));
   if (!ds.homed) refuse(command, "the axis is not homed; home() first");
   if (position < settings_.min_position || position > settings_.max_position) {
     refuse(command, fmt::format("outside the soft limits [{}, {}] {}", settings_.min_position, settings_.max_position,
@@ -326,9 +338,10 @@ void Axis::stop() {
     // Something holds the axis (a drive call that blocks, a simulation that
     // spins): a controlled stop cannot be had, so the fail-safe one instead.
     emergency_stop();
-    throw AxisError(fmt::format("{}: stop: the axis has been busy with its drive for more than {} s; emergency stop "
-                                "instead (the axis is disabled)",
-                                settings_.name, std::chrono::duration<double>(kCommandWait).count()));
+    throw AxisError(
+        fmt::format("{}: stop: the axis has been busy with its drive for more than {} s; emergency stop "
+                    "instead (the axis is disabled)",
+                    settings_.name, std::chrono::duration<double>(kCommandWait).count()));
   }
   (void)read_drive_for_command();
   Impl& m = *impl_;
@@ -490,7 +503,8 @@ void Axis::enter_fault(std::string cause, FaultAction action) {
 
 void Axis::step() {
   Impl& m = *impl_;
-  if (m.estop_requested.exchange(false) && m.state != AxisState::fault) enter_fault("emergency stop", FaultAction::none);
+  if (m.estop_requested.exchange(false) && m.state != AxisState::fault)
+    enter_fault("emergency stop", FaultAction::none);
   const double ups = settings_.units_per_step;
   // One time for the whole step: an arrival is published with the time
   // settling counts from.

@@ -70,8 +70,8 @@ std::uint64_t fnv1a(std::string_view text) {
 std::string sanitised(std::string_view device) {
   std::string name;
   for (const char c : device) {
-    const bool plain = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' ||
-                       c == '-' || c == '_';
+    const bool plain =
+        (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '.' || c == '-' || c == '_';
     name += plain ? c : '_';
   }
   name.erase(0, name.find_first_not_of('_'));
@@ -115,9 +115,11 @@ std::string describe_holder(int fd) {
   std::string command = first_end == std::string::npos ? std::string() : text.substr(first_end + 1);
   command = command.substr(0, command.find('\n'));
   if (pid.empty()) return "another process (it has not recorded itself in the lock file yet)";
-  const std::string program = command.empty() ? std::string("a process")
-                                              : std::filesystem::path(command.substr(0, command.find(' '))).filename().string();
-  return command.empty() ? fmt::format("{} (pid {})", program, pid) : fmt::format("{} (pid {}: {})", program, pid, command);
+  const std::string program = command.empty()
+                                  ? std::string("a process")
+                                  : std::filesystem::path(command.substr(0, command.find(' '))).filename().string();
+  return command.empty() ? fmt::format("{} (pid {})", program, pid)
+                         : fmt::format("{} (pid {}: {})", program, pid, command);
 }
 
 std::string join_users(const std::vector<std::string>& users) {
@@ -210,8 +212,8 @@ DeviceLock::DeviceLock(std::vector<DeviceClaim> claims, const std::filesystem::p
       if (!fd && errno == EACCES) fd.reset(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW));
       if (!fd) {
         const int error = errno;
-        throw DeviceLockError(fmt::format("{}: cannot open the lock file {}: {}", claim.what, path.string(),
-                                          errno_text(error)));
+        throw DeviceLockError(
+            fmt::format("{}: cannot open the lock file {}: {}", claim.what, path.string(), errno_text(error)));
       }
       if (::flock(fd.get(), LOCK_EX | LOCK_NB) != 0) {
         const int error = errno;

@@ -14,7 +14,8 @@ MarkerGroundTruth ground_truth(const RigGeometry& g, double rail_mm, double turn
   const Eigen::Matrix3d facing = Eigen::Vector3d(1, -1, -1).asDiagonal();
   const double yaw = truth.yaw_deg * std::numbers::pi / 180.0;
   truth.rotation = facing * Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitY()).toRotationMatrix();
-  const Eigen::Vector3d turntable_axis(-g.camera_offset_x_mm / 1000.0, -g.camera_offset_y_mm / 1000.0, truth.distance_m);
+  const Eigen::Vector3d turntable_axis(-g.camera_offset_x_mm / 1000.0, -g.camera_offset_y_mm / 1000.0,
+                                       truth.distance_m);
   const Eigen::Vector3d marker_offset(g.marker_offset_lateral_mm / 1000.0, 0.0, g.marker_offset_normal_mm / 1000.0);
   truth.translation = turntable_axis + truth.rotation * marker_offset;
   return truth;

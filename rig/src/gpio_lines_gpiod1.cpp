@@ -19,8 +19,8 @@
 
 #include <fmt/format.h>
 
-#include "markerd/rig/drive.hpp"
 #include "markerd/base/errno_text.hpp"
+#include "markerd/rig/drive.hpp"
 #include "markerd/rig/gpio_lines.hpp"
 
 namespace markerd::rig {
@@ -115,7 +115,8 @@ std::string describe_line(gpiod_chip* chip, gpiod_line* line) {
 }
 
 gpiod_line* find_line(gpiod_chip* chip, const std::string& line) {
-  if (line.empty()) throw DriveError(fmt::format("GPIO {}: no line given (an offset or a line name)", describe_chip(chip)));
+  if (line.empty())
+    throw DriveError(fmt::format("GPIO {}: no line given (an offset or a line name)", describe_chip(chip)));
   if (all_digits(line)) {
     unsigned long offset = 0;
     const auto parsed = std::from_chars(line.data(), line.data() + line.size(), offset);
@@ -184,8 +185,8 @@ class Gpiod1Input final : public GpioInput {
       // read_event must never block: the caller polls the fd and drains it.
       const int flags = event_fd_ < 0 ? -1 : fcntl(event_fd_, F_GETFL);
       if (flags < 0 || fcntl(event_fd_, F_SETFL, flags | O_NONBLOCK) < 0) {
-        throw DriveError(fmt::format("GPIO {}: cannot set up its event file descriptor: {}", description_,
-                                     errno_text(errno)));
+        throw DriveError(
+            fmt::format("GPIO {}: cannot set up its event file descriptor: {}", description_, errno_text(errno)));
       }
     }
   }
@@ -239,9 +240,9 @@ class Gpiod1Backend final : public GpioBackend {
     gpiod_line* line = find_line(chip.get(), spec.line);
     std::string description = describe_line(chip.get(), line);
     const std::string consumer_name(consumer);
-    const int result = edge_events
-                           ? gpiod_line_request_both_edges_events_flags(line, consumer_name.c_str(), request_flags(spec))
-                           : gpiod_line_request_input_flags(line, consumer_name.c_str(), request_flags(spec));
+    const int result =
+        edge_events ? gpiod_line_request_both_edges_events_flags(line, consumer_name.c_str(), request_flags(spec))
+                    : gpiod_line_request_input_flags(line, consumer_name.c_str(), request_flags(spec));
     if (result < 0) throw_request_failure(line, description, errno);
     return std::make_unique<Gpiod1Input>(std::move(chip), line, std::move(description), edge_events);
   }

@@ -140,7 +140,7 @@ std::optional<std::pair<std::string, std::string>> settings_problem(const GpioSt
     return std::optional<std::pair<std::string, std::string>>(std::in_place, std::move(key), std::move(message));
   };
   const std::pair<const char*, const std::optional<GpioLineSpec>*> lines[] = {
-      {"step", nullptr}, {"dir", nullptr}, {"enable", nullptr}, {"limit_min", &s.limit_min},
+      {"step", nullptr},           {"dir", nullptr},  {"enable", nullptr}, {"limit_min", &s.limit_min},
       {"limit_max", &s.limit_max}, {"home", &s.home}, {"estop", &s.estop}};
   const GpioLineSpec* required[] = {&s.step, &s.dir, &s.enable};
   std::vector<std::pair<const char*, const GpioLineSpec*>> used;
@@ -175,7 +175,8 @@ std::optional<std::pair<std::string, std::string>> settings_problem(const GpioSt
   if (s.enable_settle < nanoseconds(0) || s.enable_settle > seconds(10)) {
     return problem("enable_settle_ms", "must be between 0 and 10000");
   }
-  if (s.debounce < nanoseconds(0) || s.debounce > seconds(1)) return problem("debounce_ms", "must be between 0 and 1000");
+  if (s.debounce < nanoseconds(0) || s.debounce > seconds(1))
+    return problem("debounce_ms", "must be between 0 and 1000");
   if (s.rt_priority < 0 || s.rt_priority > kMaxRtPriority) {
     return problem("rt_priority", fmt::format("must be 0 (normal scheduling) or a SCHED_FIFO priority 1 to {}, got {}",
                                               kMaxRtPriority, s.rt_priority));
@@ -189,9 +190,8 @@ std::optional<std::pair<std::string, std::string>> settings_problem(const GpioSt
 // ---------------------------------------------------------------- config
 
 GpioStepperSettings parse_gpio_stepper(const ConfigTable& t) {
-  t.allow_only({"chip", "consumer", "step", "dir", "enable", "limit_min", "limit_max", "home", "estop",
-                "step_pulse_us", "dir_setup_us", "enable_settle_ms", "debounce_ms", "max_step_rate",
-                "rt_priority"});
+  t.allow_only({"chip", "consumer", "step", "dir", "enable", "limit_min", "limit_max", "home", "estop", "step_pulse_us",
+                "dir_setup_us", "enable_settle_ms", "debounce_ms", "max_step_rate", "rt_priority"});
   GpioStepperSettings s;
   const auto chip = t.required<std::string>("chip");
   if (chip.empty()) t.fail("chip", "must name a chip (a path, gpiochipN or the chip's label)");
@@ -281,7 +281,7 @@ struct GpioStepperDrive::Segment {
 
 struct GpioStepperDrive::InputChannel {
   std::unique_ptr<GpioInput> line;
-  std::atomic<bool> active{false};           // debounced, published to every thread
+  std::atomic<bool> active{false};            // debounced, published to every thread
   std::optional<std::int64_t> release_check;  // input thread: when to confirm a release
 };
 
@@ -434,13 +434,13 @@ void GpioStepperDrive::check_can_move(int direction, double steps_per_s, const c
   if (input_active(estop)) throw DriveError(fmt::format("{}: e-stop input active", name_));
   if (!enabled_.load()) throw DriveError(fmt::format("{}: not enabled", name_));
   if (!(steps_per_s > 0) || steps_per_s > settings_.max_step_rate) {
-    throw DriveError(fmt::format("{}: {} at {} steps/s: must be > 0 and at most max_step_rate = {} steps/s",
-                                 name_, what, steps_per_s, settings_.max_step_rate));
+    throw DriveError(fmt::format("{}: {} at {} steps/s: must be > 0 and at most max_step_rate = {} steps/s", name_,
+                                 what, steps_per_s, settings_.max_step_rate));
   }
   const Input ahead = direction > 0 ? limit_max : limit_min;
   if (direction != 0 && input_active(ahead)) {
-    throw DriveError(fmt::format("{}: {} active: cannot move towards it (moving away is allowed)", name_,
-                                 input_key(ahead)));
+    throw DriveError(
+        fmt::format("{}: {} active: cannot move towards it (moving away is allowed)", name_, input_key(ahead)));
   }
 }
 
@@ -484,16 +484,16 @@ void GpioStepperDrive::start_homing(const HomingSteps& homing) {
   // A day bounds the step count the timeout allows (and its nanoseconds).
   if (!(homing.accel_steps_per_s2 > 0) || homing.backoff_steps < 0 ||
       !(homing.timeout_s > 0 && homing.timeout_s <= 86400)) {
-    throw DriveError(fmt::format("{}: homing needs an acceleration > 0, a backoff >= 0 and a timeout from 0 to a day",
-                                 name_));
+    throw DriveError(
+        fmt::format("{}: homing needs an acceleration > 0, a backoff >= 0 and a timeout from 0 to a day", name_));
   }
   check_can_move(0, homing.search_steps_per_s, "homing search");
   check_can_move(0, homing.latch_steps_per_s, "homing latch");
   // The limit ahead of the search blocks homing unless it is the switch sought.
   const Input ahead = homing.direction > 0 ? limit_max : limit_min;
   if (ahead != target && input_active(ahead)) {
-    throw DriveError(fmt::format("{}: {} active: cannot search towards it for {}", name_, input_key(ahead),
-                                 input_key(target)));
+    throw DriveError(
+        fmt::format("{}: {} active: cannot search towards it for {}", name_, input_key(ahead), input_key(target)));
   }
   auto command = std::make_unique<Command>();
   command->kind = Command::Kind::homing;
@@ -514,7 +514,8 @@ void GpioStepperDrive::stop() {
 
 void GpioStepperDrive::reset_alarm() {
   if (inputs_failed_.load()) throw DriveError(fmt::format("{}: the input thread failed; restart the drive", name_));
-  if (input_active(estop)) throw DriveError(fmt::format("{}: cannot reset the alarm: e-stop input still active", name_));
+  if (input_active(estop))
+    throw DriveError(fmt::format("{}: cannot reset the alarm: e-stop input still active", name_));
   const std::lock_guard lock(alarm_mutex_);
   alarm_.store(false);
   alarm_cause_.clear();
@@ -601,9 +602,10 @@ void GpioStepperDrive::run_homing(const HomingSteps& homing) {
   auto fail = [&](End end, const char* phase) {
     if (end == End::stopped || end == End::aborted) return;  // commanded: no alarm
     if (end == End::limit) {
-      raise_alarm(fmt::format("homing ({}): a limit switch tripped at step {} before {}: check the {} switch and "
-                              "its wiring, and the homing direction",
-                              phase, position_.load(), sought, sought));
+      raise_alarm(
+          fmt::format("homing ({}): a limit switch tripped at step {} before {}: check the {} switch and "
+                      "its wiring, and the homing direction",
+                      phase, position_.load(), sought, sought));
     } else if (end == End::timeout) {
       raise_alarm(fmt::format("homing ({}): {} did not {} within the timeout of {} s (at step {})", phase, sought,
                               std::string_view(phase) == "back off" ? "release" : "activate", homing.timeout_s,

@@ -45,10 +45,14 @@ ModbusBusSettings parse_modbus_bus(const ConfigTable& t) {
       t.fail("baud", fmt::format("must be a standard rate (1200 to 921600), got {}", s.baud));
     }
     const auto parity = t.optional<std::string>("parity", "even");
-    if (parity == "none") s.parity = 'N';
-    else if (parity == "even") s.parity = 'E';
-    else if (parity == "odd") s.parity = 'O';
-    else t.fail("parity", fmt::format("must be \"none\", \"even\" or \"odd\", got \"{}\"", parity));
+    if (parity == "none")
+      s.parity = 'N';
+    else if (parity == "even")
+      s.parity = 'E';
+    else if (parity == "odd")
+      s.parity = 'O';
+    else
+      t.fail("parity", fmt::format("must be \"none\", \"even\" or \"odd\", got \"{}\"", parity));
     s.data_bits = static_cast<int>(t.optional<std::int64_t>("data_bits", s.data_bits, {7, 8}));
     s.stop_bits = static_cast<int>(t.optional<std::int64_t>("stop_bits", s.stop_bits, {1, 2}));
     if (s.stop_bits != 1 && s.stop_bits != 2) t.fail("stop_bits", fmt::format("must be 1 or 2, got {}", s.stop_bits));
@@ -84,11 +88,18 @@ void set_timeout(modbus_t* ctx, std::chrono::milliseconds timeout,
 // Errors after which the connection (or the serial device) is no use any more.
 bool is_link_error(int err) {
   switch (err) {
-    case ECONNRESET: case ECONNREFUSED: case ECONNABORTED: case EPIPE: case ENOTCONN: case EBADF:
-    case ENETUNREACH: case EHOSTUNREACH: case EIO: case ENXIO: case ENODEV:
-      return true;
-    default:
-      return false;
+    case ECONNRESET:
+    case ECONNREFUSED:
+    case ECONNABORTED:
+    case EPIPE:
+    case ENOTCONN:
+    case EBADF:
+    case ENETUNREACH:
+    case EHOSTUNREACH:
+    case EIO:
+    case ENXIO:
+    case ENODEV: return true;
+    default: return false;
   }
 }
 
@@ -133,8 +144,8 @@ struct ModbusBus::Impl final : ModbusLink {
       ctx = modbus_new_tcp_pi(settings.host.c_str(), std::to_string(settings.port).c_str());
     }
     if (ctx == nullptr) {
-      throw std::invalid_argument(fmt::format("modbus bus {}: libmodbus refuses these settings: {}", description_,
-                                              modbus_strerror(errno)));
+      throw std::invalid_argument(
+          fmt::format("modbus bus {}: libmodbus refuses these settings: {}", description_, modbus_strerror(errno)));
     }
     set_timeout(ctx, settings.response_timeout, modbus_set_response_timeout);
     set_timeout(ctx, settings.byte_timeout, modbus_set_byte_timeout);
@@ -283,17 +294,20 @@ struct ModbusBus::Impl final : ModbusLink {
                        int attempts) override {
     const int n = static_cast<int>(values.size());
     if (n == 1 && !fc16_for_single) {
-      perform(unit, attempts, [&] { return fmt::format("write holding register 0x{:04X} = {}", address, values[0]); },
-              [&] { return modbus_write_register(ctx, address, values[0]); });
+      perform(
+          unit, attempts, [&] { return fmt::format("write holding register 0x{:04X} = {}", address, values[0]); },
+          [&] { return modbus_write_register(ctx, address, values[0]); });
       return;
     }
-    perform(unit, attempts, [&] { return fmt::format("write {} holding registers at 0x{:04X}", n, address); },
-            [&] { return modbus_write_registers(ctx, address, n, values.data()); });
+    perform(
+        unit, attempts, [&] { return fmt::format("write {} holding registers at 0x{:04X}", n, address); },
+        [&] { return modbus_write_registers(ctx, address, n, values.data()); });
   }
 
   void write_coil(int unit, std::uint16_t address, bool on, int attempts) override {
-    perform(unit, attempts, [&] { return fmt::format("write coil 0x{:04X} = {}", address, on ? 1 : 0); },
-            [&] { return modbus_write_bit(ctx, address, on ? 1 : 0); });
+    perform(
+        unit, attempts, [&] { return fmt::format("write coil 0x{:04X} = {}", address, on ? 1 : 0); },
+        [&] { return modbus_write_bit(ctx, address, on ? 1 : 0); });
   }
 
   // Runs one callback of a client with the client marked as running, so that
@@ -419,9 +433,10 @@ void ModbusBus::execute(const Work& work) {
     impl_->wake.notify_all();
     if (!impl_->finished.wait_for(lock, limit, [&] { return job.started || job.done; })) {
       std::erase(impl_->queue, &job);
-      throw DriveError(fmt::format("modbus bus {}: the request waited {} ms for the bus without being sent (the bus "
-                                   "thread is stuck)",
-                                   impl_->description_, limit.count()));
+      throw DriveError(
+          fmt::format("modbus bus {}: the request waited {} ms for the bus without being sent (the bus "
+                      "thread is stuck)",
+                      impl_->description_, limit.count()));
     }
     // Started: its requests end within the bus's timeouts and retries.
     impl_->finished.wait(lock, [&] { return job.done; });

@@ -157,11 +157,11 @@ std::int64_t ModbusDrive::encode(const RegisterValue& value, double steps, std::
                                  bool must_be_positive) const {
   const auto raw = value.to_raw(steps);
   if (raw && (!must_be_positive || *raw > 0)) return *raw;
-  throw DriveError(fmt::format(
-      "{}: {} {} is {} in the drive's units ({} 0x{:04X}, scale {}{}), outside its range {}..{}{}", name_, what, steps,
-      value.reciprocal ? value.scale / steps : steps * value.scale, to_string(value.table), value.address, value.scale,
-      value.reciprocal ? ", reciprocal" : "", value.min_raw(), value.max_raw(),
-      raw && *raw == 0 ? " (rounds to 0: below the drive's resolution)" : ""));
+  throw DriveError(
+      fmt::format("{}: {} {} is {} in the drive's units ({} 0x{:04X}, scale {}{}), outside its range {}..{}{}", name_,
+                  what, steps, value.reciprocal ? value.scale / steps : steps * value.scale, to_string(value.table),
+                  value.address, value.scale, value.reciprocal ? ", reciprocal" : "", value.min_raw(), value.max_raw(),
+                  raw && *raw == 0 ? " (rounds to 0: below the drive's resolution)" : ""));
 }
 
 void ModbusDrive::write_move(ModbusLink& link, const std::int64_t raw[4]) {
@@ -232,8 +232,8 @@ void ModbusDrive::read_and_apply(ModbusLink& link, int attempts) {
     field = map_.status.bits_from_registers(plan.at(plan.status, map_.status.words));
   }
   const auto& s = map_.status;
-  const double position = map_.actual_position.to_steps(
-      map_.actual_position.unpack(plan.at(plan.position, map_.actual_position.words)));
+  const double position =
+      map_.actual_position.to_steps(map_.actual_position.unpack(plan.at(plan.position, map_.actual_position.words)));
   const bool alarm_bit = StatusBits::test(field, s.alarm);
   std::optional<std::int64_t> alarm_code;
   if (alarm_bit && map_.alarm_code) {
@@ -278,7 +278,8 @@ void ModbusDrive::read_and_apply(ModbusLink& link, int attempts) {
     } else if (motion_ == Motion::homing) {
       finished = !busy && (motion_seen_busy_ || (s.homed && homed_bit && !homed_before_homing_));
       if (finished && s.homed && !homed_bit) {
-        local_fault_ = fmt::format("{}: homing ended without a position reference (homed bit {} clear)", name_, *s.homed);
+        local_fault_ =
+            fmt::format("{}: homing ended without a position reference (homed bit {} clear)", name_, *s.homed);
       }
     } else {
       finished = !busy;
@@ -412,10 +413,9 @@ void ModbusDrive::start_move(std::int64_t target_steps, double max_steps_per_s, 
       encode(map_.velocity, max_steps_per_s, "velocity", true),
       encode(map_.acceleration, accel_steps_per_s2, "acceleration", true),
       map_.deceleration ? encode(*map_.deceleration, accel_steps_per_s2, "deceleration", true) : 0};
-  const double planned =
-      TrapezoidProfile(static_cast<double>(std::llabs(target_steps - start_position)), max_steps_per_s,
-                       accel_steps_per_s2)
-          .duration();
+  const double planned = TrapezoidProfile(static_cast<double>(std::llabs(target_steps - start_position)),
+                                          max_steps_per_s, accel_steps_per_s2)
+                             .duration();
   try {
     bus_->execute([&](ModbusLink& link) {
       write_move(link, raw);

@@ -167,9 +167,7 @@ WordOrder parse_word_order(const ConfigTable& t, WordOrder fallback) {
   t.fail("word_order", fmt::format("must be \"high_first\" or \"low_first\", got \"{}\"", *text));
 }
 
-int parse_words(const ConfigTable& t, int fallback) {
-  return t.optional<int>("words", fallback, {1, 2});
-}
+int parse_words(const ConfigTable& t, int fallback) { return t.optional<int>("words", fallback, {1, 2}); }
 
 struct ValueDefaults {
   std::initializer_list<RegisterTable> tables;
@@ -235,7 +233,8 @@ RegisterCommand parse_command(const ConfigTable& t, WordOrder order, bool is_ena
   c.release = t.maybe<std::int64_t>("release");
   if (c.release) check_fits(t, "release", *c.release, c.write.table, c.write.words);
   c.self_clearing = t.optional<bool>("self_clearing", false);
-  if (c.release && c.self_clearing) t.fail("self_clearing", "a command is either released by the client or self-clearing");
+  if (c.release && c.self_clearing)
+    t.fail("self_clearing", "a command is either released by the client or self-clearing");
   if (is_enable) {
     c.off_value = t.required<std::int64_t>("off_value");
     check_fits(t, "off_value", *c.off_value, c.write.table, c.write.words);
@@ -247,9 +246,9 @@ StatusBits parse_status(const ConfigTable& t, WordOrder order) {
   t.allow_only({"table", "address", "words", "word_order", "ready", "busy", "in_position", "alarm", "homed", "enabled",
                 "limit_min", "limit_max", "home_switch"});
   StatusBits s;
-  s.table = parse_table(
-      t, {RegisterTable::holding, RegisterTable::input, RegisterTable::discrete_input, RegisterTable::coil},
-      RegisterTable::input);
+  s.table =
+      parse_table(t, {RegisterTable::holding, RegisterTable::input, RegisterTable::discrete_input, RegisterTable::coil},
+                  RegisterTable::input);
   s.address = parse_address(t);
   if (is_bit_table(s.table)) {
     if (t.contains("words")) t.fail("words", "status bits in discrete inputs or coils have no words");
@@ -385,21 +384,23 @@ RegisterMap parse_register_map(const ConfigTable& root) {
     for (std::size_t j = 0; j < i; ++j) {
       if (overlaps(data[i].first, data[j].first)) {
         data[i].second->fail("address", fmt::format("{} overlaps {} ({})", format_span(data[i].first),
-                                                     data[j].first.key, format_span(data[j].first)));
+                                                    data[j].first.key, format_span(data[j].first)));
       }
     }
     for (const auto& c : constants) {
       if (overlaps(data[i].first, c)) {
-        data[i].second->fail("address", fmt::format("{} overlaps a move constant ({})", format_span(data[i].first),
-                                                     format_span(c)));
+        data[i].second->fail(
+            "address", fmt::format("{} overlaps a move constant ({})", format_span(data[i].first), format_span(c)));
       }
     }
   }
   const std::pair<const char*, const std::optional<RegisterCommand>*> optional_commands[] = {
-      {"home", &map.home}, {"alarm_reset", &map.alarm_reset}, {"enable", &map.enable},
+      {"home", &map.home},
+      {"alarm_reset", &map.alarm_reset},
+      {"enable", &map.enable},
       {"emergency_stop", &map.emergency_stop}};
   std::vector<std::pair<const char*, const RegisterCommand*>> all_commands = {{"start", &map.start},
-                                                                             {"stop", &map.stop}};
+                                                                              {"stop", &map.stop}};
   for (const auto& [name, command] : optional_commands) {
     if (*command) all_commands.emplace_back(name, &**command);
   }

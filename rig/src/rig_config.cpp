@@ -205,25 +205,25 @@ void check_axes_together(const ConfigTable& rig, const RigConfig& config) {
   if (rail_gpio != nullptr && turntable_gpio != nullptr) {
     // A line has one consumer: the second request would fail at start.
     const std::pair<const char*, const std::optional<GpioLineSpec>> rail_lines[] = {
-        {"step", rail_gpio->step},           {"dir", rail_gpio->dir},           {"enable", rail_gpio->enable},
-        {"limit_min", rail_gpio->limit_min}, {"limit_max", rail_gpio->limit_max}, {"home", rail_gpio->home},
+        {"step", rail_gpio->step},           {"dir", rail_gpio->dir},
+        {"enable", rail_gpio->enable},       {"limit_min", rail_gpio->limit_min},
+        {"limit_max", rail_gpio->limit_max}, {"home", rail_gpio->home},
         {"estop", rail_gpio->estop}};
     const std::pair<const char*, const std::optional<GpioLineSpec>> turntable_lines[] = {
-        {"step", turntable_gpio->step},
-        {"dir", turntable_gpio->dir},
-        {"enable", turntable_gpio->enable},
-        {"limit_min", turntable_gpio->limit_min},
-        {"limit_max", turntable_gpio->limit_max},
-        {"home", turntable_gpio->home},
+        {"step", turntable_gpio->step},           {"dir", turntable_gpio->dir},
+        {"enable", turntable_gpio->enable},       {"limit_min", turntable_gpio->limit_min},
+        {"limit_max", turntable_gpio->limit_max}, {"home", turntable_gpio->home},
         {"estop", turntable_gpio->estop}};
     for (const auto& [key, line] : turntable_lines) {
       if (!line) continue;
       for (const auto& [rail_key, rail_line] : rail_lines) {
         if (rail_line && rail_line->chip == line->chip && rail_line->line == line->line) {
-          rig.table("turntable").table("gpio").table(key).fail(
-              "line", fmt::format("line '{}' of {} is also the rail's {} line (a GPIO line has one user: wire a "
-                                  "shared switch to one input per axis)",
-                                  line->line, line->chip, rail_key));
+          rig.table("turntable")
+              .table("gpio")
+              .table(key)
+              .fail("line", fmt::format("line '{}' of {} is also the rail's {} line (a GPIO line has one user: wire a "
+                                        "shared switch to one input per axis)",
+                                        line->line, line->chip, rail_key));
         }
       }
     }
@@ -232,10 +232,12 @@ void check_axes_together(const ConfigTable& rig, const RigConfig& config) {
   const auto* turntable_modbus = std::get_if<ModbusAxisSettings>(&config.turntable.drive);
   if (rail_modbus != nullptr && turntable_modbus != nullptr && rail_modbus->drive.bus == turntable_modbus->drive.bus &&
       rail_modbus->drive.unit_id == turntable_modbus->drive.unit_id) {
-    rig.table("turntable").table("modbus").fail(
-        "unit_id", fmt::format("unit {} on bus '{}' is the rail's drive already (drives sharing a bus need their own "
-                               "unit ids)",
-                               turntable_modbus->drive.unit_id, turntable_modbus->drive.bus));
+    rig.table("turntable")
+        .table("modbus")
+        .fail("unit_id",
+              fmt::format("unit {} on bus '{}' is the rail's drive already (drives sharing a bus need their own "
+                          "unit ids)",
+                          turntable_modbus->drive.unit_id, turntable_modbus->drive.bus));
   }
   // A bus no axis names is a typo in one of the axes' `bus` keys (or a leftover).
   if (!config.buses.empty()) {
@@ -271,15 +273,17 @@ SimDriveSettings parse_sim_drive(const ConfigTable& t, const AxisSettings& axis)
   const double limit_max = t.required<double>("limit_max_at", r.position());
   // Tripping a switch is an alarm: the whole soft range must lie between them.
   if (!(limit_min < axis.min_position)) {
-    t.fail("limit_min_at", fmt::format("must be below min_position ({} {}), got {}", axis.min_position, axis.unit, limit_min));
+    t.fail("limit_min_at",
+           fmt::format("must be below min_position ({} {}), got {}", axis.min_position, axis.unit, limit_min));
   }
   if (!(limit_max > axis.max_position)) {
-    t.fail("limit_max_at", fmt::format("must be above max_position ({} {}), got {}", axis.max_position, axis.unit, limit_max));
+    t.fail("limit_max_at",
+           fmt::format("must be above max_position ({} {}), got {}", axis.max_position, axis.unit, limit_max));
   }
   const double start = t.optional<double>("start_position", (axis.min_position + axis.max_position) / 2, r.position());
   if (!(start > limit_min && start < limit_max)) {
-    t.fail("start_position", fmt::format("must lie between the limit switches ({} .. {} {}), got {}", limit_min, limit_max,
-                                         axis.unit, start));
+    t.fail("start_position", fmt::format("must lie between the limit switches ({} .. {} {}), got {}", limit_min,
+                                         limit_max, axis.unit, start));
   }
   s.limit_min_steps = steps("limit_min_at", limit_min);
   s.limit_max_steps = steps("limit_max_at", limit_max);

@@ -39,7 +39,8 @@ double SimClock::to_sim(steady::time_point t) const {
 void SimClock::advance(double seconds) {
   if (!manual_) throw std::logic_error("SimClock::advance: only a manual clock can be advanced");
   if (!(seconds >= 0 && seconds <= kMaxAdvance)) {
-    throw std::invalid_argument(fmt::format("SimClock::advance: seconds must be from 0 to {}, got {}", kMaxAdvance, seconds));
+    throw std::invalid_argument(
+        fmt::format("SimClock::advance: seconds must be from 0 to {}, got {}", kMaxAdvance, seconds));
   }
   const std::int64_t ns = std::llround(seconds * 1e9);
   constexpr auto kMaxNs = static_cast<std::int64_t>(kMaxAdvance * 1e9);

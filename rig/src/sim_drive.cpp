@@ -21,8 +21,8 @@ std::optional<std::string> check_sim_drive_settings(const SimDriveSettings& s) {
     return fmt::format("limit_min ({}) must be below limit_max ({})", s.limit_min_steps, s.limit_max_steps);
   }
   if (s.start_position_steps <= s.limit_min_steps || s.start_position_steps >= s.limit_max_steps) {
-    return fmt::format("the start position ({}) must lie between the limit switches ({} .. {})",
-                       s.start_position_steps, s.limit_min_steps, s.limit_max_steps);
+    return fmt::format("the start position ({}) must lie between the limit switches ({} .. {})", s.start_position_steps,
+                       s.limit_min_steps, s.limit_max_steps);
   }
   return std::nullopt;
 }
@@ -117,7 +117,9 @@ class SimDrive::Model {
 
   void require_ready(std::string_view what) const {
     require_reply();
-    if (alarm_) throw DriveError(fmt::format("{}: cannot {}: alarm active ({}); reset it first", settings_.name, what, alarm_cause_));
+    if (alarm_)
+      throw DriveError(
+          fmt::format("{}: cannot {}: alarm active ({}); reset it first", settings_.name, what, alarm_cause_));
     if (estop_input_) throw DriveError(fmt::format("{}: cannot {}: the e-stop input is active", settings_.name, what));
     if (!enabled_) throw DriveError(fmt::format("{}: cannot {}: the drive is not enabled", settings_.name, what));
     if (phase_ != Phase::idle) throw DriveError(fmt::format("{}: cannot {}: the drive is busy", settings_.name, what));
@@ -130,14 +132,17 @@ class SimDrive::Model {
       return;
     }
     if (estop_input_) throw DriveError(fmt::format("{}: cannot enable: the e-stop input is active", settings_.name));
-    if (alarm_) throw DriveError(fmt::format("{}: cannot enable: alarm active ({}); reset it first", settings_.name, alarm_cause_));
+    if (alarm_)
+      throw DriveError(
+          fmt::format("{}: cannot enable: alarm active ({}); reset it first", settings_.name, alarm_cause_));
     enabled_ = true;
   }
 
   void start_move(std::int64_t target, double v, double a) {
     require_ready("start a move");
     if (!(std::isfinite(v) && v > 0 && std::isfinite(a) && a > 0)) {
-      throw DriveError(fmt::format("{}: invalid move: velocity {} and acceleration {} must be > 0", settings_.name, v, a));
+      throw DriveError(
+          fmt::format("{}: invalid move: velocity {} and acceleration {} must be > 0", settings_.name, v, a));
     }
     if (settings_.encoder) restart_from_actual();
     // The drive's own count: it knows nothing of steps an open-loop motor lost.
@@ -149,9 +154,10 @@ class SimDrive::Model {
     require_ready("start homing");
     if ((h.direction != 1 && h.direction != -1) || !(h.search_steps_per_s > 0) || !(h.latch_steps_per_s > 0) ||
         !(h.accel_steps_per_s2 > 0) || h.backoff_steps < 0 || !(h.timeout_s > 0)) {
-      throw DriveError(fmt::format(
-          "{}: invalid homing: direction must be +-1; search, latch velocity, acceleration and timeout > 0; backoff >= 0",
-          settings_.name));
+      throw DriveError(
+          fmt::format("{}: invalid homing: direction must be +-1; search, latch velocity, acceleration and timeout > "
+                      "0; backoff >= 0",
+                      settings_.name));
     }
     const SimSwitch target = sim_switch(h.target);
     if (target == SimSwitch::home && !home_) {
@@ -165,8 +171,8 @@ class SimDrive::Model {
     if (switch_active(target)) {
       start_backoff();
     } else {
-      start_segment(Phase::search, h.direction, TrapezoidProfile(kOpenEnded, h.search_steps_per_s, h.accel_steps_per_s2),
-                    h.accel_steps_per_s2);
+      start_segment(Phase::search, h.direction,
+                    TrapezoidProfile(kOpenEnded, h.search_steps_per_s, h.accel_steps_per_s2), h.accel_steps_per_s2);
     }
   }
 
@@ -187,7 +193,8 @@ class SimDrive::Model {
 
   void reset_alarm() {
     require_reply();
-    if (estop_input_) throw DriveError(fmt::format("{}: cannot reset the alarm: the e-stop input is still active", settings_.name));
+    if (estop_input_)
+      throw DriveError(fmt::format("{}: cannot reset the alarm: the e-stop input is still active", settings_.name));
     alarm_ = false;
     alarm_cause_.clear();
   }
@@ -351,7 +358,8 @@ class SimDrive::Model {
     if (phase_ == Phase::idle) return best;
     if (is_homing(phase_)) consider(best, homing_started_ + homing_.timeout_s, EventKind::homing_timeout);
     if (!pinned_) {
-      if (stall_at_ && (*stall_at_ - actual()) * seg_dir_ >= 0) consider(best, reach_time(*stall_at_), EventKind::stall);
+      if (stall_at_ && (*stall_at_ - actual()) * seg_dir_ >= 0)
+        consider(best, reach_time(*stall_at_), EventKind::stall);
       for (SimSwitch which : {SimSwitch::limit_min, SimSwitch::limit_max, SimSwitch::home}) {
         if (which == SimSwitch::home && !home_) continue;
         if (activating_direction(which) != seg_dir_) continue;
@@ -360,7 +368,8 @@ class SimDrive::Model {
         const bool homing_switch = is_homing(phase_) && which == homing_target_;
         if (homing_switch && phase_ != Phase::search && phase_ != Phase::latch) continue;
         if (which == SimSwitch::home && !homing_switch) continue;
-        consider(best, switch_active(which) ? t_ : reach_time(switch_position(which)), EventKind::switch_reached, which);
+        consider(best, switch_active(which) ? t_ : reach_time(switch_position(which)), EventKind::switch_reached,
+                 which);
       }
     }
     consider(best, seg_t0_ + seg_profile_.duration(), EventKind::segment_end);
@@ -381,9 +390,7 @@ class SimDrive::Model {
         raise_alarm(fmt::format("homing: the {} switch was not found within {} s", switch_name(homing_target_),
                                 homing_.timeout_s));
         return;
-      case EventKind::stall:
-        pinned_ = true;
-        return;
+      case EventKind::stall: pinned_ = true; return;
       case EventKind::switch_reached: on_switch(e.which); return;
       case EventKind::segment_end: on_segment_end(); return;
     }
@@ -404,7 +411,8 @@ class SimDrive::Model {
     }
     // A limit switch stops the motor where it trips.
     commanded_ = edge - slip_;
-    const std::string context = is_homing(phase_) ? fmt::format("homing: before the {} switch, ", switch_name(homing_target_)) : "";
+    const std::string context =
+        is_homing(phase_) ? fmt::format("homing: before the {} switch, ", switch_name(homing_target_)) : "";
     raise_alarm(fmt::format("{}{} tripped at step {}", context, switch_name(which), reported_step(edge)));
   }
 
@@ -417,8 +425,9 @@ class SimDrive::Model {
       case Phase::search_brake: start_backoff(); return;
       case Phase::backoff:
         if (switch_active(homing_target_)) {
-          raise_alarm(fmt::format("homing: the {} switch is still active after backing off to step {} (homing direction wrong?)",
-                                  switch_name(homing_target_), reported_step(actual())));
+          raise_alarm(fmt::format(
+              "homing: the {} switch is still active after backing off to step {} (homing direction wrong?)",
+              switch_name(homing_target_), reported_step(actual())));
           return;
         }
         start_segment(Phase::latch, homing_.direction,
@@ -434,10 +443,10 @@ class SimDrive::Model {
 
   SimDriveSettings settings_;
   const SimClock& clock_;
-  double t_ = 0;           // simulated time the state describes
-  double commanded_ = 0;   // physical steps
-  double slip_ = 0;        // actual - commanded, for a motor that lost steps
-  double offset_ = 0;      // reported steps = physical steps + offset
+  double t_ = 0;          // simulated time the state describes
+  double commanded_ = 0;  // physical steps
+  double slip_ = 0;       // actual - commanded, for a motor that lost steps
+  double offset_ = 0;     // reported steps = physical steps + offset
   bool enabled_ = false;
   bool homed_ = false;
   bool alarm_ = false;
@@ -553,6 +562,5 @@ double SimDrive::actual_position_steps() const {
 double SimDrive::commanded_position_steps() const {
   return locked(*model_, [](Model& m) { return m.commanded_reported(); });
 }
-
 
 }  // namespace markerd::rig

@@ -71,7 +71,8 @@ PlanMarker parse_marker(const ConfigTable& root) {
     const auto family = detector::family_from_name(*name);
     if (!family) {
       std::string known;
-      for (const detector::FamilyInfo& info : detector::all_families()) known += fmt::format("{}{}", known.empty() ? "" : ", ", info.name);
+      for (const detector::FamilyInfo& info : detector::all_families())
+        known += fmt::format("{}{}", known.empty() ? "" : ", ", info.name);
       t->fail("family", fmt::format("unknown family '{}' (known: {})", *name, known));
     }
     marker.family = *family;
@@ -127,8 +128,8 @@ std::vector<double> parse_range(const ConfigTable& range, Quantity quantity) {
   const double steps_to_end = (to - from) / step + 1e-9;
   if (!(steps_to_end < static_cast<double>(kMaxValuesPerAxis))) {
     // {:.7g}: exact up to ten million, and a far `to` prints as 1e+300, not 300 digits.
-    range.fail("step", fmt::format("makes {:.7g} values from {} to {}, more than {}", std::floor(steps_to_end) + 1, from,
-                                   to, kMaxValuesPerAxis));
+    range.fail("step", fmt::format("makes {:.7g} values from {} to {}, more than {}", std::floor(steps_to_end) + 1,
+                                   from, to, kMaxValuesPerAxis));
   }
   const auto last = static_cast<std::size_t>(std::floor(steps_to_end));
   std::vector<double> values;
@@ -145,8 +146,8 @@ std::vector<double> parse_range(const ConfigTable& range, Quantity quantity) {
 std::vector<double> parse_axis_values(const ConfigTable& grid, std::string_view key, Quantity quantity) {
   const toml::node* node = grid.raw().get(key);
   if (node == nullptr) {
-    grid.fail(fmt::format("missing key '{}.{}' (a list of numbers, or a range {{ from, to, step }})", grid.key_path(),
-                          key));
+    grid.fail(
+        fmt::format("missing key '{}.{}' (a list of numbers, or a range {{ from, to, step }})", grid.key_path(), key));
   }
   if (node->is_table()) return parse_range(grid.table(key), quantity);
   const toml::array* list = node->as_array();
@@ -177,7 +178,8 @@ std::vector<double> parse_axis_values(const ConfigTable& grid, std::string_view 
 PlanGrid parse_grid(const ConfigTable& t, std::size_t index) {
   t.allow_only({"name", "distance_m", "angle_deg", "order", "slow_axis"});
   PlanGrid grid;
-  grid.name = read_name(t, "name", t.optional<std::string>("name", fmt::format("grid{}", index)), "the grid in reports");
+  grid.name =
+      read_name(t, "name", t.optional<std::string>("name", fmt::format("grid{}", index)), "the grid in reports");
   grid.distances_m = parse_axis_values(t, "distance_m", Quantity::distance);
   grid.angles_deg = parse_axis_values(t, "angle_deg", Quantity::angle);
   const auto order = t.optional<std::string>("order", "grid");
@@ -362,15 +364,17 @@ SweepPlan load_plan(const std::filesystem::path& path) {
 std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector) {
   const detector::FamilyInfo& info = detector::family_info(marker.family);
   if (marker.family != detector.family) {
-    return fmt::format("the plan's marker is {} #{}, but markerd detects {} (its config's [marker] family): run the "
-                       "plan on a markerd configured for {}, or give the plan the family markerd detects",
-                       info.name, marker.id, detector::family_info(detector.family).name, info.name);
+    return fmt::format(
+        "the plan's marker is {} #{}, but markerd detects {} (its config's [marker] family): run the "
+        "plan on a markerd configured for {}, or give the plan the family markerd detects",
+        info.name, marker.id, detector::family_info(detector.family).name, info.name);
   }
   const bool reported = marker.id >= info.first_default_id && marker.id <= info.last_default_id;
   if (!reported && !(marker.family == detector::Family::frame8 && detector.frame8.uniform_ids)) {
-    return fmt::format("the plan's marker is {} #{}, an id markerd's detector does not report (frame8's 0 and 255 "
-                       "need [detector.frame8] uniform_ids = true in markerd's config)",
-                       info.name, marker.id);
+    return fmt::format(
+        "the plan's marker is {} #{}, an id markerd's detector does not report (frame8's 0 and 255 "
+        "need [detector.frame8] uniform_ids = true in markerd's config)",
+        info.name, marker.id);
   }
   return std::nullopt;
 }
@@ -438,8 +442,8 @@ PlanCheck check_plan(const SweepPlan& plan, const rig::RigConfig& rig, double fp
     if (step.repeat != 0) continue;
 
     std::string outside;
-    for (const auto& problem : {limit_problem(rig.rail.axis, targets.rail),
-                                limit_problem(rig.turntable.axis, targets.turntable)}) {
+    for (const auto& problem :
+         {limit_problem(rig.rail.axis, targets.rail), limit_problem(rig.turntable.axis, targets.turntable)}) {
       if (problem) outside += (outside.empty() ? "" : "; ") + *problem;
     }
     if (!outside.empty()) check.problems.push_back(fmt::format("{}: {}", describe_point(plan, step), outside));
@@ -448,26 +452,26 @@ PlanCheck check_plan(const SweepPlan& plan, const rig::RigConfig& rig, double fp
   // the point timeout to what follows it: settling and frames, the same for
   // every measurement.
   if (settle_s + frames_s > timeout_s) {
-    check.warnings.push_back(fmt::format("every measurement's settling and frames take about {:.1f} s, longer than "
-                                         "point_timeout_s = {}: each will time out",
-                                         settle_s + frames_s, short_number(timeout_s)));
+    check.warnings.push_back(
+        fmt::format("every measurement's settling and frames take about {:.1f} s, longer than "
+                    "point_timeout_s = {}: each will time out",
+                    settle_s + frames_s, short_number(timeout_s)));
   }
   check.estimated_duration = std::chrono::duration<double>(total_s);
   return check;
 }
 
 std::string format_plan_check(const SweepPlan& plan, const PlanCheck& check) {
-  std::string out = fmt::format("plan \"{}\" ({}): {} points in {} grid{}, {} measurement{} of {} frames each: {} "
-                                "measurements\n",
-                                plan.name, plan.source, check.points, plan.grids.size(),
-                                plan.grids.size() == 1 ? "" : "s", plan.repeats, plan.repeats == 1 ? "" : "s",
-                                plan.frames_per_point, check.steps.size());
+  std::string out = fmt::format(
+      "plan \"{}\" ({}): {} points in {} grid{}, {} measurement{} of {} frames each: {} "
+      "measurements\n",
+      plan.name, plan.source, check.points, plan.grids.size(), plan.grids.size() == 1 ? "" : "s", plan.repeats,
+      plan.repeats == 1 ? "" : "s", plan.frames_per_point, check.steps.size());
   for (std::size_t g = 0; g < plan.grids.size(); ++g) {
     const PlanGrid& grid = plan.grids[g];
     const std::size_t points = grid.distances_m.size() * grid.angles_deg.size();
     out += fmt::format("  grid {} \"{}\": {} point{}: {} x {}, {} order, slow axis {}\n", g, grid.name, points,
-                       points == 1 ? "" : "s",
-                       describe_values(grid.distances_m, "m", "distances"),
+                       points == 1 ? "" : "s", describe_values(grid.distances_m, "m", "distances"),
                        describe_values(grid.angles_deg, "deg", "angles"),
                        grid.order == SweepOrder::snake ? "snake" : "grid",
                        grid.slow_axis == SweepAxis::distance ? "distance" : "angle");

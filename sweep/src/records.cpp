@@ -89,7 +89,8 @@ const nlohmann::json* find_field(const nlohmann::json& json, const char* key) {
 
 template <class T>
 T checked(const nlohmann::json& value, const char* key) {
-  if (!holds<T>(value)) throw std::runtime_error(fmt::format("\"{}\" must be {}, got {}", key, wanted<T>(), value.dump()));
+  if (!holds<T>(value))
+    throw std::runtime_error(fmt::format("\"{}\" must be {}, got {}", key, wanted<T>(), value.dump()));
   return value.get<T>();
 }
 
@@ -245,7 +246,8 @@ nlohmann::json to_json(const PointRecord& r) {
           {"angle_deg", r.angle_deg},
           {"rail", r.rail},
           {"turntable", r.turntable},
-          {"truth", {{"tvec_m", json_vec3(r.truth_tvec_m)}, {"distance_m", r.truth_distance_m}, {"yaw_deg", r.truth_yaw_deg}}},
+          {"truth",
+           {{"tvec_m", json_vec3(r.truth_tvec_m)}, {"distance_m", r.truth_distance_m}, {"yaw_deg", r.truth_yaw_deg}}},
           {"frames_corrupt", r.frames_corrupt},
           {"started", to_iso(r.started)},
           {"finished", to_iso(r.finished)},
@@ -328,7 +330,11 @@ RunStart start_from_json(const nlohmann::json& j) {
 }
 
 nlohmann::json to_json(const RunEvent& e) {
-  return {{"schema", kRunRecordSchema}, {"time", to_iso(e.time)}, {"event", e.kind}, {"reason", e.reason}, {"step", e.step}};
+  return {{"schema", kRunRecordSchema},
+          {"time", to_iso(e.time)},
+          {"event", e.kind},
+          {"reason", e.reason},
+          {"step", e.step}};
 }
 
 RunEvent event_from_json(const nlohmann::json& j) {
@@ -354,10 +360,14 @@ RunStop stop_from_json(const nlohmann::json& j) {
   RunStop s;
   s.time = parse_utc_milliseconds(field<std::string>(j, "time"));
   const std::string status = field<std::string>(j, "exit_status");
-  if (status == "done") s.status = ExitStatus::done;
-  else if (status == "aborted") s.status = ExitStatus::aborted;
-  else if (status == "failed") s.status = ExitStatus::failed;
-  else throw std::runtime_error(fmt::format("unknown exit_status \"{}\"", status));
+  if (status == "done")
+    s.status = ExitStatus::done;
+  else if (status == "aborted")
+    s.status = ExitStatus::aborted;
+  else if (status == "failed")
+    s.status = ExitStatus::failed;
+  else
+    throw std::runtime_error(fmt::format("unknown exit_status \"{}\"", status));
   s.reason = optional_field<std::string>(j, "reason", "");
   s.steps_done = optional_field<std::size_t>(j, "steps_done", 0);
   return s;

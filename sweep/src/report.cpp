@@ -19,9 +19,9 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/base/unique_fd.hpp"
 #include "markerd/base/utc_time.hpp"
-#include "markerd/base/errno_text.hpp"
 #include "markerd/detector/family.hpp"
 
 extern char** environ;

@@ -1,9 +1,11 @@
 #include "stamped_jpeg.hpp"
 
-// jpeglib.h needs size_t and FILE declared first.
+// jpeglib.h needs size_t and FILE declared first (a block of their own,
+// which clang-format does not sort past).
+#include <csetjmp>
 #include <cstdio>
 #include <cstdlib>
-#include <csetjmp>
+
 #include <jpeglib.h>
 
 #include <algorithm>

@@ -15,11 +15,11 @@
 #include <gpiod.h>
 #include <poll.h>
 
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
-#include <atomic>
 #include <fstream>
 #include <functional>
 #include <memory>
@@ -241,8 +241,9 @@ TEST_F(GpioHil, MissingLinesAndChipsAreNamed) {
   const std::string no_line = error_of([&] { (void)backend_->request_output(line("NO_SUCH_LINE"), false, "hil"); });
   EXPECT_NE(no_line.find("NO_SUCH_LINE"), std::string::npos) << no_line;
   EXPECT_NE(no_line.find("rig"), std::string::npos) << no_line;
-  const std::string no_chip =
-      error_of([&] { (void)backend_->request_output(GpioLineSpec{"no-such-chip", "0", false}, false, "hil"); });
+  const std::string no_chip = error_of([&] {
+    (void)backend_->request_output(GpioLineSpec{"no-such-chip", "0", false}, false, "hil");
+  });
   EXPECT_NE(no_chip.find("no-such-chip"), std::string::npos) << no_chip;
   EXPECT_NE(no_chip.find("[rig]"), std::string::npos) << "the error should list the chips there are: " << no_chip;
 }
@@ -367,8 +368,10 @@ class HomeSwitch {
           bool closed = false;
           while (!stop.stop_requested()) {
             std::int64_t carriage = drive.status().position_steps;
-            if (carriage > home_position / 2) carriage += switch_at - home_position;
-            else last_count_before_homing_.store(carriage);
+            if (carriage > home_position / 2)
+              carriage += switch_at - home_position;
+            else
+              last_count_before_homing_.store(carriage);
             if ((carriage <= switch_at) != closed) {
               closed = !closed;
               sim.pull("HOME", closed);

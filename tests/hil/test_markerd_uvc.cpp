@@ -212,8 +212,9 @@ class MarkerdUvc : public testing::Test {
     const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
     write_udc(udc, "");
     const auto unplugged = Clock::now();
-    s = wait_for_status([](const json& j) { return j.value("camera", json::object()).value("state", "") != "streaming"; },
-                        20s, markerd);
+    s = wait_for_status(
+        [](const json& j) { return j.value("camera", json::object()).value("state", "") != "streaming"; }, 20s,
+        markerd);
     ASSERT_TRUE(markerd.running()) << "markerd exited on the unplug: " << describe_wait_status(*markerd.exit_status());
     const double noticed_s = seconds_since(unplugged);
     ASSERT_NE(s.value("camera", json::object()).value("state", ""), "streaming") << "unplug not noticed: " << s.dump();
@@ -247,9 +248,9 @@ class MarkerdUvc : public testing::Test {
         return line.at("status") == "ok" && capture_time(line) >= replugged;
       });
     };
-    ASSERT_TRUE(wait_until(
-        [&] { return static_cast<std::size_t>(read_after()) >= kLinesAfterReplug || !markerd.running(); },
-        kPhaseTimeout, 200ms))
+    ASSERT_TRUE(
+        wait_until([&] { return static_cast<std::size_t>(read_after()) >= kLinesAfterReplug || !markerd.running(); },
+                   kPhaseTimeout, 200ms))
         << "only " << read_after() << " frames logged within " << kPhaseTimeout.count() << " s of the replug";
     const auto exit_status = markerd.terminate(20s);
     ASSERT_TRUE(exit_status.has_value()) << "markerd did not exit within 20 s of SIGTERM";
@@ -348,8 +349,8 @@ class MarkerdUvc : public testing::Test {
     const std::string libcamera_id = camera.at("id").get<std::string>();
     for (const std::string& expected :
          {capture_node_ + "  markerd HIL webcam: UVC Camera (driver uvcvideo, ", std::string("    YUYV    "),
-          std::string("    MJPG    "), std::string("    MJPEG   640x480"),
-          std::string("640x480  30, 15 fps"), std::string("    brightness "), std::string("libcamera ") + libcamera_id,
+          std::string("    MJPG    "), std::string("    MJPEG   640x480"), std::string("640x480  30, 15 fps"),
+          std::string("    brightness "), std::string("libcamera ") + libcamera_id,
           std::string("  model     markerd HIL webcam: UVC Camera"), std::string("    YUYV    640x480"),
           std::string("    Brightness ")}) {
       EXPECT_NE(table.find(expected), std::string::npos) << "'" << expected << "' in:\n" << table;
@@ -388,8 +389,7 @@ class MarkerdUvc : public testing::Test {
   }
 
   void check_log(const std::string& backend, const std::string& format, const std::vector<json>& lines,
-                 const std::vector<Clock::time_point>& arrivals, const json& status,
-                 std::size_t counted_lines) const {
+                 const std::vector<Clock::time_point>& arrivals, const json& status, std::size_t counted_lines) const {
     const auto sent = sent_frames(server_dir_);
     const auto scenes = feeder_scenes();
     const std::int64_t offset = number_offset(lines, sent);
@@ -458,22 +458,21 @@ class MarkerdUvc : public testing::Test {
     const json& pipeline = status.at("pipeline");
     const std::size_t markerd_dropped =
         camera.at("dropped").get<std::size_t>() + pipeline.at("dropped").get<std::size_t>();
-    std::cout << backend << ": frames " << numbers.front() << " to " << numbers.back() << ": " << span
-              << " sent, " << numbers.size() << " logged, " << missing << " not logged (markerd's counts: "
-              << camera.at("frames") << " captured, " << camera.at("dropped") << " dropped by the capture loop, "
-              << pipeline.at("dropped") << " by the live pipeline); worst pose error " << 100 * worst_translation
-              << " % and " << worst_rotation << " deg, " << id_changes
-              << " id changes; from the server's send to the driver's timestamp p50 " << percentile(to_capture_ms, 0.5)
-              << " ms, p99 " << percentile(to_capture_ms, 0.99) << " ms; to the log line p50 "
-              << percentile(to_log_ms, 0.5) << " ms, p99 " << percentile(to_log_ms, 0.99) << " ms; "
-              << off_sequence << " lines matched by time where the sequence's offset failed\n";
+    std::cout << backend << ": frames " << numbers.front() << " to " << numbers.back() << ": " << span << " sent, "
+              << numbers.size() << " logged, " << missing << " not logged (markerd's counts: " << camera.at("frames")
+              << " captured, " << camera.at("dropped") << " dropped by the capture loop, " << pipeline.at("dropped")
+              << " by the live pipeline); worst pose error " << 100 * worst_translation << " % and " << worst_rotation
+              << " deg, " << id_changes << " id changes; from the server's send to the driver's timestamp p50 "
+              << percentile(to_capture_ms, 0.5) << " ms, p99 " << percentile(to_capture_ms, 0.99)
+              << " ms; to the log line p50 " << percentile(to_log_ms, 0.5) << " ms, p99 " << percentile(to_log_ms, 0.99)
+              << " ms; " << off_sequence << " lines matched by time where the sequence's offset failed\n";
     // Where that time goes, by markerd's own histograms: under TCG the
     // detector takes tens of milliseconds a frame, slower than the camera,
     // and the live pipeline detects the newest frame waiting.
     const json& latency = pipeline.at("latency");
     std::cout << backend << ": markerd's latency p50: capture to detection "
-              << latency.at("capture_to_detect").at("p50_ms") << " ms, detection " << latency.at("detect").at("p50_ms") << " ms, capture to log "
-              << latency.at("capture_to_log").at("p50_ms") << " ms\n";
+              << latency.at("capture_to_detect").at("p50_ms") << " ms, detection " << latency.at("detect").at("p50_ms")
+              << " ms, capture to log " << latency.at("capture_to_log").at("p50_ms") << " ms\n";
     // A frame sent and not logged is either one markerd counted as dropped
     // (its live pipeline keeps the newest frame while the detector is busy:
     // under TCG it logs one frame in three to five, as busy as the host is)
@@ -499,10 +498,11 @@ class MarkerdUvc : public testing::Test {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
   const std::int64_t start = ns(Clock::now());
-  run_markerd("v4l2", "MJPEG", "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
-                                   "\"\nformat = \"MJPG\"\nwidth = 640\nheight = 480\nfps = 30\n"
-                                   "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority "
-                                   "Mode\"\n");
+  run_markerd("v4l2", "MJPEG",
+              "source = \"v4l2\"\n[camera.v4l2]\ndevice = \"" + capture_node_ +
+                  "\"\nformat = \"MJPG\"\nwidth = 640\nheight = 480\nfps = 30\n"
+                  "[camera.v4l2.controls]\nbrightness = -20\nauto_exposure = \"Aperture Priority "
+                  "Mode\"\n");
   // The config's controls, as the gadget received them: at the start and
   // again on the replugged camera.
   EXPECT_EQ(values_set("brightness", start), (std::vector<std::int64_t>{-20, -20}));
@@ -511,8 +511,9 @@ TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheV4l2Source) {
 
 TEST_F(MarkerdUvc, LogsTheFramesSentThroughTheLibcameraSource) {
   const std::int64_t start = ns(Clock::now());
-  run_markerd("libcamera", "YUYV", "source = \"libcamera\"\n[camera.libcamera]\npixel_format = \"YUYV\"\nwidth = 640\n"
-                           "height = 480\n[camera.libcamera.controls]\nBrightness = 0.5\nAeEnable = false\n");
+  run_markerd("libcamera", "YUYV",
+              "source = \"libcamera\"\n[camera.libcamera]\npixel_format = \"YUYV\"\nwidth = 640\n"
+              "height = 480\n[camera.libcamera.controls]\nBrightness = 0.5\nAeEnable = false\n");
   // libcamera scales Brightness from [-1, 1] about the default: 0.5 is 32 of
   // the gadget's 64; AeEnable false is manual exposure, mode 1. Set at the
   // start and again on the replugged camera.

@@ -127,7 +127,8 @@ PhaseCheck check_phase(const std::vector<json>& lines, Clock::time_point from, C
     for (const json& d : detections) {
       EXPECT_EQ(d.at("family"), "frame8") << where;
       const int id = d.at("id").get<int>();
-      const auto scene = std::find_if(scenes.begin(), scenes.end(), [&](const detector::Scene& s) { return s.id == id; });
+      const auto scene =
+          std::find_if(scenes.begin(), scenes.end(), [&](const detector::Scene& s) { return s.id == id; });
       if (scene == scenes.end()) {
         ADD_FAILURE() << where << ": id " << id << " was never shown: " << d.dump();
         continue;
@@ -200,7 +201,8 @@ class MarkerdVivid : public testing::Test {
 
     const auto start = Clock::now();
     scenes_ = feeder_scenes();
-    for (const detector::Scene& scene : scenes_) frames_.push_back(to_yuyv(detector::render_scene(feeder_camera(), scene)));
+    for (const detector::Scene& scene : scenes_)
+      frames_.push_back(to_yuyv(detector::render_scene(feeder_camera(), scene)));
     std::cout << "rendered " << scenes_.size() << " scenes in " << seconds_since(start) << " s\n";
   }
 

@@ -105,8 +105,8 @@ std::vector<Captured> capture(CaptureSource& source, int count) {
   std::vector<Captured> frames;
   while (static_cast<int>(frames.size()) < count) {
     if (!source.wait_frame(std::chrono::duration_cast<std::chrono::milliseconds>(kFrameTimeout))) {
-      ADD_FAILURE() << source.name() << ": no frame within " << kFrameTimeout.count() << " s after "
-                    << frames.size() << " frames";
+      ADD_FAILURE() << source.name() << ": no frame within " << kFrameTimeout.count() << " s after " << frames.size()
+                    << " frames";
       break;
     }
     Frame* frame = pool.try_acquire();
@@ -298,8 +298,7 @@ class UvcHil : public testing::Test {
       const detector::MarkerPose& pose = d.pose->best;
       EXPECT_LT((pose.translation - truth.translation).norm() / truth.translation.norm(), kMaxTranslationError)
           << backend << " frame " << *number;
-      const double angle =
-          Eigen::AngleAxisd(pose.rotation.transpose() * truth.rotation).angle() * 180.0 / M_PI;
+      const double angle = Eigen::AngleAxisd(pose.rotation.transpose() * truth.rotation).angle() * 180.0 / M_PI;
       EXPECT_LT(angle, kMaxRotationErrorDeg) << backend << " frame " << *number;
     }
     ASSERT_FALSE(numbers.empty()) << backend << ": no frame was read";
@@ -327,11 +326,11 @@ class UvcHil : public testing::Test {
     }
     const double seconds =
         std::chrono::duration<double>(frames.back().capture_time - frames.front().capture_time).count();
-    std::cout << backend << " " << format << ": captured " << numbers.size() << " frames of "
-              << bytes / numbers.size() << " bytes on average, numbers " << numbers.front() << " to "
-              << numbers.back() << " (" << (numbers.back() - numbers.front() + 1) << " sent, " << dropped
-              << " dropped by the host, " << never_arrived << " never arrived, " << failed
-              << " given back with an error by the gadget), " << static_cast<double>(numbers.size() - 1) / seconds
+    std::cout << backend << " " << format << ": captured " << numbers.size() << " frames of " << bytes / numbers.size()
+              << " bytes on average, numbers " << numbers.front() << " to " << numbers.back() << " ("
+              << (numbers.back() - numbers.front() + 1) << " sent, " << dropped << " dropped by the host, "
+              << never_arrived << " never arrived, " << failed << " given back with an error by the gadget), "
+              << static_cast<double>(numbers.size() - 1) / seconds
               << " frames/s; latency from the server's QBUF to the driver's timestamp p50 "
               << percentile(capture_latency_ms, 0.5) << " ms, p99 " << percentile(capture_latency_ms, 0.99)
               << " ms; to the frame in the test's hands p50 " << percentile(delivery_latency_ms, 0.5) << " ms, p99 "
@@ -404,8 +403,7 @@ TEST_F(UvcHil, UvcvideoEnumeratesTheGadgetAsAWebcam) {
 TEST_F(UvcHil, V4l2SourceCapturesTheRenderedFramesInOrder) {
   daemon::V4l2Settings settings = v4l2_settings(daemon::V4l2PixelFormat::yuyv);
   settings.fps = 30;
-  settings.controls = {{"brightness", std::int64_t{32}, "test"},
-                       {"auto_exposure", std::string("Manual Mode"), "test"}};
+  settings.controls = {{"brightness", std::int64_t{32}, "test"}, {"auto_exposure", std::string("Manual Mode"), "test"}};
   const auto source = daemon::make_v4l2_source(settings);
   source->open();
   EXPECT_NEAR(source->geometry().frame_rate, 30.0, 0.01);
@@ -490,7 +488,6 @@ TEST_F(UvcHil, LibcameraSourceDecodesTheWebcamsMjpeg) {
   EXPECT_EQ(formats_committed(server_dir_, started_ns_), std::vector<std::string>{"MJPEG (index 2)"});
 }
 
-
 // ---------------------------------------------------------------- unplug
 
 // Last: the camera comes back as another device, maybe under another node.
@@ -536,9 +533,8 @@ TEST_F(UvcHil, V4l2SourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const auto first_after = read_stamp(after.front().image);
   ASSERT_TRUE(first_after.has_value());
   EXPECT_GT(*first_after, *last_before) << "the server numbers on across the replug";
-  std::cout << "unplug: the source reported it after " << loss_s << " s (" << error->what()
-            << "); replug: " << *node << " after " << enumerate_s << " s, the first frame after " << first_frame_s
-            << " s\n";
+  std::cout << "unplug: the source reported it after " << loss_s << " s (" << error->what() << "); replug: " << *node
+            << " after " << enumerate_s << " s, the first frame after " << first_frame_s << " s\n";
 }
 
 // After the V4L2 source's unplug: the same through libcamera, which learns
@@ -552,8 +548,7 @@ TEST_F(UvcHil, LibcameraSourceReportsTheUnplugAndStreamsAfterTheReplug) {
   const fs::path udc = fs::path(env("HIL_UVC_GADGET")) / "UDC";
   const auto cameras = daemon::list_libcamera_cameras();
   ASSERT_EQ(cameras.size(), 1U);
-  const daemon::LibcameraSettings settings =
-      libcamera_settings(daemon::LibcameraPixelFormat::yuyv, cameras.front().id);
+  const daemon::LibcameraSettings settings = libcamera_settings(daemon::LibcameraPixelFormat::yuyv, cameras.front().id);
   auto source = daemon::make_libcamera_source(settings);
   source->open();
   const auto before = capture(*source, 15);

@@ -337,11 +337,15 @@ class Server {
     const int interface = index & 0xff;
     const std::uint8_t entity = index >> 8;
     const std::uint8_t selector = value >> 8;
-    json line = {{"t_ns", monotonic_ns()}, {"request", request_name(req.bRequest)},
+    json line = {{"t_ns", monotonic_ns()},
+                 {"request", request_name(req.bRequest)},
                  {"interface", interface == options_.streaming_interface ? "streaming"
                                : interface == options_.control_interface ? "control"
                                                                          : "other"},
-                 {"entity", entity}, {"selector", selector}, {"length", length}, {"stalled", false}};
+                 {"entity", entity},
+                 {"selector", selector},
+                 {"length", length},
+                 {"stalled", false}};
     if ((req.bRequestType & USB_TYPE_MASK) != USB_TYPE_CLASS) {
       line["name"] = "unknown";
       stall(kErrorInvalidRequest, line);
@@ -435,8 +439,8 @@ class Server {
   void data(const uvc_request_data& data) {
     const std::string name = pending_set_;
     pending_set_.clear();
-    json line = {{"t_ns", monotonic_ns()}, {"request", "SET_CUR"}, {"name", name}, {"length", data.length},
-                 {"stalled", false}};
+    json line = {
+        {"t_ns", monotonic_ns()}, {"request", "SET_CUR"}, {"name", name}, {"length", data.length}, {"stalled", false}};
     const auto bytes = static_cast<std::size_t>(std::clamp(data.length, 0, static_cast<int>(sizeof data.data)));
     if (name == "probe" || name == "commit") {
       uvc_streaming_control control{};
@@ -581,9 +585,8 @@ class Server {
       }
       Buffer& buffer = buffers_.at(b.index);
       if (buffer.frame) {
-        frames_record_.write({{"frame", *buffer.frame},
-                              {"done_ns", monotonic_ns()},
-                              {"error", (b.flags & V4L2_BUF_FLAG_ERROR) != 0}});
+        frames_record_.write(
+            {{"frame", *buffer.frame}, {"done_ns", monotonic_ns()}, {"error", (b.flags & V4L2_BUF_FLAG_ERROR) != 0}});
       }
       buffer.frame.reset();
     }

@@ -52,11 +52,11 @@ inline std::unique_ptr<daemon::ControlClient> connect_control(ChildProcess& mark
 
 // A JSON-lines file as a reader takes it: what parsed, what did not.
 struct JsonLines {
-  std::size_t lines = 0;      // complete lines ('\n'-terminated)
-  std::size_t objects = 0;    // of which JSON objects
+  std::size_t lines = 0;              // complete lines ('\n'-terminated)
+  std::size_t objects = 0;            // of which JSON objects
   std::vector<std::string> problems;  // each line that is not a JSON object: its number, why, its start
-  bool ends_whole = true;     // empty, or its last byte is a '\n'
-  std::string tail;           // the bytes after the last '\n' (a torn last line)
+  bool ends_whole = true;             // empty, or its last byte is a '\n'
+  std::string tail;                   // the bytes after the last '\n' (a torn last line)
 };
 
 // Reads `text` (a JSON-lines file's content). At most `max_problems` are kept.

@@ -226,8 +226,8 @@ struct Outcome {
   bool timed_out = false;  // killed when its time was up
 
   [[nodiscard]] std::string describe() const {
-    return (timed_out ? "killed after its time was up, exit " : "exit ") + std::to_string(code) +
-           "\n--- stdout\n" + out + "--- stderr\n" + err;
+    return (timed_out ? "killed after its time was up, exit " : "exit ") + std::to_string(code) + "\n--- stdout\n" +
+           out + "--- stderr\n" + err;
   }
 };
 

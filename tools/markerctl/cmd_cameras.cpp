@@ -8,9 +8,9 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
-#include <algorithm>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -161,7 +161,8 @@ void print_camera(const LibcameraCameraInfo& c) {
   std::cout << "  formats\n";
   for (const auto& f : c.formats) {
     std::string sizes;
-    for (const auto& size : f.sizes) sizes += fmt::format("{}{}x{}", sizes.empty() ? "" : ", ", size.width, size.height);
+    for (const auto& size : f.sizes)
+      sizes += fmt::format("{}{}x{}", sizes.empty() ? "" : ", ", size.width, size.height);
     if (sizes.empty()) {
       sizes = fmt::format("{}x{} to {}x{}", f.min_size.width, f.min_size.height, f.max_size.width, f.max_size.height);
     }
@@ -222,8 +223,8 @@ std::vector<LibcameraCameraInfo> libcamera_cameras(const CamerasOptions& o) {
     if (it == cameras.end()) {
       std::string known;
       for (const auto& c : cameras) known += (known.empty() ? "" : ", ") + c.id;
-      throw runtime_error("cameras", fmt::format("libcamera has no camera '{}' (it has: {})", id,
-                                                 known.empty() ? "none" : known));
+      throw runtime_error("cameras",
+                          fmt::format("libcamera has no camera '{}' (it has: {})", id, known.empty() ? "none" : known));
     }
     named.push_back(*it);
   }

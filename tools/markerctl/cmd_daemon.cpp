@@ -104,8 +104,7 @@ int run_detections(const std::string& socket, std::uint64_t count) {
 
 // ---------------------------------------------------------------- call
 
-int run_call(const std::string& socket, const std::string& command, const std::string& arguments,
-             double timeout_s) {
+int run_call(const std::string& socket, const std::string& command, const std::string& arguments, double timeout_s) {
   json request = json::object();
   if (!arguments.empty()) {
     try {
@@ -116,8 +115,9 @@ int run_call(const std::string& socket, const std::string& command, const std::s
       throw usage_error("call", fmt::format("the arguments are not JSON: {}", why));
     }
     if (!request.is_object()) {
-      throw usage_error("call", fmt::format(R"(the arguments must be a JSON object, e.g. '{{"axis": "rail"}}', got '{}')",
-                                            arguments));
+      throw usage_error(
+          "call",
+          fmt::format(R"(the arguments must be a JSON object, e.g. '{{"axis": "rail"}}', got '{}')", arguments));
     }
   }
   request["cmd"] = command;
@@ -261,8 +261,8 @@ int rig_status(DaemonRig& rig, const DaemonRigRequest& request) {
     const json& a = s[name];
     std::cout << fmt::format("{:<10} {}, {}{}: position {}, target {}; inputs: {}\n", name,
                              a.value("state", std::string()), a.value("homed", false) ? "homed" : "not homed",
-                             a.value("settled", false) ? ", settled" : "", position_text(a),
-                             position_text(a, "target"), inputs_text(a["inputs"]));
+                             a.value("settled", false) ? ", settled" : "", position_text(a), position_text(a, "target"),
+                             inputs_text(a["inputs"]));
     if (!a["fault"].is_null()) std::cout << fmt::format("{:<10} fault: {}\n", "", a["fault"].get<std::string>());
   }
   rig.print_ground_truth(s);

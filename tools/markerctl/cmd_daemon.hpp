@@ -78,15 +78,15 @@ struct DaemonRigTarget {
 struct DaemonRigRequest {
   enum class Action { status, home, move, stop };
   Action action = Action::status;
-  std::string context;  // "rig move": the prefix of errors
-  std::string socket;   // --socket, or empty
-  bool json = false;              // status
-  std::string home_axis;          // home: "rail", "turntable", or empty for both
+  std::string context;                   // "rig move": the prefix of errors
+  std::string socket;                    // --socket, or empty
+  bool json = false;                     // status
+  std::string home_axis;                 // home: "rail", "turntable", or empty for both
   std::vector<DaemonRigTarget> targets;  // move
-  bool relative = false;          // move: by the values (jog)
-  bool home_first = false;        // move: home the axes that are not homed first
-  bool emergency = false;         // stop
-  bool wait = true;               // home, move, stop: until the axes are at rest
+  bool relative = false;                 // move: by the values (jog)
+  bool home_first = false;               // move: home the axes that are not homed first
+  bool emergency = false;                // stop
+  bool wait = true;                      // home, move, stop: until the axes are at rest
   // Sleeps up to the given time; returns the number of a signal that came
   // meanwhile, or 0. A signal while waiting stops the rig.
   std::function<int(std::chrono::milliseconds)> wait_for_signal;

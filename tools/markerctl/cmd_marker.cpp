@@ -51,7 +51,8 @@ int write_image(const MarkerOptions& o, markerd::detector::Family family) {
         "markerctl: note: {} px is not a multiple of the {} cells of a {} marker; cell edges will be blurred\n",
         o.image_px, info.size_cells, info.name);
   }
-  const markerd::detector::GreyImage image = markerd::detector::ideal_marker_image(family, o.id, o.image_px, !o.no_quiet_zone);
+  const markerd::detector::GreyImage image =
+      markerd::detector::ideal_marker_image(family, o.id, o.image_px, !o.no_quiet_zone);
   // imwrite only reads the pixels; the const_cast is for cv::Mat's constructor.
   const cv::Mat mat(image.height(), image.width(), CV_8UC1, const_cast<std::uint8_t*>(image.data()));
   bool ok = false;

@@ -55,7 +55,7 @@ struct RigOptions {
   std::string home_axis;  // home: "", "rail" or "turntable"
   std::string rail;       // move, jog
   std::string turntable;
-  bool home = false;      // move, jog: home what is not homed first
+  bool home = false;  // move, jog: home what is not homed first
   // markerd's rig (no --config):
   std::string socket;
   bool emergency = false;  // stop
@@ -77,7 +77,8 @@ int run_status(const RigOptions& o, const std::string& context) {
     j["ground_truth"] = {
         {"distance_m", rounded(truth.distance_m, 9)},
         {"yaw_deg", rounded(truth.yaw_deg, 9)},
-        {"tvec", {rounded(truth.translation.x(), 9), rounded(truth.translation.y(), 9), rounded(truth.translation.z(), 9)}},
+        {"tvec",
+         {rounded(truth.translation.x(), 9), rounded(truth.translation.y(), 9), rounded(truth.translation.z(), 9)}},
         {"quaternion", {rounded(q.w(), 9), rounded(q.x(), 9), rounded(q.y(), 9), rounded(q.z(), 9)}}};
     std::cout << json_line(j) << '\n';
     return 0;
@@ -124,9 +125,9 @@ std::vector<Request> requests_of(const RigOptions& o) {
 
 void check_soft_limits(const Session& session, const AxisSettings& axis, double target, std::string_view what) {
   if (target < axis.min_position || target > axis.max_position) {
-    throw runtime_error(session.context(), fmt::format("{}: {} to {} refused: outside the soft limits [{}, {}] {}",
-                                                       axis.name, what, position_text(axis, target), axis.min_position,
-                                                       axis.max_position, axis.unit));
+    throw runtime_error(session.context(),
+                        fmt::format("{}: {} to {} refused: outside the soft limits [{}, {}] {}", axis.name, what,
+                                    position_text(axis, target), axis.min_position, axis.max_position, axis.unit));
   }
 }
 
@@ -148,8 +149,8 @@ int run_motion(const RigOptions& o, const std::vector<Request>& requests, bool r
                                                settings.name, relative ? "jog" : "move"));
     }
     if (!o.home && s.state == AxisState::fault) {
-      throw runtime_error(context, fmt::format("{} is in fault ({}); pass --home to clear it and home again",
-                                               settings.name, s.fault));
+      throw runtime_error(
+          context, fmt::format("{} is in fault ({}); pass --home to clear it and home again", settings.name, s.fault));
     }
   }
   for (const Request& r : requests) {

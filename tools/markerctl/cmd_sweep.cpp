@@ -118,7 +118,8 @@ int run_check(const std::string& socket, const std::string& plan_path, const std
     try {
       const markerd::sweep::SweepPlan plan = markerd::sweep::parse_plan(text, plan_path);
       const markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
-      if (!config.rig) throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
+      if (!config.rig)
+        throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
       if (auto problem = markerd::sweep::marker_problem(plan.marker, markerd::daemon::detector_config(config))) {
         throw runtime_error(context, fmt::format("plan {} cannot run with {}: {}", plan_path, config_path, *problem));
       }
@@ -200,10 +201,12 @@ void add_sweep_command(CLI::App& parent, Commands& commands) {
   };
   auto o = std::make_shared<Options>();
 
-  CLI::App* check = sweep->add_subcommand("check", "Dry run: the plan's points, what does not fit the rig, the duration");
+  CLI::App* check =
+      sweep->add_subcommand("check", "Dry run: the plan's points, what does not fit the rig, the duration");
   check->add_option("plan", o->plan, "The plan (TOML)")->required()->type_name("PLAN");
-  check->add_option("--config", o->config,
-                    "Check against this markerd config's rig and camera instead of the running markerd's")
+  check
+      ->add_option("--config", o->config,
+                   "Check against this markerd config's rig and camera instead of the running markerd's")
       ->type_name("FILE");
   check->add_option("--socket", o->socket, socket_help)->type_name("PATH");
   check->add_flag("--json", o->json, "The reply as JSON");

@@ -30,8 +30,9 @@ std::optional<NumberAndUnit> split_number(std::string_view text) {
   double value = 0;
   const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
   if (ec != std::errc{} || !std::isfinite(value)) return std::nullopt;
-  return NumberAndUnit{value,
-                       markerd::ascii_lower(trim(std::string_view(end, static_cast<std::size_t>(text.data() + text.size() - end))))};
+  return NumberAndUnit{
+      value,
+      markerd::ascii_lower(trim(std::string_view(end, static_cast<std::size_t>(text.data() + text.size() - end))))};
 }
 
 double parse_length_m(std::string_view text, BareUnit bare, std::string_view option) {

@@ -76,7 +76,20 @@ class RawTerminal {
   static inline termios crash_saved_{};
 };
 
-enum class Key { none, rail_up, rail_down, turntable_up, turntable_down, bigger, smaller, home, stop, estop, quit, interrupt };
+enum class Key {
+  none,
+  rail_up,
+  rail_down,
+  turntable_up,
+  turntable_down,
+  bigger,
+  smaller,
+  home,
+  stop,
+  estop,
+  quit,
+  interrupt
+};
 
 // Keys from the bytes read so far; an incomplete escape sequence stays in `pending`.
 std::vector<Key> take_keys(std::string& pending) {
@@ -101,13 +114,20 @@ std::vector<Key> take_keys(std::string& pending) {
       continue;
     }
     switch (c) {
-      case '+': case '=': keys.push_back(Key::bigger); break;
-      case '-': case '_': keys.push_back(Key::smaller); break;
-      case 'h': case 'H': keys.push_back(Key::home); break;
-      case 's': case 'S': keys.push_back(Key::stop); break;
+      case '+':
+      case '=': keys.push_back(Key::bigger); break;
+      case '-':
+      case '_': keys.push_back(Key::smaller); break;
+      case 'h':
+      case 'H': keys.push_back(Key::home); break;
+      case 's':
+      case 'S': keys.push_back(Key::stop); break;
       case ' ': keys.push_back(Key::estop); break;
-      case 'q': case 'Q': case '\x04': keys.push_back(Key::quit); break;
-      case '\x03': case '\x1c': keys.push_back(Key::interrupt); break;
+      case 'q':
+      case 'Q':
+      case '\x04': keys.push_back(Key::quit); break;
+      case '\x03':
+      case '\x1c': keys.push_back(Key::interrupt); break;
       default: break;
     }
     ++i;
@@ -217,12 +237,14 @@ class InteractiveJog {
     const AxisStatus s = a.status();
     if (!homing_.empty()) return message("homing in progress: wait, or press s to stop it");
     if (!s.homed) return message(fmt::format("{} is not homed: press h to home", settings.name));
-    if (s.state == AxisState::fault) return message(fmt::format("{} is in fault ({}): press h to home", settings.name, s.fault));
+    if (s.state == AxisState::fault)
+      return message(fmt::format("{} is in fault ({}): press h to home", settings.name, s.fault));
     const double step = i == 0 ? kJogSteps[step_].first : kJogSteps[step_].second;
     const double base = jogs_[i].goal ? *jogs_[i].goal : (in_motion(s.state) ? s.target : s.position);
     const double wanted = base + direction * step;
     const double goal = std::clamp(wanted, settings.min_position, settings.max_position);
-    if (goal != wanted) message(fmt::format("{}: at the soft limit ({})", settings.name, position_text(settings, goal)));
+    if (goal != wanted)
+      message(fmt::format("{}: at the soft limit ({})", settings.name, position_text(settings, goal)));
     jogs_[i].goal = goal;
   }
 
@@ -285,8 +307,8 @@ class InteractiveJog {
       line += fmt::format("{} {} {} ({}) | ", a->settings().name, position_text(a->settings(), s.position),
                           markerd::rig::to_string(s.state), flags);
     }
-    const auto truth = markerd::rig::ground_truth(session_.rig().geometry(), axis(0).status().position,
-                                                  axis(1).status().position);
+    const auto truth =
+        markerd::rig::ground_truth(session_.rig().geometry(), axis(0).status().position, axis(1).status().position);
     line += fmt::format("step {:g} mm, {:g} deg | d {:.3f} m, yaw {:.2f} deg", kJogSteps[step_].first,
                         kJogSteps[step_].second, truth.distance_m, truth.yaw_deg);
     return line;

@@ -132,9 +132,9 @@ void Session::follow(const std::vector<markerd::rig::Axis*>& moving, std::string
       } else if (!idle_since[i]) {
         idle_since[i] = std::chrono::steady_clock::now();
       } else if (std::chrono::steady_clock::now() - *idle_since[i] > settings.settle_time + 10s) {
-        throw runtime_error(context_, fmt::format("{}: did not settle at {} (at {})", settings.name,
-                                                  position_text(settings, s.target),
-                                                  position_text(settings, s.position)));
+        throw runtime_error(
+            context_, fmt::format("{}: did not settle at {} (at {})", settings.name, position_text(settings, s.target),
+                                  position_text(settings, s.position)));
       }
     }
     if (all_settled) return;
@@ -170,7 +170,8 @@ void Session::interrupted(int signal) {
   auto longest_brake = 0s;
   for (markerd::rig::Axis* axis : axes()) {
     const auto& s = axis->settings();
-    longest_brake = std::max(longest_brake, std::chrono::seconds(static_cast<int>(s.max_velocity / s.acceleration) + 1));
+    longest_brake =
+        std::max(longest_brake, std::chrono::seconds(static_cast<int>(s.max_velocity / s.acceleration) + 1));
   }
   const auto deadline = std::chrono::steady_clock::now() + 2 * longest_brake + 3s;
   const auto all = axes();
@@ -204,8 +205,8 @@ std::string Session::positions() {
 }
 
 void Session::print_ground_truth() {
-  const auto truth = markerd::rig::ground_truth(rig_->geometry(), rig_->rail().status().position,
-                                                rig_->turntable().status().position);
+  const auto truth =
+      markerd::rig::ground_truth(rig_->geometry(), rig_->rail().status().position, rig_->turntable().status().position);
   std::cout << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.distance_m, truth.yaw_deg);
 }
 

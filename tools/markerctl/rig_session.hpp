@@ -44,7 +44,9 @@ class Session {
   [[nodiscard]] const markerd::rig::RigConfig& config() const { return config_; }
   [[nodiscard]] markerd::rig::Rig& rig() { return *rig_; }
   [[nodiscard]] const SignalWatch& signals() const { return signals_; }
-  [[nodiscard]] markerd::rig::Axis& axis(const AxisKind& kind) { return &kind == &kRail ? rig_->rail() : rig_->turntable(); }
+  [[nodiscard]] markerd::rig::Axis& axis(const AxisKind& kind) {
+    return &kind == &kRail ? rig_->rail() : rig_->turntable();
+  }
   [[nodiscard]] std::array<markerd::rig::Axis*, 2> axes() { return {&rig_->rail(), &rig_->turntable()}; }
 
   // An axis ready to take a command: enabled, and, for a homing, out of

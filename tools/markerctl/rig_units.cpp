@@ -28,8 +28,8 @@ double parse_quantity(std::string_view text, const AxisKind& kind) {
     throw usage_error(kind.option, fmt::format("'{}' is not a value with a unit (examples: {})", text, kind.examples));
   }
   if (parsed->unit.empty()) {
-    throw usage_error(kind.option, fmt::format("'{}' needs a unit: {} (examples: {})", text, unit_list(kind.units),
-                                               kind.examples));
+    throw usage_error(kind.option,
+                      fmt::format("'{}' needs a unit: {} (examples: {})", text, unit_list(kind.units), kind.examples));
   }
   const auto scale = scale_of(kind.units, parsed->unit);
   if (!scale) {
@@ -39,7 +39,8 @@ double parse_quantity(std::string_view text, const AxisKind& kind) {
   return parsed->value * *scale;
 }
 
-double to_axis_units(double base_value, const AxisKind& kind, const markerd::rig::AxisSettings& axis, const std::string& context) {
+double to_axis_units(double base_value, const AxisKind& kind, const markerd::rig::AxisSettings& axis,
+                     const std::string& context) {
   const auto scale = scale_of(kind.units, axis.unit);
   if (!scale) {
     throw runtime_error(context, fmt::format("the {}'s unit in the config is '{}'; markerctl rig converts to {} only",

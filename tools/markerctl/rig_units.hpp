@@ -24,8 +24,8 @@ constexpr std::array<UnitScale, 3> kLengthUnits{{{"mm", 1.0}, {"cm", 10.0}, {"m"
 constexpr std::array<UnitScale, 2> kAngleUnits{{{"deg", 1.0}, {"rad", 180.0 / std::numbers::pi}}};
 
 struct AxisKind {
-  const char* name;                   // "rail", "turntable": the config's axis
-  const char* option;                 // "--rail"
+  const char* name;    // "rail", "turntable": the config's axis
+  const char* option;  // "--rail"
   std::span<const UnitScale> units;
   const char* examples;
 };

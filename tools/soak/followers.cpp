@@ -104,7 +104,8 @@ void Followers::finish(Follower& f, bool killed_by_us, std::vector<std::string>&
     const test_support::JsonLines lines = test_support::check_json_lines_file(f.out, 5);
     totals_.lines += lines.objects;
     totals_.bad_lines += lines.lines - lines.objects;
-    for (const std::string& p : lines.problems) problems.push_back(fmt::format("follower {}: {}", f.out.filename().string(), p));
+    for (const std::string& p : lines.problems)
+      problems.push_back(fmt::format("follower {}: {}", f.out.filename().string(), p));
     // markerctl prints each line whole; only a kill in the middle of a write
     // could leave part of one.
     if (!lines.ends_whole && !killed_by_us) {

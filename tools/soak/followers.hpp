@@ -21,10 +21,10 @@ namespace markerd::soak {
 
 struct FollowerTotals {
   std::uint64_t attached = 0;
-  std::uint64_t detached = 0;         // ended by the soak (SIGTERM or SIGKILL)
+  std::uint64_t detached = 0;          // ended by the soak (SIGTERM or SIGKILL)
   std::uint64_t ended_by_markerd = 0;  // ended by themselves: markerd killed, a run followed to its end
-  std::uint64_t stalls = 0;           // SIGSTOPs (a reader falling behind)
-  std::uint64_t lines = 0;            // detection lines the followers printed, all parsed
+  std::uint64_t stalls = 0;            // SIGSTOPs (a reader falling behind)
+  std::uint64_t lines = 0;             // detection lines the followers printed, all parsed
   std::uint64_t bad_lines = 0;
   std::uint64_t dropped_notices = 0;  // "lines dropped" notices on their stderr
 };

@@ -41,7 +41,8 @@ void LogWatch::look(const fs::path& file, std::vector<std::string>& problems) {
   Seen& seen = it->second;
   std::string text;
   if (!read_all(file, text)) {
-    if (seen.bytes > 0) problems.push_back(fmt::format("{}: gone, with {} bytes already logged", file.string(), seen.bytes));
+    if (seen.bytes > 0)
+      problems.push_back(fmt::format("{}: gone, with {} bytes already logged", file.string(), seen.bytes));
     files_.erase(it);
     return;
   }
@@ -80,8 +81,8 @@ void LogWatch::retire(const fs::path& file, bool must_end_whole, std::vector<std
   if (!it->second.tail.empty()) {
     ++totals_.torn_tails;
     if (must_end_whole) {
-      problems.push_back(fmt::format("{}: ends with a partial line ({} bytes: {})", file.string(), it->second.tail.size(),
-                                     it->second.tail.substr(0, 160)));
+      problems.push_back(fmt::format("{}: ends with a partial line ({} bytes: {})", file.string(),
+                                     it->second.tail.size(), it->second.tail.substr(0, 160)));
     }
   }
   files_.erase(it);

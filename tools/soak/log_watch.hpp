@@ -15,10 +15,10 @@ namespace markerd::soak {
 
 struct WatchTotals {
   std::uint64_t files = 0;
-  std::uint64_t lines = 0;        // complete lines parsed
-  std::uint64_t bad_lines = 0;    // complete lines that are not JSON objects
-  std::uint64_t bytes = 0;        // bytes of complete lines
-  std::uint64_t torn_tails = 0;   // files retired with a partial last line (markerd killed mid-write)
+  std::uint64_t lines = 0;       // complete lines parsed
+  std::uint64_t bad_lines = 0;   // complete lines that are not JSON objects
+  std::uint64_t bytes = 0;       // bytes of complete lines
+  std::uint64_t torn_tails = 0;  // files retired with a partial last line (markerd killed mid-write)
 };
 
 class LogWatch {
@@ -38,9 +38,9 @@ class LogWatch {
 
  private:
   struct Seen {
-    std::uint64_t bytes = 0;   // the complete lines checked so far
+    std::uint64_t bytes = 0;                       // the complete lines checked so far
     std::uint64_t hash = 14695981039346656037ULL;  // FNV-1a of those bytes (its offset basis: none yet)
-    std::string tail;          // what followed them at the last look
+    std::string tail;                              // what followed them at the last look
   };
   std::map<std::filesystem::path, Seen> files_;
   WatchTotals totals_;

@@ -63,30 +63,49 @@ int main(int argc, char** argv) {
       "markerd's memory, descriptors and threads compared. Runs as root (it mounts a tmpfs). docs/soak.md.");
   app.add_option("--duration", duration, "How long: 3600, 300s, 90m, 1h")->capture_default_str();
   app.add_option("--time-scale", o.time_scale, "The simulated rig's time scale")
-      ->check(CLI::Range(1.0, 1000.0))->capture_default_str();
+      ->check(CLI::Range(1.0, 1000.0))
+      ->capture_default_str();
   app.add_option("--seed", o.seed, "Seeds every random choice")->capture_default_str();
   app.add_option("--kills-per-hour", o.kills_per_hour, "kill -9 of markerd, at random moments")
-      ->check(CLI::Range(0.0, 3600.0))->capture_default_str();
+      ->check(CLI::Range(0.0, 3600.0))
+      ->capture_default_str();
   app.add_option("--calm-tail", o.calm_tail, "The last fraction of the duration without kills, for the memory trend")
-      ->check(CLI::Range(0.0, 1.0))->capture_default_str();
-  app.add_option("--work-dir", o.work_dir, "Where everything goes (new, empty, or an earlier soak's)")->capture_default_str();
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  app.add_option("--work-dir", o.work_dir, "Where everything goes (new, empty, or an earlier soak's)")
+      ->capture_default_str();
   app.add_option("--disk-mib", o.disk_mib, "Size of the tmpfs for markerd's logs and state")
-      ->check(CLI::Range(16, 4096))->capture_default_str();
+      ->check(CLI::Range(16, 4096))
+      ->capture_default_str();
   app.add_option("--disk-fills-per-hour", o.disk_fills_per_hour, "How often the disk is filled")
-      ->check(CLI::Range(0.0, 360.0))->capture_default_str();
-  app.add_option("--disk-full-s", o.disk_full_s, "How long it stays full")->check(CLI::Range(1.0, 600.0))->capture_default_str();
-  app.add_option("--camera-outage-every-s", o.camera_outage_every_s, "The simulated camera drops out this often (0: never)")
-      ->check(CLI::Range(0.0, 86400.0))->capture_default_str();
-  app.add_option("--camera-outage-s", o.camera_outage_s, "for this long")->check(CLI::Range(0.1, 60.0))->capture_default_str();
-  app.add_option("--max-followers", o.max_followers, "Followers attached at most")->check(CLI::Range(0, 12))->capture_default_str();
+      ->check(CLI::Range(0.0, 360.0))
+      ->capture_default_str();
+  app.add_option("--disk-full-s", o.disk_full_s, "How long it stays full")
+      ->check(CLI::Range(1.0, 600.0))
+      ->capture_default_str();
+  app.add_option("--camera-outage-every-s", o.camera_outage_every_s,
+                 "The simulated camera drops out this often (0: never)")
+      ->check(CLI::Range(0.0, 86400.0))
+      ->capture_default_str();
+  app.add_option("--camera-outage-s", o.camera_outage_s, "for this long")
+      ->check(CLI::Range(0.1, 60.0))
+      ->capture_default_str();
+  app.add_option("--max-followers", o.max_followers, "Followers attached at most")
+      ->check(CLI::Range(0, 12))
+      ->capture_default_str();
   app.add_option("--follower-changes-per-minute", o.follower_changes_per_minute, "Attach or detach one, this often")
-      ->check(CLI::Range(0.0, 600.0))->capture_default_str();
-  app.add_option("--stalls-per-hour", o.stalls_per_hour, "A detections follower stopped (SIGSTOP) for 30 to 90 s, this often")
-      ->check(CLI::Range(0.0, 3600.0))->capture_default_str();
+      ->check(CLI::Range(0.0, 600.0))
+      ->capture_default_str();
+  app.add_option("--stalls-per-hour", o.stalls_per_hour,
+                 "A detections follower stopped (SIGSTOP) for 30 to 90 s, this often")
+      ->check(CLI::Range(0.0, 3600.0))
+      ->capture_default_str();
   app.add_option("--sample-every-s", o.sample_every_s, "markerd's RSS, threads and descriptors, this often")
-      ->check(CLI::Range(0.5, 600.0))->capture_default_str();
+      ->check(CLI::Range(0.5, 600.0))
+      ->capture_default_str();
   app.add_option("--warm-up-s", o.warm_up_s, "A markerd's memory is judged after this much of its life")
-      ->check(CLI::Range(0.0, 3600.0))->capture_default_str();
+      ->check(CLI::Range(0.0, 3600.0))
+      ->capture_default_str();
   app.add_option("--markerd", o.markerd, "The markerd to soak")->capture_default_str();
   app.add_option("--markerctl", o.markerctl, "The markerctl the followers run")->capture_default_str();
   // A mistake on the command line: exit status 2, as for a soak that cannot begin.

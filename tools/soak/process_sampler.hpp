@@ -27,12 +27,12 @@ std::optional<ProcessUsage> read_process_usage(pid_t pid);
 std::vector<std::filesystem::path> open_files(pid_t pid);
 
 struct Sample {
-  double elapsed_s = 0;   // since the soak began
-  int instance = 0;       // which markerd (1: the first started; one more per restart)
+  double elapsed_s = 0;  // since the soak began
+  int instance = 0;      // which markerd (1: the first started; one more per restart)
   pid_t pid = 0;
-  double uptime_s = 0;    // of this markerd
+  double uptime_s = 0;  // of this markerd
   ProcessUsage usage;
-  int followers = 0;      // attached at the time
+  int followers = 0;  // attached at the time
   std::string sweep_state;
   bool disk_full = false;
 };

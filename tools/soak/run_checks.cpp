@@ -73,10 +73,11 @@ void check_run(const fs::path& directory, const std::map<std::string, RunObserva
   const RunObservation* observed = it == seen.end() ? nullptr : &it->second;
   if (!records.stop) {
     ++totals.unended;
-    problem(fmt::format("no stop record: the run never ended ({} of {} steps recorded{})", records.points.size(), steps,
-                        observed && !observed->ended_as.empty()
-                            ? fmt::format("; markerd had reported it {}: {}", observed->ended_as, observed->ended_reason)
-                            : ""));
+    problem(
+        fmt::format("no stop record: the run never ended ({} of {} steps recorded{})", records.points.size(), steps,
+                    observed && !observed->ended_as.empty()
+                        ? fmt::format("; markerd had reported it {}: {}", observed->ended_as, observed->ended_reason)
+                        : ""));
   } else {
     const sweep::RunStop& stop = *records.stop;
     const std::string status(sweep::to_string(stop.status));
@@ -87,7 +88,8 @@ void check_run(const fs::path& directory, const std::map<std::string, RunObserva
     if (stop.status == sweep::ExitStatus::done) {
       ++totals.done;
       totals.planned_in_done += steps;
-      if (records.points.size() != steps) problem(fmt::format("done with {} of {} steps recorded", records.points.size(), steps));
+      if (records.points.size() != steps)
+        problem(fmt::format("done with {} of {} steps recorded", records.points.size(), steps));
     } else {
       ++(stop.status == sweep::ExitStatus::failed ? totals.failed : totals.aborted);
       totals.not_measured += steps > records.points.size() ? steps - records.points.size() : 0;
@@ -134,7 +136,8 @@ RunTotals check_runs(const fs::path& runs_directory, const std::map<std::string,
   std::sort(runs.begin(), runs.end());
   for (const fs::path& run : runs) check_run(run, seen, totals, problems);
   for (const auto& [id, observation] : seen) {
-    if (!fs::exists(runs_directory / id)) problems.push_back(fmt::format("run {}: markerd reported it, its directory is gone", id));
+    if (!fs::exists(runs_directory / id))
+      problems.push_back(fmt::format("run {}: markerd reported it, its directory is gone", id));
   }
   return totals;
 }

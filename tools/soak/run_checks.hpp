@@ -17,10 +17,10 @@ namespace markerd::soak {
 
 // What the soak saw of a run while it went (through sweep.status and at kills).
 struct RunObservation {
-  std::set<std::string> states;   // every state sweep.status reported for it
-  std::string ended_as;           // the first end state seen (done, failed, aborted); empty while none
+  std::set<std::string> states;  // every state sweep.status reported for it
+  std::string ended_as;          // the first end state seen (done, failed, aborted); empty while none
   std::string ended_reason;
-  bool came_back = false;         // reported in another state after it had ended (said once)
+  bool came_back = false;           // reported in another state after it had ended (said once)
   std::size_t most_steps_seen = 0;  // the largest steps_done seen
   std::vector<std::size_t> cut_at;  // per kill -9 that cut it off: the steps then recorded
 };
@@ -30,16 +30,16 @@ struct RunTotals {
   std::uint64_t done = 0;
   std::uint64_t failed = 0;
   std::uint64_t aborted = 0;
-  std::uint64_t unended = 0;            // without a stop record
-  std::uint64_t planned = 0;            // measurements planned, over all runs
-  std::uint64_t recorded = 0;           // point records
-  std::uint64_t duplicates = 0;         // point records of a step recorded before
-  std::uint64_t missing = 0;            // steps before the last recorded one without a record
-  std::uint64_t planned_in_done = 0;    // measurements planned by the runs that ended done
-  std::uint64_t not_measured = 0;       // planned by failed or aborted runs, never measured
+  std::uint64_t unended = 0;          // without a stop record
+  std::uint64_t planned = 0;          // measurements planned, over all runs
+  std::uint64_t recorded = 0;         // point records
+  std::uint64_t duplicates = 0;       // point records of a step recorded before
+  std::uint64_t missing = 0;          // steps before the last recorded one without a record
+  std::uint64_t planned_in_done = 0;  // measurements planned by the runs that ended done
+  std::uint64_t not_measured = 0;     // planned by failed or aborted runs, never measured
   std::uint64_t restarted_events = 0;
   std::uint64_t cut_off_kills = 0;
-  std::uint64_t camera_suspensions = 0;  // "suspended" events with the camera as the cause
+  std::uint64_t camera_suspensions = 0;                 // "suspended" events with the camera as the cause
   std::map<std::string, std::uint64_t> failure_causes;  // stop reasons of failed runs, shortened
 };
 

@@ -108,8 +108,8 @@ void SmallDisk::unmount_stale(const fs::path& mount_point) {
   std::error_code ec;
   if (!fs::exists(mount_point, ec) || !is_mount_point(mount_point)) return;
   if (::umount2(mount_point.c_str(), MNT_DETACH) != 0) {
-    throw std::runtime_error("cannot unmount " + mount_point.string() + " (left by an earlier soak): " +
-                             errno_text(errno));
+    throw std::runtime_error("cannot unmount " + mount_point.string() +
+                             " (left by an earlier soak): " + errno_text(errno));
   }
 }
 

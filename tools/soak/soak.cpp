@@ -1,8 +1,8 @@
 #include "soak.hpp"
 
 #include <fmt/format.h>
-#include <nlohmann/json.hpp>
 #include <unistd.h>
+#include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -70,7 +70,9 @@ distance_m = [0.5]
 angle_deg = [20.0, 40.0, 60.0]
 )toml";
 
-Clock::duration duration_of(double s) { return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s)); }
+Clock::duration duration_of(double s) {
+  return std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(s));
+}
 
 double since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
 
@@ -81,8 +83,8 @@ void prepare_work_dir(const fs::path& dir) {
   fs::create_directories(dir);
   const bool empty = fs::is_empty(dir);
   if (!empty && !fs::exists(dir / kStamp)) {
-    throw std::runtime_error(fmt::format("{}: not empty and not a soak's work directory (no {}); give an empty or new one",
-                                         dir.string(), kStamp));
+    throw std::runtime_error(fmt::format(
+        "{}: not empty and not a soak's work directory (no {}); give an empty or new one", dir.string(), kStamp));
   }
   SmallDisk::unmount_stale(dir / "disk");
   for (const auto& entry : fs::directory_iterator(dir)) fs::remove_all(entry.path());
@@ -186,7 +188,8 @@ void Soak::write_configs() {
   if (at == std::string::npos) throw std::runtime_error("config/rig-sim.toml has no line '" + scale + "'");
   rig.replace(at, scale.size(), fmt::format("time_scale = {}", o_.time_scale));
   write_file(dir_ / "rig.toml", rig);
-  write_file(dir_ / "markerd.toml", fmt::format(R"(# Written by the soak (tools/soak): the simulated rig, its camera dropping
+  write_file(dir_ / "markerd.toml",
+             fmt::format(R"(# Written by the soak (tools/soak): the simulated rig, its camera dropping
 # out on a schedule, the logs and state on a small tmpfs.
 rig = "rig.toml"
 
@@ -222,11 +225,10 @@ socket = "control.sock"
 [sweep]
 directory = "disk/state"
 )",
-                                                o_.source_dir,
-                                                o_.camera_outage_every_s > 0
-                                                    ? fmt::format("outage_every_s = {}\noutage_s = {}",
-                                                                  o_.camera_outage_every_s, o_.camera_outage_s)
-                                                    : "# the camera does not drop out (--camera-outage-every-s 0)"));
+                         o_.source_dir,
+                         o_.camera_outage_every_s > 0 ? fmt::format("outage_every_s = {}\noutage_s = {}",
+                                                                    o_.camera_outage_every_s, o_.camera_outage_s)
+                                                      : "# the camera does not drop out (--camera-outage-every-s 0)"));
   write_file(dir_ / "soak.toml", kPlan);
   plan_text_ = kPlan;
 }
@@ -297,7 +299,8 @@ std::optional<json> Soak::call(const json& request) {
       // An idle connection may be closed by markerd; a second try is a new one.
       if (attempt == 1) {
         ++hangs_;
-        problem(fmt::format("markerd {} does not answer {}: {}; killing it", instance_, request.value("cmd", ""), e.what()));
+        problem(fmt::format("markerd {} does not answer {}: {}; killing it", instance_, request.value("cmd", ""),
+                            e.what()));
         kill_markerd();
       }
     }
@@ -403,8 +406,8 @@ void Soak::look_at_files() {
   const bool run_now_ended = state_now_ == "done" || state_now_ == "failed" || state_now_ == "aborted";
   for (const auto& entry : fs::directory_iterator(state_ / "runs")) {
     const fs::path run = entry.path();
-    const bool ended = fs::exists(run / "stop.json") && run.string() != journal_names &&
-                       (run.filename() != run_now_ || run_now_ended);
+    const bool ended =
+        fs::exists(run / "stop.json") && run.string() != journal_names && (run.filename() != run_now_ || run_now_ended);
     for (const char* name : {"points.jsonl", "events.jsonl"}) {
       const fs::path file = run / name;
       if (!fs::exists(file)) continue;
@@ -446,7 +449,7 @@ void Soak::tick() {
   }
 
   const bool calm = now >= began_ + std::chrono::duration_cast<Clock::duration>(
-                                          std::chrono::duration<double>(o_.duration) * (1.0 - o_.calm_tail));
+                                        std::chrono::duration<double>(o_.duration) * (1.0 - o_.calm_tail));
   if (now >= next_kill_) {
     if (!calm && markerd_.running()) kill_markerd();
     next_kill_ = next_after(rng_, o_.kills_per_hour);
@@ -622,11 +625,14 @@ void Soak::report() {
                           mib(static_cast<std::int64_t>(allowed))));
     }
   } else {
-    problem("too few samples of the last markerd after its warm-up to judge its memory (a longer soak, or a shorter --warm-up)");
+    problem(
+        "too few samples of the last markerd after its warm-up to judge its memory (a longer soak, or a shorter "
+        "--warm-up)");
   }
   if (baseline_ && at_end_) {
     if (at_end_->fds > baseline_->fds) {
-      problem(fmt::format("file descriptors: {} open at the start, {} at the end (both idle)", baseline_->fds, at_end_->fds));
+      problem(fmt::format("file descriptors: {} open at the start, {} at the end (both idle)", baseline_->fds,
+                          at_end_->fds));
     }
     if (at_end_->threads > baseline_->threads) {
       problem(fmt::format("threads: {} at the start, {} at the end (both idle)", baseline_->threads, at_end_->threads));
@@ -678,10 +684,12 @@ void Soak::report() {
       "  descriptors: {} at the start, {} at the end; threads: {} at the start, {} at the end (idle)\n"
       "  samples: {} in {}\n",
       o_.seed, o_.time_scale, dir_.string(), since(began_) / 3600.0, since(began_), started_, kills_, kills_while_full_,
-      crashes_, hangs_, fills_, o_.disk_mib, o_.disk_full_s, o_.camera_outage_every_s > 0
+      crashes_, hangs_, fills_, o_.disk_mib, o_.disk_full_s,
+      o_.camera_outage_every_s > 0
           ? fmt::format("outages every {} s for {} s", o_.camera_outage_every_s, o_.camera_outage_s)
           : std::string("no outages"),
-      camera_lost, camera_back, runs.camera_suspensions, runs.runs, runs.done, runs.failed, runs.aborted, runs.unended, [&] {
+      camera_lost, camera_back, runs.camera_suspensions, runs.runs, runs.done, runs.failed, runs.aborted, runs.unended,
+      [&] {
         std::uint64_t n = 0;
         for (const auto& [why, count] : start_refusals_) n += count;
         return n;
@@ -706,7 +714,8 @@ void Soak::report() {
 
 int Soak::run() {
   if (::geteuid() != 0) {
-    throw std::runtime_error("the soak must run as root: it mounts a small tmpfs for markerd's logs and state, to fill it");
+    throw std::runtime_error(
+        "the soak must run as root: it mounts a small tmpfs for markerd's logs and state, to fill it");
   }
   dir_ = fs::absolute(o_.work_dir);
   prepare_work_dir(dir_);

@@ -1,11 +1,11 @@
 #include "markerd/daemon/capture/file_source.hpp"
 
+#include <fmt/format.h>
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
-#include <fmt/format.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
@@ -29,8 +29,8 @@ namespace fs = std::filesystem;
 // Extensions of the formats ImageFileReader reads; other files in a replay
 // directory (notes, a detection log) are not frames.
 bool is_image_name(const fs::path& path) {
-  static constexpr std::array<std::string_view, 12> kExtensions = {
-      ".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".dib", ".pbm", ".pgm", ".ppm", ".pnm", ".tif", ".tiff"};
+  static constexpr std::array<std::string_view, 12> kExtensions = {".png", ".jpg", ".jpeg", ".jpe", ".bmp", ".dib",
+                                                                   ".pbm", ".pgm", ".ppm",  ".pnm", ".tif", ".tiff"};
   std::string extension = path.extension().string();
   std::transform(extension.begin(), extension.end(), extension.begin(),
                  [](char c) { return static_cast<char>((c >= 'A' && c <= 'Z') ? c - 'A' + 'a' : c); });
@@ -48,10 +48,10 @@ std::vector<fs::path> list_images(const fs::path& directory) {
     images.push_back(it->path());
   }
   if (error) {
-    const auto kind = error == std::errc::no_such_file_or_directory ? CaptureError::Kind::not_found
-                                                                     : CaptureError::Kind::io;
-    throw CaptureError(kind, fmt::format("file source {}: cannot list the directory: {}", directory.string(),
-                                         error.message()));
+    const auto kind =
+        error == std::errc::no_such_file_or_directory ? CaptureError::Kind::not_found : CaptureError::Kind::io;
+    throw CaptureError(
+        kind, fmt::format("file source {}: cannot list the directory: {}", directory.string(), error.message()));
   }
   // Name order, byte by byte: frame_0002.png before frame_0010.png only when
   // the numbers are zero-padded (as recorders write them).
@@ -82,9 +82,8 @@ class FileSource final : public CaptureSource {
  public:
   explicit FileSource(const FileSourceSettings& settings) : settings_(settings) {
     if (!(settings_.fps >= 0) || !std::isfinite(settings_.fps)) {
-      throw CaptureError(CaptureError::Kind::config,
-                         fmt::format("file source {}: fps must be >= 0, got {}", settings_.path.string(),
-                                     settings_.fps));
+      throw CaptureError(CaptureError::Kind::config, fmt::format("file source {}: fps must be >= 0, got {}",
+                                                                 settings_.path.string(), settings_.fps));
     }
     name_ = fmt::format("file {}", settings_.path.string());
     if (settings_.fps > 0) {
@@ -224,9 +223,9 @@ class FileSource final : public CaptureSource {
     const bool read = capture_.read(first);
     capture_.release();
     if (!read || first.empty()) {
-      throw CaptureError(CaptureError::Kind::config,
-                         fmt::format("file source {}: the video has no frame OpenCV can decode",
-                                     settings_.path.string()));
+      throw CaptureError(
+          CaptureError::Kind::config,
+          fmt::format("file source {}: the video has no frame OpenCV can decode", settings_.path.string()));
     }
     width_ = first.cols;
     height_ = first.rows;
@@ -277,8 +276,7 @@ class FileSource final : public CaptureSource {
       open_video();
       grabbed_ = grab_video_frame();
       if (!grabbed_) {
-        throw CaptureError(CaptureError::Kind::io,
-                           fmt::format("{}: no frame after starting the video over", name_));
+        throw CaptureError(CaptureError::Kind::io, fmt::format("{}: no frame after starting the video over", name_));
       }
     }
     if (!grabbed_) ended_.store(true, std::memory_order_relaxed);

@@ -358,8 +358,8 @@ void ImageFileReader::decode(std::uint8_t* grey, std::ptrdiff_t stride) {
         throw ImageFileError(path_, fmt::format("the JPEG cannot be decoded (TurboJPEG: {})", words));
       }
       const bool truncated = words.find("Premature end") != std::string::npos;
-      throw ImageFileError(path_, fmt::format("the JPEG is {} (TurboJPEG: {})", truncated ? "truncated" : "corrupt",
-                                              words));
+      throw ImageFileError(path_,
+                           fmt::format("the JPEG is {} (TurboJPEG: {})", truncated ? "truncated" : "corrupt", words));
     }
     case Format::pnm:
     case Format::bmp:

@@ -13,6 +13,7 @@
 #include <libcamera/request.h>
 #include <libcamera/stream.h>
 
+#include <fmt/format.h>
 #include <algorithm>
 #include <array>
 #include <cerrno>
@@ -20,16 +21,15 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
-#include <fmt/format.h>
 #include <limits>
 #include <mutex>
 #include <nlohmann/json.hpp>
 #include <stdexcept>
 #include <utility>
 
+#include "markerd/base/config_table.hpp"
 #include "markerd/base/errno_text.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
-#include "markerd/base/config_table.hpp"
 
 namespace markerd::daemon {
 
@@ -219,7 +219,7 @@ class Session : public std::enable_shared_from_this<Session> {
     const libcamera::FrameBuffer* buffer = nullptr;
     const std::uint8_t* pixels = nullptr;  // the first plane: Y of NV12, the whole image of R8, YUYV and MJPEG
     std::size_t length = 0;                // the first plane's bytes
-    std::shared_ptr<Session> lent_to;     // set while a frame borrows the slot's pixels
+    std::shared_ptr<Session> lent_to;      // set while a frame borrows the slot's pixels
   };
 
   // The frame borrows the slot's buffer until the pipeline is done with it.
@@ -321,9 +321,8 @@ void Session::find_camera(const LibcameraSettings& settings) {
   }
   camera_id_ = camera_->id();
   if (const int ret = camera_->acquire(); ret < 0) {
-    fail(CaptureError::Kind::io,
-         fmt::format("cannot acquire camera '{}': {}{}", camera_id_, errno_text(-ret),
-                     ret == -EBUSY ? " (another process or source has it)" : ""));
+    fail(CaptureError::Kind::io, fmt::format("cannot acquire camera '{}': {}{}", camera_id_, errno_text(-ret),
+                                             ret == -EBUSY ? " (another process or source has it)" : ""));
   }
   acquired_ = true;
 }
@@ -425,8 +424,8 @@ libcamera::ControlList Session::start_controls(const LibcameraSettings& settings
     const libcamera::ControlId* id = find_control(available, setting.name);
     if (id == nullptr) {
       throw CaptureError(CaptureError::Kind::config,
-                         fmt::format("{}: camera '{}' has no control {} (its controls: {})", setting.origin,
-                                     camera_id_, setting.name, control_names(available)));
+                         fmt::format("{}: camera '{}' has no control {} (its controls: {})", setting.origin, camera_id_,
+                                     setting.name, control_names(available)));
     }
     const libcamera::ControlInfo& info = available.at(id);
     libcamera::ControlValue value;
@@ -443,9 +442,8 @@ libcamera::ControlList Session::start_controls(const LibcameraSettings& settings
         break;
       default:
         // parse_libcamera_settings admits no other type.
-        throw CaptureError(CaptureError::Kind::config,
-                           fmt::format("{}: a {} control cannot be set from the config", setting.origin,
-                                       type_name(id->type())));
+        throw CaptureError(CaptureError::Kind::config, fmt::format("{}: a {} control cannot be set from the config",
+                                                                   setting.origin, type_name(id->type())));
     }
     if (!info.values().empty()) {
       if (std::find(info.values().begin(), info.values().end(), value) == info.values().end()) {
@@ -811,7 +809,8 @@ LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
   settings.fps = table.optional<double>("fps", 0.0);
   // The frame duration (1e6 / fps microseconds) must be a whole, non-zero count.
   if (!std::isfinite(settings.fps) || settings.fps < 0 || settings.fps > 1000) {
-    table.fail("fps", fmt::format("must be >= 0 (0: the camera's own frame rate) and at most 1000, got {}", settings.fps));
+    table.fail("fps",
+               fmt::format("must be >= 0 (0: the camera's own frame rate) and at most 1000, got {}", settings.fps));
   }
   settings.buffers = table.optional<int>("buffers", 4);
   if (settings.buffers < 1 || settings.buffers > 32) {
@@ -839,8 +838,7 @@ LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
 
       // Array controls (ColourGains, a Span of floats) have their element's
       // type but take a list: not from the config.
-      if (id->name() == "ColourGains" || id->name() == "ColourCorrectionMatrix" ||
-          id->name() == "SensorBlackLevels") {
+      if (id->name() == "ColourGains" || id->name() == "ColourCorrectionMatrix" || id->name() == "SensorBlackLevels") {
         controls->fail(name, "an array control cannot be set from the config");
       }
 
@@ -861,8 +859,7 @@ LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
         }
         case libcamera::ControlTypeInteger64: setting.value = controls->required<std::int64_t>(name); break;
         case libcamera::ControlTypeFloat: setting.value = controls->required<double>(name); break;
-        default:
-          controls->fail(name, fmt::format("a {} control cannot be set from the config", type_name(id->type())));
+        default: controls->fail(name, fmt::format("a {} control cannot be set from the config", type_name(id->type())));
       }
       settings.controls.push_back(std::move(setting));
     }

@@ -43,7 +43,8 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
     t.fail("noise_sigma", fmt::format("must be 0 .. 40 (grey levels), got {}", s.noise_sigma));
   }
   s.supersample = t.optional<int>("supersample", s.supersample);
-  if (s.supersample < 1 || s.supersample > 8) t.fail("supersample", fmt::format("must be 1 .. 8, got {}", s.supersample));
+  if (s.supersample < 1 || s.supersample > 8)
+    t.fail("supersample", fmt::format("must be 1 .. 8, got {}", s.supersample));
   s.clutter = t.optional<bool>("clutter", s.clutter);
   s.distort = t.optional<bool>("distort", s.distort);
   const auto seed = t.optional<std::int64_t>("seed", 1);
@@ -71,7 +72,8 @@ SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, r
     throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
   }
   name_ = fmt::format("sim {}x{}@{:g}", camera_.width, camera_.height, settings_.fps);
-  period_ = std::chrono::duration_cast<std::chrono::steady_clock::duration>(std::chrono::duration<double>(1.0 / settings_.fps));
+  period_ = std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+      std::chrono::duration<double>(1.0 / settings_.fps));
   // The table holds whole grey levels: the rendered image is whole levels
   // too, and rounding the sum is what a sensor's converter does.
   noise_.resize(kNoiseSamples);
@@ -84,8 +86,8 @@ SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, r
 }
 
 CaptureGeometry SimCamera::geometry() const {
-  return {camera_.width, camera_.height, static_cast<std::size_t>(camera_.width) * static_cast<std::size_t>(camera_.height),
-          settings_.fps};
+  return {camera_.width, camera_.height,
+          static_cast<std::size_t>(camera_.width) * static_cast<std::size_t>(camera_.height), settings_.fps};
 }
 
 std::optional<std::string> SimCamera::absent() {

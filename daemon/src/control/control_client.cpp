@@ -72,8 +72,8 @@ ControlClient::ControlClient(std::filesystem::path socket_path) : path_(std::mov
   if (::connect(fd_.get(), reinterpret_cast<const sockaddr*>(&address), sizeof address) != 0) {
     const int error = errno;
     fd_.reset();
-    throw ControlClientError(fmt::format("cannot connect to {}: {}{}", path_.string(), errno_text(error),
-                                         connect_hint(path_, error)));
+    throw ControlClientError(
+        fmt::format("cannot connect to {}: {}{}", path_.string(), errno_text(error), connect_hint(path_, error)));
   }
 }
 

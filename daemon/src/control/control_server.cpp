@@ -24,7 +24,6 @@
 #include <cstring>
 #include <utility>
 
-
 namespace markerd::daemon {
 
 using nlohmann::json;
@@ -53,7 +52,6 @@ constexpr auto kAcceptPause = 100ms;
 // descriptor that markerd's camera and logs need too.
 constexpr std::size_t kBeyondLimitClients = 4;
 constexpr auto kBeyondLimitIdle = 5s;
-
 
 [[noreturn]] void socket_error(const std::filesystem::path& path, std::string_view why) {
   throw ControlSocketError(fmt::format("control socket {}: {}", path.string(), why));
@@ -216,15 +214,17 @@ std::optional<std::string> find_socket_group_problem(const ControlSettings& sett
   if (settings.group.empty()) return std::nullopt;
   const std::optional<gid_t> gid = group_id(settings.group);
   if (!gid) {
-    return fmt::format("group '{}' does not exist (create it, e.g. with systemd-sysusers, or name another in "
-                       "[control] group)",
-                       settings.group);
+    return fmt::format(
+        "group '{}' does not exist (create it, e.g. with systemd-sysusers, or name another in "
+        "[control] group)",
+        settings.group);
   }
   // Only root, or a member, may give a file to a group.
   if (::geteuid() != 0 && !member_of(*gid)) {
-    return fmt::format("markerd, running as user {}, is not a member of group '{}' and cannot give the socket to it "
-                       "(the unit's Group= or SupplementaryGroups= makes it one)",
-                       user_name(::geteuid()), settings.group);
+    return fmt::format(
+        "markerd, running as user {}, is not a member of group '{}' and cannot give the socket to it "
+        "(the unit's Group= or SupplementaryGroups= makes it one)",
+        user_name(::geteuid()), settings.group);
   }
   return std::nullopt;
 }
@@ -239,17 +239,17 @@ struct ControlServer::Client {
   std::string output;             // to send, from output_sent on
   std::size_t output_sent = 0;
   LineBroadcast* following = nullptr;
-  std::uint64_t missed = 0;       // stream lines lost to this client, not yet announced
-  bool peer_closed = false;       // read() saw the end
-  bool closing = false;           // no more requests: send what is queued, then close
-  bool dead = false;              // close now
+  std::uint64_t missed = 0;  // stream lines lost to this client, not yet announced
+  bool peer_closed = false;  // read() saw the end
+  bool closing = false;      // no more requests: send what is queued, then close
+  bool dead = false;         // close now
   Clock::time_point close_deadline{};
   // Accepted, a request received or reply bytes taken: the idle timeout
   // runs from here. Bytes of a request not yet complete do not count, so a
   // client trickling a line cannot hold its connection for ever.
   Clock::time_point last_activity{};
-  bool beyond_limit = false;      // taken past max_clients: stop commands only
-  bool served = false;            // a request of it has been answered
+  bool beyond_limit = false;  // taken past max_clients: stop commands only
+  bool served = false;        // a request of it has been answered
 
   [[nodiscard]] std::size_t pending() const { return output.size() - output_sent; }
   [[nodiscard]] bool request_waiting() const { return input.find('\n', input_scanned) != std::string::npos; }
@@ -374,8 +374,8 @@ void ControlServer::set_up_socket() {
                                           : ""));
   }
   if (::chmod(path.c_str(), settings_.mode) != 0) {
-    fail_bound(fmt::format("cannot set its mode to 0{:o}: {}", static_cast<unsigned>(settings_.mode),
-                           errno_text(errno)));
+    fail_bound(
+        fmt::format("cannot set its mode to 0{:o}: {}", static_cast<unsigned>(settings_.mode), errno_text(errno)));
   }
   if (::lstat(path.c_str(), &st) != 0) fail_bound(fmt::format("cannot stat it after bind: {}", errno_text(errno)));
   socket_dev_ = st.st_dev;
@@ -454,8 +454,8 @@ void ControlServer::run(const std::stop_token& stop) {
       if (!client->closing && !client->peer_closed && !client->request_waiting()) events |= POLLIN;
       if (client->pending() > 0) events |= POLLOUT;
       fds.push_back({client->fd.get(), events, 0});
-      std::optional<Clock::time_point> deadline = client->closing ? std::optional(client->close_deadline)
-                                                                  : idle_deadline(*client);
+      std::optional<Clock::time_point> deadline =
+          client->closing ? std::optional(client->close_deadline) : idle_deadline(*client);
       if (deadline && (!wake_at || *deadline < *wake_at)) wake_at = deadline;
     }
     int timeout = -1;
@@ -553,8 +553,8 @@ void ControlServer::accept_clients() {
     client->beyond_limit = beyond_limit;
     if (beyond_limit) {
       counters_.beyond_limit.fetch_add(1, std::memory_order_relaxed);
-      spdlog::info("control: client {} (pid {}, uid {}) connected beyond the limit of {}: served {} only", id,
-                   peer.pid, peer.uid, settings_.max_clients, beyond_limit_commands());
+      spdlog::info("control: client {} (pid {}, uid {}) connected beyond the limit of {}: served {} only", id, peer.pid,
+                   peer.uid, settings_.max_clients, beyond_limit_commands());
     } else {
       spdlog::debug("control: client {} connected (pid {}, uid {})", id, peer.pid, peer.uid);
     }
@@ -604,8 +604,7 @@ void ControlServer::close_idle(Client& client, Clock::time_point now) {
   }
   counters_.idle_closed.fetch_add(1, std::memory_order_relaxed);
   const double seconds = std::chrono::duration<double>(now - client.last_activity).count();
-  spdlog::info("control: client {}: no request and no reply read for {:.0f} s; connection closed", client.id,
-               seconds);
+  spdlog::info("control: client {}: no request and no reply read for {:.0f} s; connection closed", client.id, seconds);
   close_after(client, {{"ok", false},
                        {"error", fmt::format("idle for {:g} s (no request, no reply read); closing the connection",
                                              std::chrono::duration<double>(settings_.idle_timeout).count())}});
@@ -649,11 +648,11 @@ void ControlServer::serve_buffered(Client& client) {
       counters_.errors.fetch_add(1, std::memory_order_relaxed);
       spdlog::warn("control: client {}: a request longer than {} bytes; connection closed", client.id,
                    settings_.max_request_bytes);
-      close_after(client, {{"ok", false},
-                           {"error", fmt::format("request too large: longer than markerd's limit of {} ({} bytes); "
-                                                 "closing the connection",
-                                                 format_bytes(settings_.max_request_bytes),
-                                                 settings_.max_request_bytes)}});
+      close_after(client,
+                  {{"ok", false},
+                   {"error", fmt::format("request too large: longer than markerd's limit of {} ({} bytes); "
+                                         "closing the connection",
+                                         format_bytes(settings_.max_request_bytes), settings_.max_request_bytes)}});
       start = client.input.size();
       break;
     }
@@ -768,11 +767,12 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
     return refuse(malformed_json_text(line, e));
   }
   if (!request.is_object()) {
-    return refuse(fmt::format(R"(a request must be a JSON object such as {{"cmd":"help"}}, got {})",
-                              json_type_name(request)));
+    return refuse(
+        fmt::format(R"(a request must be a JSON object such as {{"cmd":"help"}}, got {})", json_type_name(request)));
   }
   if (const auto id = request.find("id"); id != request.end()) {
-    if (id->is_structured()) return refuse(fmt::format("\"id\" must be a string or a number, got {}", json_type_name(*id)));
+    if (id->is_structured())
+      return refuse(fmt::format("\"id\" must be a string or a number, got {}", json_type_name(*id)));
     reply["id"] = *id;
   }
   const auto cmd = request.find("cmd");
@@ -829,14 +829,11 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
   return reply;
 }
 
-void ControlServer::queue_reply(Client& client, const ordered_json& reply) {
-  client.output += dump_line(reply);
-}
+void ControlServer::queue_reply(Client& client, const ordered_json& reply) { client.output += dump_line(reply); }
 
 void ControlServer::queue_notice(Client& client) {
   if (client.following == nullptr || client.missed == 0) return;
-  client.output += dump_line(
-      {{"event", "dropped"}, {"stream", client.following->name()}, {"lines", client.missed}});
+  client.output += dump_line({{"event", "dropped"}, {"stream", client.following->name()}, {"lines", client.missed}});
   client.missed = 0;
 }
 

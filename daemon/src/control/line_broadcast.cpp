@@ -19,9 +19,7 @@ std::size_t ring_capacity(std::size_t requested) {
 }  // namespace
 
 LineBroadcast::LineBroadcast(std::string name, std::size_t capacity_bytes)
-    : name_(std::move(name)),
-      mask_(ring_capacity(capacity_bytes) - 1),
-      bytes_(std::make_unique<char[]>(mask_ + 1)) {
+    : name_(std::move(name)), mask_(ring_capacity(capacity_bytes) - 1), bytes_(std::make_unique<char[]>(mask_ + 1)) {
   wake_fd_.reset(::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC));
   if (!wake_fd_) {
     throw std::system_error(errno, std::generic_category(), "stream " + name_ + ": eventfd");

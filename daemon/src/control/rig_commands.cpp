@@ -114,10 +114,10 @@ json move(rig::Rig& rig, const json& request) {
     const rig::AxisSettings& settings = axis.settings();
     const AxisStatus s = axis.status();
     if (relative) leg.target = s.position + leg.value;
-    const std::string what =
-        relative ? fmt::format("{}: move by {:+g} {} (to {:g} {}) refused", settings.name, leg.value, settings.unit,
-                               leg.target, settings.unit)
-                 : fmt::format("{}: move to {:g} {} refused", settings.name, leg.target, settings.unit);
+    const std::string what = relative
+                                 ? fmt::format("{}: move by {:+g} {} (to {:g} {}) refused", settings.name, leg.value,
+                                               settings.unit, leg.target, settings.unit)
+                                 : fmt::format("{}: move to {:g} {} refused", settings.name, leg.target, settings.unit);
     if (s.state == AxisState::fault) {
       throw ControlError(fmt::format("{}: the axis is in fault ({}); rig.home clears the fault", what, s.fault));
     }

@@ -8,8 +8,8 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
-#include <vector>
 #include <numbers>
+#include <vector>
 
 #include "markerd/detector/pose.hpp"
 

@@ -104,9 +104,9 @@ void Frame8Detector::write_debug(const std::vector<Detection>& out) {
       for (std::size_t k = 0; k < c.attempts.size(); ++k) {
         const auto& [how, why] = c.attempts[k];
         json += fmt::format(R"({}{{"read": "{}", )", k ? ", " : "", read_name(how));
-        json += why == Rejection::none ? std::string(R"("result": "read"})")
-                                       : fmt::format(R"("stage": "{}", "reason": "{}"}})", stage_name(stage_of(why)),
-                                                     rejection_name(why));
+        json += why == Rejection::none
+                    ? std::string(R"("result": "read"})")
+                    : fmt::format(R"("stage": "{}", "reason": "{}"}})", stage_name(stage_of(why)), rejection_name(why));
       }
       json += "]";
     }

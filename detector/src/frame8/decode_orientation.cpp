@@ -28,8 +28,7 @@ Rejection Frame8Detector::read_corners(RingRead& r) const {
   }
   // A marker turned far whose corners do not read clearly: its short
   // edges' profiles decide, once the code is known.
-  r.by_short_edges =
-      r.short_side >= 0 && (!r.corners_read || r.orientation_clarity < config_.frame8.min_margin);
+  r.by_short_edges = r.short_side >= 0 && (!r.corners_read || r.orientation_clarity < config_.frame8.min_margin);
   return Rejection::none;
 }
 

@@ -15,11 +15,11 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <limits>
-#include <vector>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <system_error>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -43,8 +43,8 @@ Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
     std::error_code ec;
     std::filesystem::create_directories(config_.frame8.debug_dir, ec);
     if (ec || !std::filesystem::is_directory(config_.frame8.debug_dir)) {
-      throw DetectorError(fmt::format("frame8: debug_dir {}: {}", config_.frame8.debug_dir,
-                                      ec ? ec.message() : "not a directory"));
+      throw DetectorError(
+          fmt::format("frame8: debug_dir {}: {}", config_.frame8.debug_dir, ec ? ec.message() : "not a directory"));
     }
     debug_ = true;
   }
@@ -88,10 +88,8 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
 void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
   const Component& c = components_[static_cast<std::size_t>(root)];
   // The component's box stands for its quad until fit_quad() finds one.
-  std::array<Point2, 4> quad{{{c.x0 - 0.5, c.y0 - 0.5},
-                              {c.x1 - 0.5, c.y0 - 0.5},
-                              {c.x1 - 0.5, c.y1 + 0.5},
-                              {c.x0 - 0.5, c.y1 + 0.5}}};
+  std::array<Point2, 4> quad{
+      {{c.x0 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y1 + 0.5}, {c.x0 - 0.5, c.y1 + 0.5}}};
   const Rejection shape = fit_quad(c, quad);
   // Components that fail on their box alone are not candidates: the debug
   // output would list every speck of clutter.

@@ -16,8 +16,8 @@
 #include "frame8/common.hpp"
 #include "frame8/rejection.hpp"
 #include "frame8/ring_read.hpp"
-#include "ring_model.hpp"
 #include "markerd/detector/detector.hpp"
+#include "ring_model.hpp"
 
 namespace markerd::detector::frame8 {
 
@@ -115,8 +115,8 @@ class Frame8Detector final : public MarkerDetector {
   struct DebugCandidate {
     std::array<Point2, 4> quad{};  // full-resolution pixels
     Rejection why = Rejection::none;
-    int id = -1;               // read: the id,
-    Point2 first_corner{};     // and its detection's first corner
+    int id = -1;            // read: the id,
+    Point2 first_corner{};  // and its detection's first corner
     std::vector<std::pair<Read, Rejection>> attempts;
   };
   void note_attempt(Read how, Rejection why) {

@@ -139,7 +139,7 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
           std::abs(pattern_edges_[static_cast<std::size_t>(i)].y - my);
   }
   const double scale = sw > 0 ? n / sw : 1.0;  // points normalised to a spread of about 1
-  Eigen::Matrix<double, 3, 3> G;  // normalised image -> grid (homogeneous)
+  Eigen::Matrix<double, 3, 3> G;               // normalised image -> grid (homogeneous)
   std::array<double, kMaxPatternEdges> weight{};
   for (int i = 0; i < n; ++i) weight[static_cast<std::size_t>(i)] = pattern_edges_[static_cast<std::size_t>(i)].w;
   bool have = false;

@@ -15,8 +15,8 @@
 namespace markerd::detector::frame8 {
 namespace {
 
-using detail::NormalTable;
 using detail::normal_table;
+using detail::NormalTable;
 
 // Beyond a box of this many pixels, cells are several pixels wide and
 // sampling them is better and cheaper. An area, not a side: a marker turned
@@ -158,9 +158,7 @@ Eigen::Matrix3d RingModel::from_centred() const {
   return m;
 }
 
-Eigen::Matrix3d RingModel::grid_to_image() const {
-  return from_centred() * to_grid_.inverse();
-}
+Eigen::Matrix3d RingModel::grid_to_image() const { return from_centred() * to_grid_.inverse(); }
 
 int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, double& w) {
   const auto pixel = static_cast<std::size_t>(py - py0_) * (px1_ - px0_ + 1) + (px - px0_);
@@ -300,7 +298,8 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
         const int ia = index[static_cast<std::size_t>(a)];
         const double ja = jrow[static_cast<std::size_t>(a)];
         jte(ia) += ja * e;
-        for (int c = 0; c < n + 8; ++c) jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
+        for (int c = 0; c < n + 8; ++c)
+          jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
       }
     }
   }
@@ -333,7 +332,8 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   return std::isfinite(moved);
 }
 
-bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out) {
+bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align,
+                    Levels& out) {
   // A pixel's square convolved with the blur: close to a Gaussian whose
   // variance is the sum of the two.
   sigma_ = std::sqrt(1.0 / 12 + blur_sigma_px * blur_sigma_px);

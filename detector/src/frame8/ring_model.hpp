@@ -81,14 +81,14 @@ class RingModel {
 
   double sigma_ = 0.6;  // the footprint's Gaussian, pixels
   int px0_ = 0, py0_ = 0, px1_ = 0, py1_ = 0;
-  double cx_ = 0, cy_ = 0, scale_ = 1;  // centred pixel coordinates: (x - cx) / scale
-  Eigen::Matrix3d to_grid_ = Eigen::Matrix3d::Identity();  // centred pixel -> grid
+  double cx_ = 0, cy_ = 0, scale_ = 1;                      // centred pixel coordinates: (x - cx) / scale
+  Eigen::Matrix3d to_grid_ = Eigen::Matrix3d::Identity();   // centred pixel -> grid
   Eigen::Matrix3d blur_map_ = Eigen::Matrix3d::Identity();  // to_grid_ as prepared: the footprint's width
-  std::vector<std::uint8_t> inside_;  // per pixel of the box: used by the fit
+  std::vector<std::uint8_t> inside_;                        // per pixel of the box: used by the fit
   // Per pixel of the box: the footprint's width along the grid's axes, in
   // grid units; fixed at prepare() with the map it started from.
   std::vector<std::array<float, 2>> width_;
-  double prior_ = 0;                  // their mean grey, which every level is pulled towards
+  double prior_ = 0;  // their mean grey, which every level is pulled towards
   std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
   std::array<int, kRegions> touched_{};
   Vector level_ = Vector::Zero();

@@ -7,9 +7,9 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <vector>
-#include <cstring>
 
 #if defined(__SSE2__)
 #include <emmintrin.h>

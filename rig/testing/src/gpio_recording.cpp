@@ -78,8 +78,9 @@ struct RecordingChip {
     const char* end = spec.line.data() + spec.line.size();
     if (!spec.line.empty() && std::from_chars(spec.line.data(), end, offset).ptr == end) {
       if (offset >= lines.size()) {
-        throw DriveError(fmt::format("GPIO {} [recording]: line offset {} out of range: the chip has {} lines (0 to {})",
-                                     name, offset, lines.size(), lines.size() - 1));
+        throw DriveError(
+            fmt::format("GPIO {} [recording]: line offset {} out of range: the chip has {} lines (0 to {})", name,
+                        offset, lines.size(), lines.size() - 1));
       }
       return *lines[offset];
     }
@@ -98,7 +99,8 @@ struct RecordingChip {
 
   // Takes the line for `consumer`, as the kernel would: one requester at a time.
   void claim(Line& line, std::string_view consumer) {
-    if (line.consumer) throw DriveError(fmt::format("GPIO {}: busy, held by consumer '{}'", describe(line), *line.consumer));
+    if (line.consumer)
+      throw DriveError(fmt::format("GPIO {}: busy, held by consumer '{}'", describe(line), *line.consumer));
     line.consumer = std::string(consumer);
     requested_any = true;
   }
@@ -235,7 +237,8 @@ void RecordingGpioBackend::set_level(std::string_view line_name, bool high) {
   const std::lock_guard lock(chip_->mutex);
   Chip::Line& line = chip_->by_name(line_name);
   if (line.output && line.consumer) {
-    throw std::logic_error(fmt::format("recording GPIO: line '{}' is an output held by '{}'", line_name, *line.consumer));
+    throw std::logic_error(
+        fmt::format("recording GPIO: line '{}' is an output held by '{}'", line_name, *line.consumer));
   }
   if (line.high.exchange(high) == high || line.event_fd < 0) return;
   line.events.push_back(GpioEdgeEvent{high != line.active_low, std::chrono::nanoseconds(monotonic_ns())});

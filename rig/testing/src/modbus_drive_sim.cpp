@@ -103,8 +103,8 @@ struct ModbusDriveSim::Impl {
   ModbusSimRtu rtu_settings;
   std::shared_ptr<const SimClock> clock;
 
-  mutable std::mutex mutex;  // the units (model, mapping, faults, records)
-  modbus_t* link = nullptr;   // RTU: the open device; TCP: receives requests on a client's socket
+  mutable std::mutex mutex;     // the units (model, mapping, faults, records)
+  modbus_t* link = nullptr;     // RTU: the open device; TCP: receives requests on a client's socket
   modbus_t* replies = nullptr;  // builds replies into `capture`, so that faults can alter them
   int capture[2] = {-1, -1};
   int wake = -1;
@@ -176,8 +176,7 @@ struct ModbusDriveSim::Impl {
     const auto span_of = [&](RegisterTable t) -> std::pair<unsigned, unsigned> {
       const auto it = extent.find(t);
       if (it == extent.end()) return {0, 0};
-      return {static_cast<unsigned>(it->second.first),
-              static_cast<unsigned>(it->second.second - it->second.first + 1)};
+      return {static_cast<unsigned>(it->second.first), static_cast<unsigned>(it->second.second - it->second.first + 1)};
     };
     const auto [coil0, coils] = span_of(RegisterTable::coil);
     const auto [di0, dis] = span_of(RegisterTable::discrete_input);
@@ -189,10 +188,11 @@ struct ModbusDriveSim::Impl {
     if (!is_bit_table(m.status.table) || m.status.table == RegisterTable::coil) {
       u.read_only.push_back(Range{m.status.table, m.status.address, m.status.address + m.status.read_count() - 1});
     }
-    u.read_only.push_back(
-        Range{m.actual_position.table, m.actual_position.address, m.actual_position.address + m.actual_position.words - 1});
+    u.read_only.push_back(Range{m.actual_position.table, m.actual_position.address,
+                                m.actual_position.address + m.actual_position.words - 1});
     if (m.alarm_code) {
-      u.read_only.push_back(Range{m.alarm_code->table, m.alarm_code->address, m.alarm_code->address + m.alarm_code->words - 1});
+      u.read_only.push_back(
+          Range{m.alarm_code->table, m.alarm_code->address, m.alarm_code->address + m.alarm_code->words - 1});
     }
 
     u.origin = u.config.start_position_steps;
@@ -337,12 +337,14 @@ struct ModbusDriveSim::Impl {
       std::copy_n(words, s.words, registers(u, s.table, s.address));
     }
     const auto& p = m.actual_position;
-    const double raw = std::clamp(std::round(position * p.scale), static_cast<double>(p.min_raw()),
-                                  static_cast<double>(p.max_raw()));
-    p.pack(static_cast<std::int64_t>(raw), std::span(registers(u, p.table, p.address), static_cast<std::size_t>(p.words)));
+    const double raw =
+        std::clamp(std::round(position * p.scale), static_cast<double>(p.min_raw()), static_cast<double>(p.max_raw()));
+    p.pack(static_cast<std::int64_t>(raw),
+           std::span(registers(u, p.table, p.address), static_cast<std::size_t>(p.words)));
     if (m.alarm_code) {
       const auto& a = *m.alarm_code;
-      a.pack(u.alarm ? u.alarm_code : 0, std::span(registers(u, a.table, a.address), static_cast<std::size_t>(a.words)));
+      a.pack(u.alarm ? u.alarm_code : 0,
+             std::span(registers(u, a.table, a.address), static_cast<std::size_t>(a.words)));
     }
   }
 

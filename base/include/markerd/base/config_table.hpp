@@ -7,8 +7,8 @@
 
 #include <toml++/toml.h>
 
-#include <filesystem>
 #include <cstddef>
+#include <filesystem>
 #include <initializer_list>
 #include <memory>
 #include <optional>

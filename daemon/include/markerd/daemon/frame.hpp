@@ -53,10 +53,10 @@ using DecodeFunction = void (*)(Frame& frame) noexcept;
 
 // When the frame passed each stage boundary, on Clock.
 struct StageTimes {
-  Clock::time_point published{};     // handed to detection
+  Clock::time_point published{};  // handed to detection
   Clock::time_point detect_start{};
   Clock::time_point detect_end{};
-  Clock::time_point log_start{};     // handed to the sink
+  Clock::time_point log_start{};  // handed to the sink
 };
 
 class Frame {
@@ -66,7 +66,7 @@ class Frame {
   Clock::time_point capture_time{};  // acquire() stamps "now"; a driver's timestamp is better
   std::uint32_t source_id = 0;
   std::optional<rig::RigSnapshot> rig;  // the rig at capture time; empty without a rig
-  detector::GreyView image{};                  // into pixel_buffer() or into the source's own memory
+  detector::GreyView image{};           // into pixel_buffer() or into the source's own memory
   // A source that delivers an unreadable frame (a broken MJPEG) publishes it
   // with corrupt_frame and a cause, so that the log records it; detection
   // skips it.

@@ -69,7 +69,7 @@ struct LogWriterStats {
   std::uint64_t files_opened = 0;    // created or continued
   std::uint64_t tails_repaired = 0;  // partial last lines cut off on open
   std::uint64_t tail_bytes_cut = 0;
-  std::uint64_t write_errors = 0;    // append() calls that threw
+  std::uint64_t write_errors = 0;  // append() calls that threw
 };
 
 // "20240501T120000Z": a run id from a UTC time, sortable as text.
@@ -135,8 +135,8 @@ class LogWriter {
 
   // Counters: written by the owning thread only, read by stats() from any thread.
   struct Counters {
-    std::atomic<std::uint64_t> lines{0}, bytes{0}, fsyncs{0}, files_opened{0}, tails_repaired{0},
-        tail_bytes_cut{0}, write_errors{0};
+    std::atomic<std::uint64_t> lines{0}, bytes{0}, fsyncs{0}, files_opened{0}, tails_repaired{0}, tail_bytes_cut{0},
+        write_errors{0};
   } counters_;
 };
 

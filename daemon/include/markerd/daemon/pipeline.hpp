@@ -55,7 +55,8 @@ class Pipeline {
   // One worker thread per detector (detectors are not thread-safe). Starts
   // the stage threads. `sink` must outlive the pipeline. Throws
   // std::invalid_argument without a detector.
-  Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<detector::MarkerDetector>> detectors, FrameSink& sink);
+  Pipeline(const PipelineConfig& config, std::vector<std::unique_ptr<detector::MarkerDetector>> detectors,
+           FrameSink& sink);
   ~Pipeline();  // stop()
   Pipeline(const Pipeline&) = delete;
   Pipeline& operator=(const Pipeline&) = delete;

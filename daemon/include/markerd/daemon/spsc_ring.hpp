@@ -15,8 +15,8 @@
 #include <atomic>
 #include <bit>
 #include <cassert>
-#include <cstddef>
 #include <chrono>
+#include <cstddef>
 #include <cstdint>
 #include <ctime>
 #include <memory>
@@ -144,7 +144,8 @@ class SpscRing {
       if (stop.stop_requested()) return false;
       const auto left = deadline - std::chrono::steady_clock::now();
       if (left <= std::chrono::steady_clock::duration::zero()) return false;
-      sleep_until(consumer_asleep_, item_bell_, stop, [this] { return has_item(); }, left);
+      sleep_until(
+          consumer_asleep_, item_bell_, stop, [this] { return has_item(); }, left);
     }
   }
 

@@ -18,7 +18,7 @@ struct EvalPoint {
 };
 
 struct EvalSettings {
-  Scene scene;          // family, id, size, imaging; pose is set per frame
+  Scene scene;  // family, id, size, imaging; pose is set per frame
   int frames_per_point = 50;
   // Each frame jitters the pose so frames are not copies: the marker centre
   // moves within this many pixels of the principal point, rolls within
@@ -32,8 +32,8 @@ struct EvalSettings {
 struct EvalResult {
   EvalPoint point;
   int frames = 0;
-  int detected = 0;        // the right id, once
-  int wrong_id = 0;        // detections with another id (false positives)
+  int detected = 0;                      // the right id, once
+  int wrong_id = 0;                      // detections with another id (false positives)
   double median_corner_error_px = 0;     // over detected frames, all four corners
   double median_distance_error_rel = 0;  // |t| against truth, relative; with a camera
   double median_time_ms = 0;

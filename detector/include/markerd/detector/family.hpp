@@ -11,8 +11,8 @@ enum class Family { frame8, aruco4x4_50, tag36h11 };
 
 struct FamilyInfo {
   Family family;
-  std::string_view name;      // as on the command line and in logs
-  int id_count;               // valid ids are 0 .. id_count-1
+  std::string_view name;  // as on the command line and in logs
+  int id_count;           // valid ids are 0 .. id_count-1
   // Side of the printed square that "marker size" refers to, in grid cells,
   // and the full grid the pattern is drawn on (cells). frame8: size = the
   // outer edge (10 cells). ArUco and AprilTag: size = the outer black border;

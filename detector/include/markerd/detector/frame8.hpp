@@ -9,8 +9,8 @@
 namespace markerd::detector::frame8 {
 
 inline constexpr int grid = 10;
-inline constexpr double hole_fraction = 0.7;       // hole side / outer side
-inline constexpr double line_inner = 1.5;          // line from 1.0 to 1.5 cells in
+inline constexpr double hole_fraction = 0.7;  // hole side / outer side
+inline constexpr double line_inner = 1.5;     // line from 1.0 to 1.5 cells in
 inline constexpr double line_outer = 1.0;
 
 struct Cell {

@@ -32,9 +32,7 @@ class GreyImage {
   [[nodiscard]] std::uint8_t* data() { return pixels_.data(); }
   [[nodiscard]] const std::uint8_t* data() const { return pixels_.data(); }
   [[nodiscard]] std::uint8_t* row(int y) { return pixels_.data() + static_cast<std::size_t>(y) * width_; }
-  [[nodiscard]] const std::uint8_t* row(int y) const {
-    return pixels_.data() + static_cast<std::size_t>(y) * width_;
-  }
+  [[nodiscard]] const std::uint8_t* row(int y) const { return pixels_.data() + static_cast<std::size_t>(y) * width_; }
   [[nodiscard]] std::uint8_t& at(int x, int y) { return row(y)[x]; }
   [[nodiscard]] std::uint8_t at(int x, int y) const { return row(y)[x]; }
   [[nodiscard]] GreyView view() const { return {pixels_.data(), width_, height_, width_}; }

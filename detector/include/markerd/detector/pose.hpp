@@ -20,7 +20,7 @@ namespace markerd::detector {
 struct MarkerPose {
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();  // marker frame -> camera frame
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();   // marker centre in the camera frame, metres
-  double reprojection_error_px = 0;  // RMS over the corners used
+  double reprojection_error_px = 0;                        // RMS over the corners used
 
   [[nodiscard]] Eigen::Vector3d rvec() const;  // Rodrigues vector
   [[nodiscard]] Eigen::Quaterniond quaternion() const;
@@ -37,12 +37,10 @@ struct PoseEstimate {
 // The two IPPE solutions for a square of side `side` (model corners at
 // (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)) seen at ideal normalized
 // image points in the same order. Returns nothing for a degenerate quad.
-std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vector2d, 4>& normalized,
-                                                      double side);
+std::optional<std::array<MarkerPose, 2>> ippe_square(const std::array<Eigen::Vector2d, 4>& normalized, double side);
 
 // Pose from pixel corners (TL, TR, BR, BL) of a square of side `side` metres.
-std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, const Quad& corners_px,
-                                                 double side);
+std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, const Quad& corners_px, double side);
 // The same from ideal normalized corners, when the caller has undistorted them already.
 std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& camera,
                                                             const std::array<Eigen::Vector2d, 4>& normalized,

@@ -24,7 +24,7 @@ GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet
 struct PrintSpec {
   Family family = Family::frame8;
   int id = 0;
-  double size_mm = 80;   // the family's size (frame8: the outer edge)
+  double size_mm = 80;    // the family's size (frame8: the outer edge)
   double margin_mm = 10;  // paper around the marker, for the label and cutting
   double dpi = 300;       // PNG only
 };

@@ -37,7 +37,7 @@ class MarkerPattern {
   int id_;
   bool cut_hole_;
   double half_extent_ = 0.5;
-  int grid_ = 10;                  // cells across the marker square
+  int grid_ = 10;                    // cells across the marker square
   std::vector<std::uint8_t> cells_;  // grid_ x grid_, row 0 at the top; 1 = white
 };
 

@@ -47,13 +47,13 @@ struct HomingSettings {
 };
 
 struct AxisSettings {
-  std::string name;             // "rail", "turntable"
-  std::string unit;             // "mm", "deg": used in messages only
-  double units_per_step = 0;    // user units per motor step (> 0)
-  double min_position = 0;      // soft limits, user units
+  std::string name;           // "rail", "turntable"
+  std::string unit;           // "mm", "deg": used in messages only
+  double units_per_step = 0;  // user units per motor step (> 0)
+  double min_position = 0;    // soft limits, user units
   double max_position = 0;
-  double max_velocity = 0;      // user units / s (> 0)
-  double acceleration = 0;      // user units / s^2 (> 0)
+  double max_velocity = 0;  // user units / s (> 0)
+  double acceleration = 0;  // user units / s^2 (> 0)
   // Backlash compensation: when > 0, every move ends with an approach of this
   // length from the side of approach_direction (+1: from below, -1: from above).
   double backlash = 0;
@@ -82,18 +82,18 @@ const char* to_string(AxisState state);
 struct AxisStatus {
   AxisState state = AxisState::disabled;
   bool homed = false;
-  bool settled = false;   // idle, in position, for at least settle_time
-  double position = 0;    // user units
-  double target = 0;      // the last commanded target, user units
+  bool settled = false;  // idle, in position, for at least settle_time
+  double position = 0;   // user units
+  double target = 0;     // the last commanded target, user units
   DriveInputs inputs;
-  std::string fault;      // the cause, when state == fault
+  std::string fault;                                // the cause, when state == fault
   std::chrono::steady_clock::time_point updated{};  // when this was read from the drive
 };
 
 class Axis {
  public:
   Axis(AxisSettings settings, std::unique_ptr<Drive> drive);  // validates settings (AxisError)
-  ~Axis();  // emergency stop, then joins its thread
+  ~Axis();                                                    // emergency stop, then joins its thread
   Axis(const Axis&) = delete;
   Axis& operator=(const Axis&) = delete;
 
@@ -111,8 +111,8 @@ class Axis {
   // had within a bound (its drive does not answer), an emergency stop
   // instead, and AxisError saying so.
   void stop();
-  void emergency_stop() noexcept; // disables at once; an open-loop axis loses its home
-  void clear_fault();             // resets the drive's alarm; the axis must be homed again if it lost its reference
+  void emergency_stop() noexcept;  // disables at once; an open-loop axis loses its home
+  void clear_fault();              // resets the drive's alarm; the axis must be homed again if it lost its reference
 
   [[nodiscard]] AxisStatus status() const;
   // Blocks until the axis is settled (true), in fault or stopped (false), or the

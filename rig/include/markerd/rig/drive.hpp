@@ -27,9 +27,9 @@ struct DriveInputs {
 struct DriveStatus {
   std::int64_t position_steps = 0;  // measured where the drive measures it, else commanded
   bool enabled = false;
-  bool busy = false;     // a move, stop ramp or homing sequence is in progress
-  bool homed = false;    // the drive holds a valid position reference
-  bool alarm = false;    // latched fault: the drive will not move until reset_alarm()
+  bool busy = false;        // a move, stop ramp or homing sequence is in progress
+  bool homed = false;       // the drive holds a valid position reference
+  bool alarm = false;       // latched fault: the drive will not move until reset_alarm()
   std::string alarm_cause;  // set with alarm: what happened, in words (e.g. "limit_max tripped at step 41230")
   DriveInputs inputs;
 };
@@ -37,12 +37,12 @@ struct DriveStatus {
 // Homing, in the drive's steps. Drives that home by themselves (a Modbus
 // drive's home command) may ignore the fields they cannot express.
 struct HomingSteps {
-  int direction = -1;            // -1: search towards negative positions, +1: positive
+  int direction = -1;  // -1: search towards negative positions, +1: positive
   enum class Switch { home, limit_min, limit_max } target = Switch::home;
   double search_steps_per_s = 0;  // fast search towards the switch
   double latch_steps_per_s = 0;   // slow approach that latches the position
   double accel_steps_per_s2 = 0;
-  std::int64_t backoff_steps = 0;  // distance moved off the switch before the latch
+  std::int64_t backoff_steps = 0;        // distance moved off the switch before the latch
   std::int64_t home_position_steps = 0;  // position assigned where the switch latched
   double timeout_s = 60;
 };

@@ -39,8 +39,8 @@ struct RigGeometry {
 struct MarkerGroundTruth {
   Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
   Eigen::Vector3d translation = Eigen::Vector3d::Zero();  // metres
-  double distance_m = 0;  // d, camera centre to turntable axis along the optical axis
-  double yaw_deg = 0;     // turntable - yaw0
+  double distance_m = 0;                                  // d, camera centre to turntable axis along the optical axis
+  double yaw_deg = 0;                                     // turntable - yaw0
 };
 
 [[nodiscard]] MarkerGroundTruth ground_truth(const RigGeometry& geometry, double rail_mm, double turntable_deg);

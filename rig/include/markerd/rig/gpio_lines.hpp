@@ -21,8 +21,8 @@
 namespace markerd::rig {
 
 struct GpioLineSpec {
-  std::string chip;        // "/dev/gpiochip0" (a path), "gpiochip0" (a name), or the chip's label
-  std::string line;        // the line's offset ("17", all digits) or its name ("STEP_RAIL")
+  std::string chip;  // "/dev/gpiochip0" (a path), "gpiochip0" (a name), or the chip's label
+  std::string line;  // the line's offset ("17", all digits) or its name ("STEP_RAIL")
   bool active_low = false;
 };
 

@@ -42,11 +42,11 @@ struct GpioStepperSettings {
   GpioLineSpec enable;  // active = driver powered; inactive on any stop that is not controlled
   std::optional<GpioLineSpec> limit_min, limit_max, home, estop;  // active = switch tripped
   std::chrono::nanoseconds step_pulse{std::chrono::microseconds(5)};
-  std::chrono::nanoseconds dir_setup{std::chrono::microseconds(5)};  // dir stable before the next step
+  std::chrono::nanoseconds dir_setup{std::chrono::microseconds(5)};       // dir stable before the next step
   std::chrono::nanoseconds enable_settle{std::chrono::milliseconds(50)};  // enable before the first step
-  std::chrono::nanoseconds debounce{std::chrono::milliseconds(5)};  // an input must stay released this long
-  double max_step_rate = 2000;  // steps/s, <= kGpioStepperMaxStepRate
-  int rt_priority = 0;          // SCHED_FIFO priority of both threads, 1..99; 0 = normal scheduling
+  std::chrono::nanoseconds debounce{std::chrono::milliseconds(5)};        // an input must stay released this long
+  double max_step_rate = 2000;                                            // steps/s, <= kGpioStepperMaxStepRate
+  int rt_priority = 0;               // SCHED_FIFO priority of both threads, 1..99; 0 = normal scheduling
   std::string consumer = "markerd";  // the name other processes see on the lines (gpioinfo)
 };
 
@@ -56,7 +56,7 @@ struct GpioStepperSettings {
 GpioStepperSettings parse_gpio_stepper(const ConfigTable& gpio_table);
 
 struct GpioStepperStats {
-  std::uint64_t missed_deadlines = 0;  // since start: steps issued later than due + a quarter of their interval
+  std::uint64_t missed_deadlines = 0;        // since start: steps issued later than due + a quarter of their interval
   std::chrono::nanoseconds max_lateness{0};  // the latest move's latest step, against its (slipped) due time
   // CLOCK_MONOTONIC time of t = 0 of the latest move's profile: step n of that
   // move was planned at move_origin + time_at(n) (a braking ramp or a missed
@@ -116,8 +116,8 @@ class GpioStepperDrive final : public Drive {
 
   std::string name_;
   GpioStepperSettings settings_;
-  std::unique_ptr<GpioOutput> step_;  // step thread only
-  std::unique_ptr<GpioOutput> dir_;   // step thread only
+  std::unique_ptr<GpioOutput> step_;         // step thread only
+  std::unique_ptr<GpioOutput> dir_;          // step thread only
   std::unique_ptr<GpioOutput> enable_line_;  // under enable_mutex_
   std::array<std::unique_ptr<InputChannel>, input_count> inputs_;
   int shutdown_fd_ = -1;  // eventfd: wakes the input thread to exit
@@ -130,7 +130,7 @@ class GpioStepperDrive final : public Drive {
   std::atomic<bool> alarm_{false};
   std::atomic<bool> realtime_{false};
   std::atomic<bool> step_thread_ready_{false};  // its scheduling is set up: stats().realtime is final
-  std::atomic<bool> inputs_failed_{false};  // the input thread stopped on an error: no motion until restart
+  std::atomic<bool> inputs_failed_{false};      // the input thread stopped on an error: no motion until restart
   std::atomic<std::uint64_t> missed_deadlines_{0};
   std::atomic<std::int64_t> max_lateness_ns_{0};
   std::atomic<std::int64_t> move_origin_ns_{0};
@@ -155,7 +155,7 @@ class GpioStepperDrive final : public Drive {
   std::condition_variable_any command_ready_;
   std::unique_ptr<Command> pending_;  // under command_mutex_
 
-  int direction_ = 0;                // step thread: the dir line's current direction (0 = not yet set)
+  int direction_ = 0;                  // step thread: the dir line's current direction (0 = not yet set)
   std::int64_t direction_set_ns_ = 0;  // step thread: when it was set
 
   std::jthread input_thread_;

@@ -29,8 +29,8 @@
 namespace markerd::rig {
 
 struct ModbusDriveSettings {
-  std::string bus;  // the name of a [rig.buses.<name>] table
-  int unit_id = 1;  // 1..247
+  std::string bus;            // the name of a [rig.buses.<name>] table
+  int unit_id = 1;            // 1..247
   std::filesystem::path map;  // absolute, resolved against the config's directory
   // A move still unfinished this long after its planned duration (x 1.5)
   // faults the drive.

@@ -94,7 +94,7 @@ struct AxisSnapshot {
 };
 
 struct RigSnapshot {
-  std::uint64_t sequence = 0;  // 1 for the first snapshot, +1 for each one after; 0: none yet
+  std::uint64_t sequence = 0;                    // 1 for the first snapshot, +1 for each one after; 0: none yet
   std::chrono::steady_clock::time_point time{};  // when the axes' states were read
   AxisSnapshot rail;
   AxisSnapshot turntable;

@@ -10,8 +10,8 @@
 #include <string>
 #include <variant>
 
-#include "markerd/rig/axis.hpp"
 #include "markerd/base/config_table.hpp"
+#include "markerd/rig/axis.hpp"
 #include "markerd/rig/geometry.hpp"
 #include "markerd/rig/gpio_stepper.hpp"
 #include "markerd/rig/modbus_bus.hpp"

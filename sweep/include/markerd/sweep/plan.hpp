@@ -16,9 +16,9 @@
 #include <string_view>
 #include <vector>
 
+#include "markerd/base/config_table.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/family.hpp"
-#include "markerd/base/config_table.hpp"
 #include "markerd/rig/rig_config.hpp"
 
 namespace markerd::sweep {
@@ -33,9 +33,9 @@ enum class SweepAxis : std::uint8_t { distance, angle };
 // One rectangular block of points: every distance with every angle. A plan
 // holds one or more, visited in file order ([[grid]] tables).
 struct PlanGrid {
-  std::string name;                   // "distance", "angle-50cm": names the block in reports
-  std::vector<double> distances_m;    // camera centre to the turntable axis
-  std::vector<double> angles_deg;     // viewing angle (turntable - yaw0)
+  std::string name;                 // "distance", "angle-50cm": names the block in reports
+  std::vector<double> distances_m;  // camera centre to the turntable axis
+  std::vector<double> angles_deg;   // viewing angle (turntable - yaw0)
   SweepOrder order = SweepOrder::grid;
   SweepAxis slow_axis = SweepAxis::distance;
 };
@@ -53,11 +53,11 @@ struct SweepPlan {
   std::string description;
   PlanMarker marker;
   std::vector<PlanGrid> grids;
-  int frames_per_point = 10;     // frames per measurement
-  int repeats = 5;               // measurements per point
-  std::chrono::milliseconds settle{500};         // after the axes report settled, before collecting
+  int frames_per_point = 10;                       // frames per measurement
+  int repeats = 5;                                 // measurements per point
+  std::chrono::milliseconds settle{500};           // after the axes report settled, before collecting
   std::chrono::milliseconds point_timeout{30000};  // move + settle + collect, per measurement
-  double detection_threshold = 0.9;  // a point is "detected" when its rate is at least this
+  double detection_threshold = 0.9;                // a point is "detected" when its rate is at least this
   // How long a fault (camera lost, drive alarm, ...) may suspend the run
   // before it fails; 0: wait for ever.
   std::chrono::milliseconds fault_timeout{std::chrono::minutes(10)};
@@ -85,7 +85,8 @@ SweepPlan load_plan(const std::filesystem::path& path);
 // markerd runs one family's detector, from its config: a plan for another
 // family would end "done" with nothing detected. The marker's size is no
 // problem: the runner rescales poses to it.
-[[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector);
+[[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker,
+                                                        const detector::DetectorConfig& detector);
 
 // One unit of work: a measurement (repeat) at a point. A run is the plan's
 // steps in order; the journal records each one done.

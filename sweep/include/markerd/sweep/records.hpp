@@ -37,26 +37,26 @@ inline constexpr int kRunRecordSchema = 1;
 // One frame collected for a measurement, reduced to what the summaries need:
 // whether the marker under test was found, and its pose and errors if so.
 struct FrameSample {
-  std::uint64_t sequence = 0;  // the camera's frame sequence number
-  bool detected = false;       // the plan's marker (family and id) was found
-  int other_markers = 0;       // detections of anything else (wrong ids, other families)
-  bool has_pose = false;       // detected, with a pose (the camera model known)
+  std::uint64_t sequence = 0;      // the camera's frame sequence number
+  bool detected = false;           // the plan's marker (family and id) was found
+  int other_markers = 0;           // detections of anything else (wrong ids, other families)
+  bool has_pose = false;           // detected, with a pose (the camera model known)
   std::array<double, 3> tvec_m{};  // the marker in the camera frame
   std::array<double, 3> rvec{};    // Rodrigues vector, camera from marker
   double reprojection_error_px = 0;
-  bool has_error = false;          // has_pose, and the ground truth known
-  double translation_error_mm = 0; // |t - t_truth|
-  double distance_error_mm = 0;    // |t| - |t_truth|, signed
-  double rotation_error_deg = 0;   // angle of R_truth^T R
+  bool has_error = false;           // has_pose, and the ground truth known
+  double translation_error_mm = 0;  // |t - t_truth|
+  double distance_error_mm = 0;     // |t| - |t_truth|, signed
+  double rotation_error_deg = 0;    // angle of R_truth^T R
 };
 
 // The point document: one measurement (a repeat at a point).
 struct PointRecord {
-  std::size_t step = 0;    // PlanStep::index
+  std::size_t step = 0;  // PlanStep::index
   std::size_t grid = 0;
   std::size_t point = 0;
   int repeat = 0;
-  double distance_m = 0;   // planned
+  double distance_m = 0;  // planned
   double angle_deg = 0;
   // Where the axes were while the frames were captured (the rig snapshot of
   // the first frame), and the marker pose those positions imply.
@@ -73,23 +73,23 @@ struct PointRecord {
 
 // The start document.
 struct RunStart {
-  std::string run_id;    // "20261201T061500Z-thesis"
+  std::string run_id;  // "20261201T061500Z-thesis"
   std::chrono::system_clock::time_point time{};
   std::string software_version;
   std::string hostname;
-  SweepPlan plan;        // re-parsed from plan text when read
-  std::size_t steps = 0; // plan_steps(plan).size()
-  nlohmann::json config;        // the daemon's config as it ran (file, text)
-  nlohmann::json camera;        // the camera: source, model (intrinsics, distortion), frame rate
-  nlohmann::json rig;           // geometry, axes' units, units_per_step, limits, backends
-  std::string detection_log;    // where the daemon's detection stream went when the run started
+  SweepPlan plan;             // re-parsed from plan text when read
+  std::size_t steps = 0;      // plan_steps(plan).size()
+  nlohmann::json config;      // the daemon's config as it ran (file, text)
+  nlohmann::json camera;      // the camera: source, model (intrinsics, distortion), frame rate
+  nlohmann::json rig;         // geometry, axes' units, units_per_step, limits, backends
+  std::string detection_log;  // where the daemon's detection stream went when the run started
 };
 
 // The event documents of events.jsonl.
 struct RunEvent {
   std::chrono::system_clock::time_point time{};
-  std::string kind;    // "started", "paused", "resumed", "suspended", "fault_cleared", "restarted"
-  std::string reason;  // the cause, in words (empty when there is none)
+  std::string kind;      // "started", "paused", "resumed", "suspended", "fault_cleared", "restarted"
+  std::string reason;    // the cause, in words (empty when there is none)
   std::size_t step = 0;  // the step the run was at
 };
 
@@ -110,8 +110,8 @@ struct RunRecords {
   RunStart start;
   std::vector<PointRecord> points;  // in file order
   std::vector<RunEvent> events;
-  std::optional<RunStop> stop;      // absent while the run goes on (or was cut off)
-  std::size_t torn_lines = 0;       // partial last lines ignored (a crash mid-write)
+  std::optional<RunStop> stop;  // absent while the run goes on (or was cut off)
+  std::size_t torn_lines = 0;   // partial last lines ignored (a crash mid-write)
 };
 
 // Reads a run directory. std::runtime_error naming the file and line when a

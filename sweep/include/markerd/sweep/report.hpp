@@ -21,7 +21,7 @@ struct ReportOptions {
 };
 
 struct ReportFiles {
-  std::filesystem::path report;       // report.md
+  std::filesystem::path report;  // report.md
   std::vector<std::filesystem::path> csv;
   std::vector<std::filesystem::path> plots;
 };

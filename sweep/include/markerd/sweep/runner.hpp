@@ -108,9 +108,9 @@ struct SweepProgress {
   std::string phase;             // "homing", "moving", "settling", "collecting", ""
   int frames_collected = 0;      // of the step in hand
   int frames_per_point = 0;
-  std::optional<double> last_rate;  // the last recorded measurement's detection rate
-  std::string reason;  // suspended: the fault; ended: why
-  std::chrono::duration<double> elapsed{0};  // running time of this markerd's share of the run
+  std::optional<double> last_rate;                         // the last recorded measurement's detection rate
+  std::string reason;                                      // suspended: the fault; ended: why
+  std::chrono::duration<double> elapsed{0};                // running time of this markerd's share of the run
   std::optional<std::chrono::duration<double>> remaining;  // estimate
 };
 [[nodiscard]] nlohmann::json to_json(const SweepProgress& progress);
@@ -142,8 +142,8 @@ class SweepRunner {
   // is removed.
   bool resume_from_journal();
 
-  void pause();   // SweepError unless running or suspended
-  void resume();  // SweepError unless paused
+  void pause();                                                // SweepError unless running or suspended
+  void resume();                                               // SweepError unless paused
   void abort(std::string reason = "aborted by the operator");  // SweepError unless a run is going
 
   // markerd stops: the run thread stops where it is (motion stopped), the
@@ -233,7 +233,7 @@ class SweepRunner {
   mutable std::mutex collection_mutex_;
   std::condition_variable collection_changed_;
   Collection collection_;
-  PlanMarker marker_;  // the run's, read by observe() under collection_mutex_
+  PlanMarker marker_;                  // the run's, read by observe() under collection_mutex_
   double detector_marker_size_m_ = 0;  // what the detector's poses assume, ditto
 
   std::jthread thread_;

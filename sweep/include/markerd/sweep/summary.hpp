@@ -28,7 +28,7 @@ struct MeasurementSummary {
   int repeat = 0;
   int frames = 0;
   int detected = 0;
-  std::optional<std::int64_t> rail_steps;  // this measurement's rail position, in steps
+  std::optional<std::int64_t> rail_steps;            // this measurement's rail position, in steps
   std::optional<std::array<double, 3>> mean_tvec_m;  // over the frames with a pose
 };
 
@@ -38,7 +38,7 @@ struct PointSummary {
   std::string grid_name;
   double distance_m = 0;  // planned
   double angle_deg = 0;
-  double rail = 0;        // as recorded (the first measurement's)
+  double rail = 0;  // as recorded (the first measurement's)
   double turntable = 0;
   std::optional<std::int64_t> rail_steps;  // rail / units_per_step, when the start record has it
   std::array<double, 3> truth_tvec_m{};
@@ -46,13 +46,13 @@ struct PointSummary {
   int detected = 0;
   int frames_corrupt = 0;
   int other_markers = 0;
-  double rate = 0;        // detected / frames (0 without frames)
-  bool reached = false;   // rate >= the plan's detection_threshold
+  double rate = 0;                 // detected / frames (0 without frames)
+  bool reached = false;            // rate >= the plan's detection_threshold
   std::array<Spread, 3> tvec_m{};  // x, y, z
   Spread distance_m_estimated;     // |t|
   Spread translation_error_mm;
-  Spread distance_error_mm;        // signed
-  Spread distance_error_pct;       // signed, of the true distance
+  Spread distance_error_mm;   // signed
+  Spread distance_error_pct;  // signed, of the true distance
   Spread rotation_error_deg;
   Spread reprojection_error_px;
   // Medians over the point's frames with a pose error: what the plots draw,

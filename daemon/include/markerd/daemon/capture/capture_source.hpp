@@ -38,10 +38,10 @@ namespace markerd::daemon {
 class CaptureError : public std::runtime_error {
  public:
   enum class Kind : std::uint8_t {
-    config,       // the device cannot do what the config asks (format, size, control): reopening will not help
-    not_found,    // no such device (yet): unplugged, driver not loaded
-    vanished,     // it was there and went away while open (ENODEV)
-    io,           // any other failure of the device or its driver
+    config,     // the device cannot do what the config asks (format, size, control): reopening will not help
+    not_found,  // no such device (yet): unplugged, driver not loaded
+    vanished,   // it was there and went away while open (ENODEV)
+    io,         // any other failure of the device or its driver
   };
   CaptureError(Kind kind, const std::string& message) : std::runtime_error(message), kind_(kind) {}
   [[nodiscard]] Kind kind() const noexcept { return kind_; }

@@ -7,8 +7,8 @@
 #include <filesystem>
 #include <memory>
 
-#include "markerd/daemon/capture/capture_source.hpp"
 #include "markerd/base/config_table.hpp"
+#include "markerd/daemon/capture/capture_source.hpp"
 
 namespace markerd::daemon {
 

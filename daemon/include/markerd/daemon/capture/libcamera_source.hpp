@@ -79,21 +79,21 @@ struct LibcameraSize {
 };
 
 struct LibcameraStreamFormat {
-  std::string pixel_format;           // libcamera's name: "YUYV", "NV12", "MJPEG"
-  std::vector<LibcameraSize> sizes;   // the discrete sizes
-  LibcameraSize min_size, max_size;   // the range they span
+  std::string pixel_format;          // libcamera's name: "YUYV", "NV12", "MJPEG"
+  std::vector<LibcameraSize> sizes;  // the discrete sizes
+  LibcameraSize min_size, max_size;  // the range they span
 };
 
 struct LibcameraCameraInfo {
   std::string id;
-  std::optional<std::string> model;     // properties::Model
-  std::optional<std::string> location;  // properties::Location: "front", "back", "external"
+  std::optional<std::string> model;      // properties::Model
+  std::optional<std::string> location;   // properties::Location: "front", "back", "external"
   std::optional<std::int64_t> rotation;  // properties::Rotation, degrees
   // What a generated configuration offers (StreamRole::VideoRecording, or
   // Viewfinder where the camera has no video role).
   std::vector<LibcameraStreamFormat> formats;
   std::vector<LibcameraControlInfo> controls;  // by name
-  std::string error;  // why the formats could not be listed; empty otherwise
+  std::string error;                           // why the formats could not be listed; empty otherwise
 };
 
 // Every camera libcamera finds, in its order. Changes nothing on the

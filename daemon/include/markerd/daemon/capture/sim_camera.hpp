@@ -21,11 +21,11 @@
 #include <string>
 #include <vector>
 
+#include "markerd/base/config_table.hpp"
 #include "markerd/daemon/capture/capture_source.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/family.hpp"
 #include "markerd/detector/image.hpp"
-#include "markerd/base/config_table.hpp"
 #include "markerd/rig/geometry.hpp"
 #include "markerd/rig/rig.hpp"
 
@@ -108,7 +108,7 @@ class SimCamera final : public CaptureSource {
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 
-  detector::GreyImage clean_;  // the last noise-free render
+  detector::GreyImage clean_;                             // the last noise-free render
   std::optional<std::pair<double, double>> rendered_at_;  // its rail and turntable positions
   std::uint64_t renders_ = 0;
   // Sensor noise: a table of Gaussian samples (in grey levels, rounded) read

@@ -11,7 +11,6 @@
 // decodes it into the slot's pixels and the buffer goes back then
 // (Frame::set_encoded), so frames dropped while they wait are never decoded.
 
-
 #include <filesystem>
 #include <memory>
 #include <string_view>

@@ -89,16 +89,16 @@ class ControlSocketError : public std::runtime_error {
 using CommandHandler = std::function<nlohmann::json(const nlohmann::json& request)>;
 
 struct ControlServerStats {
-  std::uint64_t connections = 0;       // accepted, in all
-  std::uint64_t clients = 0;           // connected now
-  std::uint64_t refused = 0;           // connections turned away: too many clients
-  std::uint64_t beyond_limit = 0;      // connections taken beyond max_clients, for stop commands
-  std::uint64_t idle_closed = 0;       // connections closed for the idle timeout
-  std::uint64_t requests = 0;          // request lines answered
-  std::uint64_t errors = 0;            // of them, answered with "ok": false
-  std::uint64_t oversized = 0;         // connections closed for a request line too long
-  std::uint64_t stream_lines = 0;      // stream lines queued to followers
-  std::uint64_t stream_dropped = 0;    // stream lines a follower missed (its own backlog, or the stream's)
+  std::uint64_t connections = 0;     // accepted, in all
+  std::uint64_t clients = 0;         // connected now
+  std::uint64_t refused = 0;         // connections turned away: too many clients
+  std::uint64_t beyond_limit = 0;    // connections taken beyond max_clients, for stop commands
+  std::uint64_t idle_closed = 0;     // connections closed for the idle timeout
+  std::uint64_t requests = 0;        // request lines answered
+  std::uint64_t errors = 0;          // of them, answered with "ok": false
+  std::uint64_t oversized = 0;       // connections closed for a request line too long
+  std::uint64_t stream_lines = 0;    // stream lines queued to followers
+  std::uint64_t stream_dropped = 0;  // stream lines a follower missed (its own backlog, or the stream's)
 };
 
 class ControlServer {

@@ -81,7 +81,7 @@ class LineBroadcast {
 
  private:
   struct Header {
-    std::uint32_t length;          // of the line, or kPadding for the unused end of the ring
+    std::uint32_t length;  // of the line, or kPadding for the unused end of the ring
     std::uint32_t reserved;
     std::uint64_t dropped_before;  // lines the producer had dropped in all, before this one
   };

@@ -65,7 +65,7 @@ struct ModbusSimState {
   std::int64_t alarm_code = 0;
   int moves = 0, homings = 0, stops = 0, emergency_stops = 0, alarm_resets = 0;
   double last_velocity = 0, last_acceleration = 0;  // of the last move, steps/s and steps/s^2
-  std::uint64_t requests = 0;  // requests addressed to this unit
+  std::uint64_t requests = 0;                       // requests addressed to this unit
 };
 
 // One write a client made, as the server took it.
@@ -98,8 +98,8 @@ class ModbusDriveSim {
   // Faults on the next `count` requests to `unit` (count < 0: until cleared).
   // One kind at a time per unit: a new one replaces the old.
   void delay_replies(int unit, std::chrono::milliseconds delay, int count = -1);
-  void drop_requests(int unit, int count = -1);  // lost on the line: not executed, no reply
-  void corrupt_crc(int unit, int count = -1);    // executed, reply with a broken CRC (RTU only)
+  void drop_requests(int unit, int count = -1);                          // lost on the line: not executed, no reply
+  void corrupt_crc(int unit, int count = -1);                            // executed, reply with a broken CRC (RTU only)
   void exception_replies(int unit, int exception_code, int count = -1);  // not executed
   void reply_as_unit(int unit, int other_unit, int count = -1);          // executed, reply names another unit
   void clear_reply_faults(int unit);
