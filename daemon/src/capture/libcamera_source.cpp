@@ -9,25 +9,20 @@
 #include <libcamera/formats.h>
 #include <libcamera/framebuffer.h>
 #include <libcamera/framebuffer_allocator.h>
-#include <libcamera/property_ids.h>
 #include <libcamera/request.h>
 #include <libcamera/stream.h>
 
 #include <fmt/format.h>
 #include <algorithm>
-#include <array>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
-#include <limits>
 #include <mutex>
-#include <nlohmann/json.hpp>
-#include <stdexcept>
 #include <utility>
 
-#include "markerd/base/config_table.hpp"
+#include "libcamera_support.hpp"
 #include "markerd/base/errno_text.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
 
@@ -37,148 +32,7 @@ namespace {
 
 using libcamera::Camera;
 using libcamera::CameraManager;
-
-// ---------------------------------------------------------------- the camera manager
-
-// libcamera aborts the process when a second CameraManager is made while one
-// exists, so every user shares this one. A new one may only be made once the
-// old one is gone: the deleter stops it outside the lock and then says so.
-struct ManagerHolder {
-  std::mutex mutex;
-  std::condition_variable gone;
-  std::weak_ptr<CameraManager> current;
-  bool alive = false;
-};
-
-ManagerHolder& manager_holder() {
-  static ManagerHolder holder;
-  return holder;
-}
-
-std::shared_ptr<CameraManager> shared_camera_manager() {
-  ManagerHolder& holder = manager_holder();
-  std::unique_lock lock(holder.mutex);
-  if (auto manager = holder.current.lock()) return manager;
-  holder.gone.wait(lock, [&] { return !holder.alive; });
-
-  auto manager = std::make_unique<CameraManager>();
-  if (const int ret = manager->start(); ret < 0) {
-    throw CaptureError(CaptureError::Kind::io,
-                       fmt::format("libcamera: cannot start the camera manager: {}", errno_text(-ret)));
-  }
-  std::shared_ptr<CameraManager> shared(manager.release(), [](CameraManager* m) {
-    m->stop();
-    delete m;
-    ManagerHolder& h = manager_holder();
-    const std::lock_guard guard(h.mutex);
-    h.alive = false;
-    h.gone.notify_all();
-  });
-  holder.alive = true;
-  holder.current = shared;
-  return shared;
-}
-
-std::string camera_ids(const CameraManager& manager) {
-  std::string ids;
-  for (const auto& camera : manager.cameras()) ids += fmt::format("{}'{}'", ids.empty() ? "" : ", ", camera->id());
-  return ids.empty() ? "none" : ids;
-}
-
-// ---------------------------------------------------------------- formats and values
-
-libcamera::PixelFormat pixel_format_of(LibcameraPixelFormat format) {
-  switch (format) {
-    case LibcameraPixelFormat::yuyv: return libcamera::formats::YUYV;
-    case LibcameraPixelFormat::nv12: return libcamera::formats::NV12;
-    case LibcameraPixelFormat::r8: return libcamera::formats::R8;
-    case LibcameraPixelFormat::mjpeg: return libcamera::formats::MJPEG;
-  }
-  return {};
-}
-
-std::string_view type_name(libcamera::ControlType type) {
-  switch (type) {
-    case libcamera::ControlTypeNone: return "none";
-    case libcamera::ControlTypeBool: return "bool";
-    case libcamera::ControlTypeByte: return "byte";
-    case libcamera::ControlTypeInteger32: return "int32";
-    case libcamera::ControlTypeInteger64: return "int64";
-    case libcamera::ControlTypeFloat: return "float";
-    case libcamera::ControlTypeString: return "string";
-    case libcamera::ControlTypeRectangle: return "rectangle";
-    case libcamera::ControlTypeSize: return "size";
-  }
-  return "unknown";
-}
-
-LibcameraValue value_of(const libcamera::ControlValue& value) {
-  if (value.isNone()) return std::monostate{};
-  if (value.isArray()) return value.toString();
-  switch (value.type()) {
-    case libcamera::ControlTypeBool: return value.get<bool>();
-    case libcamera::ControlTypeByte: return static_cast<std::int64_t>(value.get<std::uint8_t>());
-    case libcamera::ControlTypeInteger32: return static_cast<std::int64_t>(value.get<std::int32_t>());
-    case libcamera::ControlTypeInteger64: return value.get<std::int64_t>();
-    case libcamera::ControlTypeFloat: return static_cast<double>(value.get<float>());
-    default: return value.toString();
-  }
-}
-
-// A number of a control value, for range checks; nothing for other types.
-std::optional<double> number_of(const libcamera::ControlValue& value) {
-  if (value.isNone() || value.isArray()) return std::nullopt;
-  switch (value.type()) {
-    case libcamera::ControlTypeBool: return value.get<bool>() ? 1.0 : 0.0;
-    case libcamera::ControlTypeByte: return value.get<std::uint8_t>();
-    case libcamera::ControlTypeInteger32: return value.get<std::int32_t>();
-    case libcamera::ControlTypeInteger64: return static_cast<double>(value.get<std::int64_t>());
-    case libcamera::ControlTypeFloat: return value.get<float>();
-    default: return std::nullopt;
-  }
-}
-
-std::string text_of(const std::variant<bool, std::int64_t, double>& value) {
-  return std::visit([](auto v) { return fmt::format("{}", v); }, value);
-}
-
-const libcamera::ControlId* find_control(const libcamera::ControlInfoMap& map, std::string_view name) {
-  for (const auto& [id, info] : map) {
-    if (id->name() == name) return id;
-  }
-  return nullptr;
-}
-
-std::string control_names(const libcamera::ControlInfoMap& map) {
-  std::vector<std::string> names;
-  for (const auto& [id, info] : map) names.push_back(id->name());
-  std::sort(names.begin(), names.end());
-  std::string list;
-  for (const auto& name : names) list += fmt::format("{}{}", list.empty() ? "" : ", ", name);
-  return list.empty() ? "none" : list;
-}
-
-std::string offered_formats(const libcamera::StreamFormats& formats) {
-  std::string text;
-  for (const auto& pixel_format : formats.pixelformats()) {
-    std::string sizes;
-    for (const auto& size : formats.sizes(pixel_format)) {
-      sizes += fmt::format("{}{}x{}", sizes.empty() ? "" : " ", size.width, size.height);
-    }
-    text += fmt::format("{}{} {}", text.empty() ? "" : "; ", pixel_format.toString(), sizes);
-  }
-  return text.empty() ? "nothing" : text;
-}
-
-// The camera's configuration for one stream: video first, the viewfinder for
-// a camera without a video role.
-std::unique_ptr<libcamera::CameraConfiguration> generate_configuration(Camera& camera) {
-  for (const auto role : {libcamera::StreamRole::VideoRecording, libcamera::StreamRole::Viewfinder}) {
-    auto config = camera.generateConfiguration({role});
-    if (config && !config->empty()) return config;
-  }
-  return nullptr;
-}
+using namespace libcam;
 
 // ---------------------------------------------------------------- a streaming session
 
@@ -704,215 +558,10 @@ class LibcameraSource final : public CaptureSource {
   std::optional<std::uint32_t> ready_;  // a completed request, waiting for fill() or skip()
 };
 
-// ---------------------------------------------------------------- listing
-
-LibcameraCameraInfo describe(Camera& camera) {
-  LibcameraCameraInfo info;
-  info.id = camera.id();
-  const libcamera::ControlList& properties = camera.properties();
-  info.model = properties.get(libcamera::properties::Model);
-  if (const auto location = properties.get(libcamera::properties::Location)) {
-    switch (*location) {
-      case libcamera::properties::CameraLocationFront: info.location = "front"; break;
-      case libcamera::properties::CameraLocationBack: info.location = "back"; break;
-      case libcamera::properties::CameraLocationExternal: info.location = "external"; break;
-      default: info.location = fmt::format("{}", *location); break;
-    }
-  }
-  if (const auto rotation = properties.get(libcamera::properties::Rotation)) info.rotation = *rotation;
-
-  if (auto config = generate_configuration(camera)) {
-    const libcamera::StreamFormats& formats = config->at(0).formats();
-    for (const auto& pixel_format : formats.pixelformats()) {
-      LibcameraStreamFormat format;
-      format.pixel_format = pixel_format.toString();
-      for (const auto& size : formats.sizes(pixel_format)) format.sizes.push_back({size.width, size.height});
-      const libcamera::SizeRange range = formats.range(pixel_format);
-      format.min_size = {range.min.width, range.min.height};
-      format.max_size = {range.max.width, range.max.height};
-      info.formats.push_back(std::move(format));
-    }
-  } else {
-    info.error = "it generates no configuration for video or viewfinder";
-  }
-
-  for (const auto& [id, control] : camera.controls()) {
-    LibcameraControlInfo entry;
-    entry.name = id->name();
-    entry.type = type_name(id->type());
-    entry.min = value_of(control.min());
-    entry.max = value_of(control.max());
-    entry.default_value = value_of(control.def());
-    for (const auto& value : control.values()) entry.values.push_back(value_of(value));
-    info.controls.push_back(std::move(entry));
-  }
-  std::sort(info.controls.begin(), info.controls.end(),
-            [](const LibcameraControlInfo& a, const LibcameraControlInfo& b) { return a.name < b.name; });
-  return info;
-}
-
-nlohmann::ordered_json json_of(const LibcameraValue& value) {
-  return std::visit(
-      [](const auto& v) -> nlohmann::ordered_json {
-        if constexpr (std::is_same_v<std::decay_t<decltype(v)>, std::monostate>) {
-          return nullptr;
-        } else {
-          return v;
-        }
-      },
-      value);
-}
-
 }  // namespace
-
-std::string_view to_string(LibcameraPixelFormat format) {
-  switch (format) {
-    case LibcameraPixelFormat::yuyv: return "YUYV";
-    case LibcameraPixelFormat::nv12: return "NV12";
-    case LibcameraPixelFormat::r8: return "R8";
-    case LibcameraPixelFormat::mjpeg: return "MJPEG";
-  }
-  return "unknown";
-}
-
-LibcameraSettings parse_libcamera_settings(const ConfigTable& table) {
-  table.allow_only({"camera", "pixel_format", "width", "height", "fps", "buffers", "controls"});
-  LibcameraSettings settings;
-  settings.camera = table.optional<std::string>("camera", "");
-
-  const auto format = table.optional<std::string>("pixel_format", "YUYV");
-  if (format == "YUYV") {
-    settings.format = LibcameraPixelFormat::yuyv;
-  } else if (format == "NV12") {
-    settings.format = LibcameraPixelFormat::nv12;
-  } else if (format == "R8" || format == "GREY") {
-    settings.format = LibcameraPixelFormat::r8;
-  } else if (format == "MJPEG" || format == "MJPG") {
-    settings.format = LibcameraPixelFormat::mjpeg;
-  } else {
-    table.fail("pixel_format",
-               fmt::format("unknown pixel format '{}' (known: YUYV, NV12, R8, GREY, MJPEG, MJPG)", format));
-  }
-
-  constexpr int kMaxSide = 16384;
-  settings.width = table.required<int>("width");
-  settings.height = table.required<int>("height");
-  if (settings.width <= 0 || settings.width > kMaxSide) {
-    table.fail("width", fmt::format("must be > 0 and at most {}, got {}", kMaxSide, settings.width));
-  }
-  if (settings.height <= 0 || settings.height > kMaxSide) {
-    table.fail("height", fmt::format("must be > 0 and at most {}, got {}", kMaxSide, settings.height));
-  }
-  if (settings.format == LibcameraPixelFormat::yuyv && settings.width % 2 != 0) {
-    table.fail("width", fmt::format("must be even for YUYV (two pixels share their colour), got {}", settings.width));
-  }
-  settings.fps = table.optional<double>("fps", 0.0);
-  // The frame duration (1e6 / fps microseconds) must be a whole, non-zero count.
-  if (!std::isfinite(settings.fps) || settings.fps < 0 || settings.fps > 1000) {
-    table.fail("fps",
-               fmt::format("must be >= 0 (0: the camera's own frame rate) and at most 1000, got {}", settings.fps));
-  }
-  settings.buffers = table.optional<int>("buffers", 4);
-  if (settings.buffers < 1 || settings.buffers > 32) {
-    table.fail("buffers", fmt::format("must be between 1 and 32, got {}", settings.buffers));
-  }
-
-  if (const auto controls = table.maybe_table("controls")) {
-    for (const auto& [key, node] : controls->raw()) {
-      const std::string name(key.str());
-      const libcamera::ControlId* id = nullptr;
-      for (const auto& [number, control] : libcamera::controls::controls) {
-        if (control->name() == name) id = control;
-      }
-      if (id == nullptr) {
-        std::vector<std::string> names;
-        for (const auto& [number, control] : libcamera::controls::controls) names.push_back(control->name());
-        std::sort(names.begin(), names.end());
-        std::string known;
-        for (const auto& n : names) known += fmt::format("{}{}", known.empty() ? "" : ", ", n);
-        controls->fail(name, fmt::format("libcamera has no control '{}' (its controls: {})", name, known));
-      }
-      if (id->id() == libcamera::controls::FrameDurationLimits.id()) {
-        controls->fail(name, "set the frame rate with [camera.libcamera] fps");
-      }
-
-      // Array controls (ColourGains, a Span of floats) have their element's
-      // type but take a list: not from the config.
-      if (id->name() == "ColourGains" || id->name() == "ColourCorrectionMatrix" || id->name() == "SensorBlackLevels") {
-        controls->fail(name, "an array control cannot be set from the config");
-      }
-
-      LibcameraControlSetting setting;
-      setting.name = name;
-      const auto line = node.source().begin.line;
-      setting.origin = line > 0 ? fmt::format("{}:{}: {}.{}", table.source(), line, controls->key_path(), name)
-                                : fmt::format("{}: {}.{}", table.source(), controls->key_path(), name);
-      switch (id->type()) {
-        case libcamera::ControlTypeBool: setting.value = controls->required<bool>(name); break;
-        case libcamera::ControlTypeInteger32: {
-          const auto value = controls->required<std::int64_t>(name);
-          if (value < std::numeric_limits<std::int32_t>::min() || value > std::numeric_limits<std::int32_t>::max()) {
-            controls->fail(name, fmt::format("must be a 32-bit integer, got {}", value));
-          }
-          setting.value = value;
-          break;
-        }
-        case libcamera::ControlTypeInteger64: setting.value = controls->required<std::int64_t>(name); break;
-        case libcamera::ControlTypeFloat: setting.value = controls->required<double>(name); break;
-        default: controls->fail(name, fmt::format("a {} control cannot be set from the config", type_name(id->type())));
-      }
-      settings.controls.push_back(std::move(setting));
-    }
-  }
-  return settings;
-}
 
 std::unique_ptr<CaptureSource> make_libcamera_source(const LibcameraSettings& settings) {
   return std::make_unique<LibcameraSource>(settings);
-}
-
-std::vector<LibcameraCameraInfo> list_libcamera_cameras() {
-  const auto manager = shared_camera_manager();
-  std::vector<LibcameraCameraInfo> cameras;
-  for (const auto& camera : manager->cameras()) cameras.push_back(describe(*camera));
-  return cameras;
-}
-
-nlohmann::ordered_json to_json(const LibcameraCameraInfo& camera) {
-  nlohmann::ordered_json json;
-  json["backend"] = "libcamera";
-  json["id"] = camera.id;
-  json["model"] = camera.model ? nlohmann::ordered_json(*camera.model) : nlohmann::ordered_json(nullptr);
-  json["location"] = camera.location ? nlohmann::ordered_json(*camera.location) : nlohmann::ordered_json(nullptr);
-  json["rotation"] = camera.rotation ? nlohmann::ordered_json(*camera.rotation) : nlohmann::ordered_json(nullptr);
-  if (!camera.error.empty()) json["error"] = camera.error;
-  auto formats = nlohmann::ordered_json::array();
-  for (const auto& format : camera.formats) {
-    auto sizes = nlohmann::ordered_json::array();
-    for (const auto& size : format.sizes) sizes.push_back({{"width", size.width}, {"height", size.height}});
-    formats.push_back({{"pixel_format", format.pixel_format},
-                       {"sizes", sizes},
-                       {"min_size", {{"width", format.min_size.width}, {"height", format.min_size.height}}},
-                       {"max_size", {{"width", format.max_size.width}, {"height", format.max_size.height}}}});
-  }
-  json["formats"] = formats;
-  auto controls = nlohmann::ordered_json::array();
-  for (const auto& control : camera.controls) {
-    nlohmann::ordered_json entry;
-    entry["name"] = control.name;
-    entry["type"] = control.type;
-    entry["min"] = json_of(control.min);
-    entry["max"] = json_of(control.max);
-    entry["default"] = json_of(control.default_value);
-    if (!control.values.empty()) {
-      auto values = nlohmann::ordered_json::array();
-      for (const auto& value : control.values) values.push_back(json_of(value));
-      entry["values"] = values;
-    }
-    controls.push_back(entry);
-  }
-  json["controls"] = controls;
-  return json;
 }
 
 }  // namespace markerd::daemon
