@@ -20,7 +20,6 @@ namespace {
 using libcamera::Camera;
 using namespace libcam;
 
-
 LibcameraCameraInfo describe(Camera& camera) {
   LibcameraCameraInfo info;
   info.id = camera.id();

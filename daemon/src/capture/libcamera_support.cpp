@@ -18,7 +18,6 @@ using libcamera::CameraManager;
 
 namespace {
 
-
 // libcamera aborts the process when a second CameraManager is made while one
 // exists, so every user shares this one. A new one may only be made once the
 // old one is gone: the deleter stops it outside the lock and then says so.
@@ -65,7 +64,6 @@ std::string camera_ids(const CameraManager& manager) {
   for (const auto& camera : manager.cameras()) ids += fmt::format("{}'{}'", ids.empty() ? "" : ", ", camera->id());
   return ids.empty() ? "none" : ids;
 }
-
 
 libcamera::PixelFormat pixel_format_of(LibcameraPixelFormat format) {
   switch (format) {
