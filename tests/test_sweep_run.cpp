@@ -643,9 +643,6 @@ TEST_F(SweepRunTest, AJournalFieldOfTheWrongTypeIsNamed) {
   EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
 }
 
-// The records' times: a year outside what system_clock's nanoseconds hold
-// overflowed into a wrong time (found by the fuzzer); now an error naming
-// the file (and line) and the year. Fields of the wrong type name the field.
 // A start that fails part way (here a file-size limit, as a full disk
 // would) leaves no half-made run directory behind, nor a journal naming it:
 // the run never started, and the client was told why.
@@ -678,6 +675,8 @@ TEST_F(SweepRunTest, AStartThatFailsPartWayLeavesNoHalfMadeRun) {
   std::signal(SIGXFSZ, old_handler);
   EXPECT_NE(error.find("start.json.tmp"), std::string::npos) << error;
   EXPECT_EQ(files_under_state(), before);
+  // Nor a runner that says a run is going: no later start could replace it.
+  EXPECT_EQ(r.progress().state, RunState::idle);
 
   const fs::path run = r.start(sweep::parse_plan(kPlan, "small.toml"));
   EXPECT_TRUE(fs::exists(run / "start.json"));
@@ -685,6 +684,9 @@ TEST_F(SweepRunTest, AStartThatFailsPartWayLeavesNoHalfMadeRun) {
   EXPECT_EQ(r.wait_finished(10s), RunState::aborted);
 }
 
+// The records' times: a year outside what system_clock's nanoseconds hold
+// overflowed into a wrong time (found by the fuzzer); now an error naming
+// the file (and line) and the year. Fields of the wrong type name the field.
 TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
   fs::path run;
   {

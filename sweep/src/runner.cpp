@@ -122,27 +122,34 @@ fs::path SweepRunner::start(SweepPlan plan) {
   // record finds a journal naming a run that never started, and forgets it,
   // rather than a started run that no journal names.
   write_journal(run->directory, kJournalRunning, false);
+  const fs::path directory = run->directory;
+  const std::string run_id = run->run_id;
+  const std::size_t steps = run->steps.size();
   try {
-    run->recorder = RunRecorder::create(run->directory, start);
+    run->recorder = RunRecorder::create(directory, start);
     run->recorder.append_event({now, "started", {}, 0});
+    run->plan = std::move(plan);
+    launch(std::move(run));
   } catch (const std::exception&) {
     // The run never started: nothing was measured, and the client hears why.
     // Its half-made directory (a full disk fails here) would otherwise stay
     // behind, looking like a run that never ended, with a journal naming it.
-    run->recorder = RunRecorder();
+    run.reset();  // closes its records, unless launch() had taken it
     std::error_code ignored;
-    fs::remove_all(run->directory, ignored);
+    fs::remove_all(directory, ignored);
     fs::remove(settings_.journal, ignored);
     throw;
   }
-  run->plan = std::move(plan);
-  const fs::path directory = run->directory;
-  spdlog::info("sweep {}: started, {} steps ({} points), about {:.0f} s", run->run_id, run->steps.size(),
-               checked.points, checked.estimated_duration.count());
-  launch(std::move(run));
+  spdlog::info("sweep {}: started, {} steps ({} points), about {:.0f} s", run_id, steps, checked.points,
+               checked.estimated_duration.count());
   return directory;
 }
 
+// The run's journal is the caller's to write first: launch() writes
+// nothing, so that a start the disk refuses is refused before the runner says
+// it is running. (It once wrote the journal again after setting the state: a
+// disk that filled in between left a run "running" with no thread to run it,
+// which no later start could replace. The soak found it.)
 void SweepRunner::launch(std::unique_ptr<Run> run) {
   if (thread_.joinable()) thread_.join();  // the previous run's thread, finished
   {
@@ -160,9 +167,15 @@ void SweepRunner::launch(std::unique_ptr<Run> run) {
     reason_.clear();
     phase_.clear();
   }
-  write_journal(run_->directory, paused ? kJournalPaused : kJournalRunning, paused);
   changed_.notify_all();
-  thread_ = std::jthread([this](const std::stop_token& stop) { run_thread(stop); });
+  try {
+    thread_ = std::jthread([this](const std::stop_token& stop) { run_thread(stop); });
+  } catch (...) {
+    const std::lock_guard lock(mutex_);
+    run_.reset();
+    state_ = RunState::idle;
+    throw;
+  }
 }
 
 void SweepRunner::pause() {

@@ -151,6 +151,7 @@ bool SweepRunner::resume_from_journal() {
       {std::chrono::system_clock::now(), "restarted",
        fmt::format("{}; markerd started again, continuing at step {} of {}", cause, run->done, run->steps.size()),
        run->done});
+  write_journal(directory, run->start_paused ? kJournalPaused : kJournalRunning, run->start_paused);
   spdlog::info("sweep {}: resuming at step {} of {} ({})", run->run_id, run->done, run->steps.size(), cause);
   launch(std::move(run));
   return true;
