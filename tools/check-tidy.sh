@@ -23,7 +23,7 @@ cmake -S . -B "$build" -G Ninja -DCMAKE_EXPORT_COMPILE_COMMANDS=ON -DMARKERD_PCH
 regex=${1:-"^$root/(base|detector|rig/src|sweep|daemon|tools)/.*\\.cpp\$"}
 count=$(grep -oP '"file": "\K[^"]+' "$build/compile_commands.json" | grep -cE "$regex" || true)
 echo "check-tidy: clang-tidy on $count files"
-if ! run-clang-tidy -p "$build" -j "$(nproc)" -quiet "$regex" >"$build/tidy.log" 2>&1; then
+if ! run-clang-tidy -p "$build" -j "$(nproc)" -quiet "$regex" 2>&1 | sed 's/\x1b\[[0-9;]*m//g' >"$build/tidy.log"; then
   # Only the findings: clang-tidy also counts the warnings it suppressed in
   # system headers, file by file.
   grep -vE '^[0-9]+ warnings? (and [0-9]+ errors? )?generated\.$|^Suppressed [0-9]+ warnings|^Use -header-filter|^Running clang-tidy|^clang-tidy-14 |^$' \

@@ -38,8 +38,9 @@ packages=(
   # the service's tests: systemd-analyze (verify, security), systemd-sysusers
   # and systemd-tmpfiles, which a container image may lack
   systemd
-  # the layout check of tools/run-tests.sh (tools/check-format.sh)
-  clang-format
+  # the layout and bug checks of tools/run-tests.sh (tools/check-format.sh,
+  # tools/check-tidy.sh)
+  clang-format clang-tidy
   # the fuzz build (tools/run-fuzz.sh): clang and its runtime libraries,
   # libFuzzer among them
   clang libclang-rt-14-dev

@@ -1,14 +1,17 @@
 #!/usr/bin/env bash
 # The README's test command: installs the dependencies, checks the layout of
-# the C++ files, builds with warnings as errors, runs every test, then builds
-# again under AddressSanitizer and UndefinedBehaviorSanitizer and runs every
-# test but the hardware-in-the-loop ones once more.
+# the C++ files and runs clang-tidy's bug checks, builds with warnings as
+# errors, runs every test, then builds again under AddressSanitizer and
+# UndefinedBehaviorSanitizer and runs every test but the hardware-in-the-loop
+# ones once more.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bash tools/install-deps.sh
 # The layout first: seconds, and a file .clang-format would change fails CI.
 bash tools/check-format.sh
+# clang-tidy's bug checks (.clang-tidy) on the product's code: a finding fails CI.
+bash tools/check-tidy.sh
 
 jobs=$(nproc)
 # Line tables only (-g1), as in the sanitizer build: a failure's backtrace

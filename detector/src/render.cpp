@@ -61,7 +61,7 @@ class NormalQuantiles {
     table_.resize(kSize);
     for (int i = 0; i < kSize / 2; ++i) {
       // Upper half by Newton's method on the normal CDF, mirrored below.
-      const double p = (kSize / 2 + i + 0.5) / kSize;
+      const double p = (kSize / 2.0 + i + 0.5) / kSize;
       double x = 0;
       for (int iter = 0; iter < 100; ++iter) {
         const double cdf = 0.5 * std::erfc(-x / std::numbers::sqrt2);

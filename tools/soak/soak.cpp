@@ -405,7 +405,7 @@ void Soak::look_at_files() {
   }
   const bool run_now_ended = state_now_ == "done" || state_now_ == "failed" || state_now_ == "aborted";
   for (const auto& entry : fs::directory_iterator(state_ / "runs")) {
-    const fs::path run = entry.path();
+    const fs::path& run = entry.path();
     const bool ended =
         fs::exists(run / "stop.json") && run.string() != journal_names && (run.filename() != run_now_ || run_now_ended);
     for (const char* name : {"points.jsonl", "events.jsonl"}) {

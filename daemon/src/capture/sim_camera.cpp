@@ -67,7 +67,7 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
 }
 
 SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry)
-    : settings_(settings), camera_(std::move(camera)), geometry_(geometry) {
+    : settings_(settings), camera_(camera), geometry_(geometry) {
   if (camera_.width <= 0 || camera_.height <= 0) {
     throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
   }

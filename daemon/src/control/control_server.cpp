@@ -660,10 +660,10 @@ ordered_json ControlServer::answer(Client& client, std::string_view line) {
   reply["ok"] = true;
   if (result.is_object()) {
     for (auto& [key, value] : result.items()) {
-      if (key != "id" && key != "ok") reply[key] = std::move(value);
+      if (key != "id" && key != "ok") reply[key] = value;  // json to ordered_json: a copy either way
     }
   } else if (!result.is_null()) {
-    reply["result"] = std::move(result);
+    reply["result"] = result;
   }
   return reply;
 }
