@@ -42,6 +42,8 @@ using test_support::write_file;
 // Marks a work directory as the soak's, so that clearing it never removes
 // anything else.
 constexpr const char* kStamp = ".markerd-soak";
+// How long a run may say "running" at one step (Soak::observe()).
+constexpr auto kStillLimit = 60s;
 
 // Seven points, two measurements of four frames each: fourteen steps, a run
 // of some tens of seconds at a high time scale.
@@ -156,6 +158,12 @@ class Soak {
   std::string run_now_;
   std::map<std::string, RunObservation> runs_;
   Clock::time_point next_start_try_{};
+  // The run that says it is running, its steps done, and since when both
+  // are unchanged: a run that holds still is a run nobody runs.
+  std::string still_run_;
+  std::size_t still_steps_ = 0;
+  Clock::time_point still_since_{};
+  bool still_reported_ = false;
   std::map<std::string, std::uint64_t> start_refusals_;
   std::uint64_t runs_started_ = 0;
 
@@ -237,6 +245,7 @@ void Soak::start_markerd() {
   ++instance_;
   ++started_;
   client_.reset();
+  still_run_.clear();  // a resumed run starts its clock again
   markerd_.start({o_.markerd, "--config", (dir_ / "markerd.toml").string()}, output_);
   instance_started_ = Clock::now();
   restart_at_.reset();
@@ -314,7 +323,23 @@ void Soak::observe(const json& s) {
   if (run_now_.empty()) return;
   RunObservation& r = runs_[run_now_];
   r.states.insert(state_now_);
-  r.most_steps_seen = std::max<std::size_t>(r.most_steps_seen, s.value("steps_done", std::size_t{0}));
+  const std::size_t steps = s.value("steps_done", std::size_t{0});
+  r.most_steps_seen = std::max<std::size_t>(r.most_steps_seen, steps);
+  // At the soak's time scale a step takes well under a second, homing a few;
+  // a camera outage suspends a run and a full disk fails it. A run that says
+  // "running" at the same step for a minute has no thread running it (as
+  // once after a start the disk refused half way).
+  const auto now = Clock::now();
+  if (state_now_ != "running" || run_now_ != still_run_ || steps != still_steps_) {
+    still_run_ = run_now_;
+    still_steps_ = steps;
+    still_since_ = now;
+    still_reported_ = false;
+  } else if (!still_reported_ && now - still_since_ > kStillLimit) {
+    problem(fmt::format("run {} has said running at step {} for {:.0f} s without a step", run_now_, steps,
+                        std::chrono::duration<double>(now - still_since_).count()));
+    still_reported_ = true;
+  }
   const bool ended = state_now_ == "done" || state_now_ == "failed" || state_now_ == "aborted";
   if (ended && r.ended_as.empty()) {
     r.ended_as = state_now_;
