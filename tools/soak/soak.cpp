@@ -330,7 +330,9 @@ void Soak::observe(const json& s) {
   // "running" at the same step for a minute has no thread running it (as
   // once after a start the disk refused half way).
   const auto now = Clock::now();
-  if (state_now_ != "running" || run_now_ != still_run_ || steps != still_steps_) {
+  if (state_now_ != "running") {
+    still_run_.clear();  // the clock starts at the first poll that finds it running again
+  } else if (run_now_ != still_run_ || steps != still_steps_) {
     still_run_ = run_now_;
     still_steps_ = steps;
     still_since_ = now;
