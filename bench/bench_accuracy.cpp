@@ -177,6 +177,8 @@ int main(int argc, char** argv) {
   app.add_option("--blur", blur, "blur sigma, pixels")->check(CLI::NonNegativeNumber)->capture_default_str();
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
   bool model_small_cells = false;
+  bool cut_hole = false;
+  app.add_flag("--cut-hole", cut_hole, "frame8: the hole cut out, the cluttered background showing through it");
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
@@ -215,6 +217,7 @@ int main(int argc, char** argv) {
   settings.scene.noise_sigma = noise;
   settings.scene.blur_sigma_px = blur;
   settings.scene.clutter = true;
+  settings.scene.cut_hole = cut_hole;
 
   fmt::print("# Detection on rendered scenes\n\n");
   fmt::print("- camera: {}x{}, fx {:.1f}, fy {:.1f}, cx {:.1f}, cy {:.1f}, k1 k2 p1 p2 k3 {} {} {} {} {}{}\n",

@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <random>
@@ -297,9 +298,107 @@ TEST(Frame8, MarkerTurnedFarIsOrientedByItsShortEdges) {
       wrong += r.wrong_id;
     }
   }
-  // Measured: 182 of 200 (from the corners' samples alone: 173).
-  EXPECT_GE(detected, 180) << "of " << frames;
+  // Measured: 174 of 200 (182 when clearly read corners were taken without
+  // the short edges' check, which let a sliver of clutter through:
+  // HalfTurnSymmetricSliverIsNotRead).
+  EXPECT_GE(detected, 170) << "of " << frames;
   EXPECT_EQ(wrong, 0);
+}
+
+// The ring of a marker squashed into a sliver (the width of a marker turned
+// about 84 degrees) but symmetric under a half turn, with four dark
+// corners: both long edges read the same code, as a light outline in
+// clutter does, and only the short edges could tell it from a marker,
+// whose cells here are finer than a pixel. Found in the benchmark's
+// clutter (seed 1, 0.5 m, frame 31: id 126 reported for a white outline).
+TEST(Frame8, HalfTurnSymmetricSliverIsNotRead) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  std::mt19937 rng(7);
+  int reported = 0;
+  for (int trial = 0; trial < 60; ++trial) {
+    // Cells: 0 black, 1 white; the ring's top row is random and the rest
+    // follows from the half turn; the line black, the hole white.
+    std::array<std::array<int, 10>, 10> cell{};
+    for (auto& row : cell) row.fill(1);
+    for (int c = 1; c <= 8; ++c) cell[0][static_cast<std::size_t>(c)] = static_cast<int>(rng() & 1U);
+    for (int r = 1; r <= 8; ++r) cell[static_cast<std::size_t>(r)][0] = static_cast<int>(rng() & 1U);
+    cell[0][0] = cell[0][9] = 0;
+    for (int r = 0; r < 10; ++r) {
+      for (int c = 0; c < 10; ++c) {
+        if (r == 0 || c == 0) cell[static_cast<std::size_t>(9 - r)][static_cast<std::size_t>(9 - c)] =
+            cell[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)];
+      }
+    }
+    const double width = std::uniform_real_distribution<double>(6.5, 10.0)(rng);
+    const double height = std::uniform_real_distribution<double>(45.0, 75.0)(rng);
+    const double angle = std::uniform_real_distribution<double>(-0.4, 0.4)(rng);
+    const double dark = std::uniform_real_distribution<double>(10, 60)(rng);
+    const double light = std::uniform_real_distribution<double>(170, 240)(rng);
+    const double background = std::uniform_real_distribution<double>(20, 200)(rng);
+    const double cx = 320 + std::uniform_real_distribution<double>(-0.5, 0.5)(rng), cy = 240;
+    cv::Mat img(480, 640, CV_32F, cv::Scalar(background));
+    const double ca = std::cos(angle), sa = std::sin(angle);
+    constexpr int kSamples = 4;
+    for (int y = 150; y < 330; ++y) {
+      for (int x = 260; x < 380; ++x) {
+        double sum = 0;
+        for (int j = 0; j < kSamples; ++j) {
+          for (int i = 0; i < kSamples; ++i) {
+            const double dx = x - 0.5 + (i + 0.5) / kSamples - cx, dy = y - 0.5 + (j + 0.5) / kSamples - cy;
+            const double gx = (ca * dx + sa * dy) / width * 10 + 5, gy = (-sa * dx + ca * dy) / height * 10 + 5;
+            double v = background;
+            if (gx >= 0 && gx < 10 && gy >= 0 && gy < 10) {
+              const double in = std::min(std::min(gx, 10 - gx), std::min(gy, 10 - gy));
+              if (in >= 1.5) {
+                v = light;
+              } else if (in >= 1.0) {
+                v = dark;
+              } else {
+                v = cell[static_cast<std::size_t>(gy)][static_cast<std::size_t>(gx)] ? light : dark;
+              }
+            }
+            sum += v;
+          }
+        }
+        img.at<float>(y, x) = static_cast<float>(sum / (kSamples * kSamples));
+      }
+    }
+    cv::GaussianBlur(img, img, cv::Size(0, 0), 0.6);
+    cv::Mat noise(img.size(), CV_32F);
+    cv::randn(noise, 0, 2);
+    img += noise;
+    GreyImage grey(640, 480);
+    for (int y = 0; y < 480; ++y) {
+      for (int x = 0; x < 640; ++x) {
+        grey.row(y)[x] = static_cast<std::uint8_t>(std::clamp(std::lround(img.at<float>(y, x)), 0L, 255L));
+      }
+    }
+    for (const Detection& d : detect(*det, grey)) {
+      ++reported;
+      ADD_FAILURE() << "trial " << trial << ": " << width << " x " << height << " px read as id " << d.id;
+    }
+  }
+  EXPECT_EQ(reported, 0);
+}
+
+// The benchmark's scene in which the sliver above was found: nothing but
+// the marker, and never another id.
+TEST(Frame8, BenchmarkClutterGivesNoWrongIdAtHalfAMetre) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  EvalSettings settings;
+  settings.scene.marker_size_m = 0.08;
+  settings.scene.noise_sigma = 2;
+  settings.scene.blur_sigma_px = 0.6;
+  settings.seed = 1;
+  const EvalResult r = evaluate_point(*det, kCamera, settings, {0.5, 0});
+  EXPECT_EQ(r.wrong_id, 0);
+  EXPECT_EQ(r.detected, r.frames);
 }
 
 // Clutter with dark frames, checkered patches and text: nothing.

@@ -26,9 +26,14 @@ Rejection Frame8Detector::read_corners(RingRead& r) const {
     if (white_corners == 0 || white_corners > 2) return Rejection::white_corner_count;
     if (!r.corners_read) return Rejection::white_corner_unclear;
   }
-  // A marker turned far whose corners do not read clearly: its short
-  // edges' profiles decide, once the code is known.
-  r.by_short_edges = r.short_side >= 0 && (!r.corners_read || r.orientation_clarity < config_.frame8.min_margin);
+  // A marker turned far: its short edges' profiles decide, once the code
+  // is known, even where its corners read clearly. With only the two long
+  // edges voting, any shape with a half-turn's symmetry (a light outline, a
+  // bar) reads the same code on both, and corner cells a pixel deep mix
+  // with whatever lies beside them and can read clearly white by chance
+  // (a white outline in clutter was reported so, as id 126): the short
+  // edges are the only check left on the code.
+  r.by_short_edges = r.short_side >= 0;
   return Rejection::none;
 }
 
