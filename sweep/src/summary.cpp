@@ -362,8 +362,8 @@ std::string runs_note(const std::vector<const RunSummary*>& runs, std::string_vi
       not_swept == nothing_to_compute
           ? fmt::format("{}: not swept", not_swept)
           : fmt::format(
-                "{}: the runs did not sweep it; {}: no poses to compute it from (the spread needs a facing "
-                "point measured twice)",
+                "Cells: {}: the runs did not sweep it; {}: no poses to compute it from (the spread needs a "
+                "facing point measured twice)",
                 not_swept, nothing_to_compute);
   return fmt::format(
       "Runs: a point counts as detected when {} of its frames found the marker. The maximum distance is the "
