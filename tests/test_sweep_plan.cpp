@@ -106,7 +106,8 @@ TEST(SweepPlan, ShippedAnglePlansAreTheThesisSweeps) {
 
 // The socket marker's sweeps (thesis 6.2.2 and 6.2.3): its distance sweep
 // lands on the thesis's 72, 78 and 81 cm and goes on as far as the paper
-// plan's; its angle sweeps at 50 and 72 cm, where the thesis measured it.
+// plan's; its angle sweeps at 50 and 72 cm, where the thesis measured it,
+// and at 95 cm, where the thesis did not find it at all.
 TEST(SweepPlan, ShippedSocketPlansAreTheThesisSocketSweeps) {
   const SweepPlan distance = load_plan(kSourceDir / "config/plans/thesis-socket-distance.toml");
   EXPECT_EQ(distance.name, "thesis-socket-distance");
@@ -126,7 +127,8 @@ TEST(SweepPlan, ShippedSocketPlansAreTheThesisSocketSweeps) {
   EXPECT_EQ(distances.size(), 43U);
 
   for (const auto& [file, at] :
-       {std::pair{"thesis-socket-angle-50cm.toml", 0.5}, std::pair{"thesis-socket-angle-72cm.toml", 0.72}}) {
+       {std::pair{"thesis-socket-angle-50cm.toml", 0.5}, std::pair{"thesis-socket-angle-72cm.toml", 0.72},
+        std::pair{"thesis-socket-angle-95cm.toml", 0.95}}) {
     SCOPED_TRACE(file);
     const SweepPlan plan = load_plan(kSourceDir / "config/plans" / file);
     EXPECT_EQ(plan.marker.mounting, Mounting::socket);
@@ -516,9 +518,9 @@ TEST(SweepPlan, AxisTargetsInvertTheGroundTruth) {
 
 TEST(SweepPlanCheck, ShippedPlansFitTheSimulatedRig) {
   const auto rig = sim_rig();
-  for (const char* file :
-       {"thesis.toml", "thesis-distance.toml", "thesis-angle-50cm.toml", "thesis-angle-95cm.toml",
-        "thesis-socket-distance.toml", "thesis-socket-angle-50cm.toml", "thesis-socket-angle-72cm.toml"}) {
+  for (const char* file : {"thesis.toml", "thesis-distance.toml", "thesis-angle-50cm.toml", "thesis-angle-95cm.toml",
+                           "thesis-socket-distance.toml", "thesis-socket-angle-50cm.toml",
+                           "thesis-socket-angle-72cm.toml", "thesis-socket-angle-95cm.toml"}) {
     SCOPED_TRACE(file);
     const SweepPlan plan = load_plan(kSourceDir / "config/plans" / file);
     const PlanCheck check = check_plan(plan, rig, 30.0);
