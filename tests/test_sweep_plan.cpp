@@ -7,11 +7,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -100,6 +102,60 @@ TEST(SweepPlan, ShippedAnglePlansAreTheThesisSweeps) {
     EXPECT_EQ(angles.back(), 85.0);
     EXPECT_EQ(plan_steps(plan).size(), 90U);
   }
+}
+
+// The socket marker's sweeps (thesis 6.2.2 and 6.2.3): its distance sweep
+// lands on the thesis's 72, 78 and 81 cm and goes on as far as the paper
+// plan's; its angle sweeps at 50 and 72 cm, where the thesis measured it,
+// and at 95 cm, where the thesis did not find it at all.
+TEST(SweepPlan, ShippedSocketPlansAreTheThesisSocketSweeps) {
+  const SweepPlan distance = load_plan(kSourceDir / "config/plans/thesis-socket-distance.toml");
+  EXPECT_EQ(distance.name, "thesis-socket-distance");
+  EXPECT_EQ(distance.marker.mounting, Mounting::socket);
+  EXPECT_EQ(distance.repeats, 5);
+  std::vector<double> distances;
+  for (const PlanGrid& grid : distance.grids) {
+    EXPECT_EQ(grid.angles_deg, std::vector<double>{0.0}) << grid.name;
+    distances.insert(distances.end(), grid.distances_m.begin(), grid.distances_m.end());
+  }
+  EXPECT_TRUE(std::is_sorted(distances.begin(), distances.end()));
+  for (const double thesis : {0.72, 0.78, 0.81}) {
+    EXPECT_NE(std::find(distances.begin(), distances.end(), thesis), distances.end()) << thesis;
+  }
+  EXPECT_EQ(distances.front(), 0.3);
+  EXPECT_EQ(distances.back(), 2.8);
+  EXPECT_EQ(distances.size(), 43U);
+
+  for (const auto& [file, at] :
+       {std::pair{"thesis-socket-angle-50cm.toml", 0.5}, std::pair{"thesis-socket-angle-72cm.toml", 0.72},
+        std::pair{"thesis-socket-angle-95cm.toml", 0.95}}) {
+    SCOPED_TRACE(file);
+    const SweepPlan plan = load_plan(kSourceDir / "config/plans" / file);
+    EXPECT_EQ(plan.marker.mounting, Mounting::socket);
+    EXPECT_EQ(plan.repeats, 5);
+    ASSERT_EQ(plan.grids.size(), 1U);
+    EXPECT_EQ(plan.grids[0].distances_m, std::vector<double>{at});
+    ASSERT_EQ(plan.grids[0].angles_deg.size(), 18U);
+    EXPECT_EQ(plan.grids[0].angles_deg.back(), 85.0);
+  }
+  // The paper plans say so: a report pairs them with the socket's runs.
+  for (const char* file : {"thesis.toml", "thesis-distance.toml", "thesis-angle-50cm.toml", "thesis-angle-95cm.toml"}) {
+    EXPECT_EQ(load_plan(kSourceDir / "config/plans" / file).marker.mounting, Mounting::paper) << file;
+  }
+}
+
+TEST(SweepPlan, MarkerMountingIsOptionalAndNamed) {
+  const std::string grid = "[[grid]]\nname = \"g\"\ndistance_m = [0.5]\nangle_deg = [0]\n";
+  EXPECT_EQ(parse_plan("name = \"x\"\n" + grid).marker.mounting, std::nullopt);
+  for (const auto& [name, mounting] :
+       {std::pair{"paper", Mounting::paper}, std::pair{"socket", Mounting::socket},
+        std::pair{"switch", Mounting::light_switch}, std::pair{"cut_hole", Mounting::cut_hole}}) {
+    const SweepPlan plan = parse_plan(std::string("name = \"x\"\n[marker]\nmounting = \"") + name + "\"\n" + grid);
+    EXPECT_EQ(plan.marker.mounting, mounting) << name;
+    EXPECT_EQ(to_string(mounting), name);
+  }
+  EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nmounting = \"wall\"\n" + grid),
+            "<string>:3: marker.mounting: unknown mounting 'wall' (known: paper, socket, switch, cut_hole)");
 }
 
 TEST(SweepPlan, ShippedDemoPlanHoldsAllThree) {
@@ -218,18 +274,18 @@ TEST(SweepPlan, EveryNumberHasARangeThatMeansSomething) {
 TEST(SweepPlan, APlanForAFamilyTheDetectorDoesNotFindIsAProblem) {
   markerd::detector::DetectorConfig frame8;
   frame8.family = markerd::detector::Family::frame8;
-  const PlanMarker tag{markerd::detector::Family::tag36h11, 5, 0.16};
+  const PlanMarker tag{markerd::detector::Family::tag36h11, 5, 0.16, std::nullopt};
   const auto problem = marker_problem(tag, frame8);
   ASSERT_TRUE(problem.has_value());
   EXPECT_NE(problem->find("tag36h11"), std::string::npos) << *problem;
   EXPECT_NE(problem->find("frame8"), std::string::npos) << *problem;
-  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 165, 0.16}, frame8).has_value());
+  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 165, 0.16, std::nullopt}, frame8).has_value());
   // frame8's 0 and 255 come only with uniform_ids.
-  const auto zero = marker_problem({markerd::detector::Family::frame8, 0, 0.08}, frame8);
+  const auto zero = marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8);
   ASSERT_TRUE(zero.has_value());
   EXPECT_NE(zero->find("uniform_ids"), std::string::npos) << *zero;
   frame8.frame8.uniform_ids = true;
-  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 0, 0.08}, frame8).has_value());
+  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8).has_value());
 }
 
 TEST(SweepPlan, FloatRangesReachTheirEndWithoutDrift) {
@@ -379,7 +435,7 @@ TEST(SweepPlan, UnknownKeysAreRejectedEverywhere) {
   EXPECT_EQ(plan_error("name = \"x\"\n[[grid]]\ndistance_m = { from = 1, to = 2, by = 0.5 }\nangle_deg = [0]\n"),
             "<string>:3: grid[0].distance_m.by: unknown key (known here: from, to, step)");
   EXPECT_EQ(plan_error("name = \"x\"\n[marker]\nsize = 0.1\n" + grid),
-            "<string>:3: marker.size: unknown key (known here: family, id, size_m)");
+            "<string>:3: marker.size: unknown key (known here: family, id, size_m, mounting)");
 }
 
 TEST(SweepPlan, GridOrderRunsTheFastAxisTheSameWayEveryRow) {
@@ -462,7 +518,9 @@ TEST(SweepPlan, AxisTargetsInvertTheGroundTruth) {
 
 TEST(SweepPlanCheck, ShippedPlansFitTheSimulatedRig) {
   const auto rig = sim_rig();
-  for (const char* file : {"thesis.toml", "thesis-distance.toml", "thesis-angle-50cm.toml", "thesis-angle-95cm.toml"}) {
+  for (const char* file : {"thesis.toml", "thesis-distance.toml", "thesis-angle-50cm.toml", "thesis-angle-95cm.toml",
+                           "thesis-socket-distance.toml", "thesis-socket-angle-50cm.toml",
+                           "thesis-socket-angle-72cm.toml", "thesis-socket-angle-95cm.toml"}) {
     SCOPED_TRACE(file);
     const SweepPlan plan = load_plan(kSourceDir / "config/plans" / file);
     const PlanCheck check = check_plan(plan, rig, 30.0);

@@ -7,7 +7,9 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -391,6 +393,155 @@ TEST(SweepSummary, Table61MaxDistanceNotReachedWhenTheNearestFails) {
 }
 
 // ---------------------------------------------------------------------------
+// The paper and the socket marker compared (Table 6.1's two columns)
+
+RunBuilder marker_run(const std::string& run_id, Mounting mounting) {
+  RunBuilder run(run_id);
+  run.records.start.plan.name = run_id;
+  run.records.start.plan.marker.mounting = mounting;
+  return run;
+}
+
+// An angle sweep at one distance: `reached_to` and every angle below it
+// found in every frame, the angles beyond it in none.
+RunBuilder angle_run(const std::string& run_id, Mounting mounting, double distance_m, std::vector<double> angles,
+                     double reached_to) {
+  RunBuilder run = marker_run(run_id, mounting);
+  std::size_t point = 0;
+  for (const double a : angles) run.add(1, point++, distance_m, a, frames_with(10, a <= reached_to ? 10 : 0));
+  return run;
+}
+
+// `frames` frames, each with this pose and these errors.
+std::vector<FrameSample> posed_frames(int frames, std::array<double, 3> tvec, double translation_error_mm,
+                                      double distance_error_mm, double rotation_error_deg) {
+  return std::vector<FrameSample>(static_cast<std::size_t>(frames),
+                                  posed(tvec, translation_error_mm, distance_error_mm, rotation_error_deg));
+}
+
+// The paper marker as the thesis found it: to 120 cm facing, 60° at 50 cm,
+// 45° at 95 cm; its 50 cm point measured twice, 2 cm apart in z.
+std::vector<RunRecords> paper_runs() {
+  RunBuilder distance = marker_run("paper-distance", Mounting::paper);
+  distance.add(0, 0, 0.50, 0, posed_frames(10, {0, 0, 0.50}, 4, 2, 1), 0);
+  distance.add(0, 0, 0.50, 0, posed_frames(10, {0, 0, 0.52}, 20, 20, 1), 1);
+  std::size_t point = 1;
+  for (const double d : {0.7, 0.9, 1.1, 1.2}) distance.add(0, point++, d, 0, frames_with(10, 10));
+  distance.add(0, point++, 1.3, 0, frames_with(10, 5));
+  return {std::move(distance.records),
+          angle_run("paper-angle-50cm", Mounting::paper, 0.50, {0, 10, 20, 30, 40, 50, 60, 70}, 60).records,
+          angle_run("paper-angle-95cm", Mounting::paper, 0.95, {0, 15, 30, 45, 60}, 45).records};
+}
+
+// The socket marker: to 81 cm facing, never found at 95 cm (facing nor
+// turned), 45° at 50 cm, 20° at 60 cm; no angle sweep at 72 cm. Its 72 cm
+// point measured twice, 5 mm apart in z.
+std::vector<RunRecords> socket_runs() {
+  RunBuilder distance = marker_run("socket-distance", Mounting::socket);
+  distance.add(0, 0, 0.72, 0, posed_frames(10, {0, 0, 0.715}, 10, -5, 2), 0);
+  distance.add(0, 0, 0.72, 0, posed_frames(10, {0, 0, 0.720}, 10, -5, 2), 1);
+  std::size_t point = 1;
+  for (const double d : {0.75, 0.78, 0.81}) distance.add(0, point++, d, 0, frames_with(10, 10));
+  distance.add(0, point++, 0.84, 0, frames_with(10, 3));
+  distance.add(0, point++, 0.95, 0, frames_with(10, 0));
+  return {std::move(distance.records),
+          angle_run("socket-angle-50cm", Mounting::socket, 0.50, {0, 15, 30, 45, 60}, 45).records,
+          angle_run("socket-angle-60cm", Mounting::socket, 0.60, {0, 10, 20, 30}, 20).records,
+          angle_run("socket-angle-95cm", Mounting::socket, 0.95, {0, 15, 30}, -1).records};
+}
+
+RunSummary together(const std::vector<RunRecords>& runs) {
+  std::vector<const RunRecords*> pointers;
+  for (const auto& run : runs) pointers.push_back(&run);
+  return summarize_together(pointers);
+}
+
+TEST(SweepSummary, RunsOfOneMarkerTogetherAreOneRunOfTheirGrids) {
+  const auto runs = socket_runs();
+  const RunSummary s = together(runs);
+  EXPECT_EQ(s.run_id, "socket-distance, socket-angle-50cm, socket-angle-60cm, socket-angle-95cm");
+  EXPECT_EQ(s.marker.mounting, Mounting::socket);
+  EXPECT_EQ(s.points.size(), 6U + 5U + 4U + 3U);
+  // The angle runs' facing points at 50 and 60 cm lie before the distance
+  // sweep's first and were found: the limit is still the distance sweep's.
+  ASSERT_TRUE(s.max_distance_m.has_value());
+  EXPECT_DOUBLE_EQ(*s.max_distance_m, 0.81);
+  ASSERT_EQ(s.max_angle.size(), 3U);
+  EXPECT_DOUBLE_EQ(s.max_angle[0].distance_m, 0.5);
+  EXPECT_EQ(s.max_angle[0].positive_deg, 45.0);
+  EXPECT_EQ(s.max_angle[1].positive_deg, 20.0);
+  EXPECT_EQ(s.max_angle[2].positive_deg, std::nullopt);  // 95 cm: not found facing
+  ASSERT_TRUE(s.max_tvec_difference_m.has_value());
+  EXPECT_NEAR(*s.max_tvec_difference_m, 0.005, 1e-12);
+  // Every frame with a pose: 20 at 5 mm in 720.
+  ASSERT_TRUE(s.median_distance_error_pct.has_value());
+  EXPECT_NEAR(*s.median_distance_error_pct, 100 * 5.0 / 720, 1e-9);
+}
+
+TEST(SweepSummary, RunsOfDifferentMarkersDoNotGoTogether) {
+  auto runs = socket_runs();
+  runs[1].start.plan.marker.id = 12;
+  try {
+    (void)together(runs);
+    FAIL() << "a column of two markers";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "runs socket-distance (frame8 #165, 80 mm, on a socket frame) and socket-angle-50cm (frame8 #12, 80 mm, "
+              "on a socket frame) measured different markers");
+  }
+  runs = socket_runs();
+  runs[2].start.plan.marker.mounting = Mounting::paper;
+  EXPECT_THROW((void)together(runs), std::invalid_argument);
+  runs = socket_runs();
+  runs[3].start.plan.detection_threshold = 0.5;
+  try {
+    (void)together(runs);
+    FAIL() << "a column of two thresholds";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("socket-angle-95cm (0.5) count a point as detected at different rates"),
+              std::string::npos)
+        << e.what();
+  }
+}
+
+TEST(SweepSummary, Table61ByMarkerSetsEachMarkersRunsBesideTheThesis) {
+  const auto paper = paper_runs();
+  const auto socket = socket_runs();
+  const std::string table = table_6_1_by_marker(
+      {MarkerColumn{Mounting::paper, together(paper)}, MarkerColumn{Mounting::socket, together(socket)}});
+  const std::vector<std::string> rows = {
+      "| | Thesis: paper marker | Paper marker: paper-distance, paper-angle-50cm, paper-angle-95cm (frame8 #165, 80 "
+      "mm, "
+      "on paper) | Thesis: socket marker | Socket marker: socket-distance, socket-angle-50cm, socket-angle-60cm, "
+      "socket-angle-95cm (frame8 #165, 80 mm, on a socket frame) |",
+      "| --- | --- | --- | --- | --- |",
+      "| Maximum detection distance | 120 cm | 120 cm | 81 cm | 81 cm |",
+      "| Maximum viewing angle at 50 cm | 60° | 60° | 45° | 45° |",
+      // A distance the thesis did not measure, swept for the socket only.
+      "| Maximum viewing angle at 60 cm | not measured | not swept | not measured | 20° |",
+      // The socket's 72 cm angle run is missing: said, not made up.
+      "| Maximum viewing angle at 72 cm | not measured | not swept | 30° | not swept |",
+      "| Maximum viewing angle at 95 cm | 45° (stable to 30°) | 45° | not detected | not reached |",
+      "| Translation vector spread | about 2 cm (appendix C: 1.7 cm) | 2.0 cm | about 2 cm (appendix C: 1.9 cm) | 5.0 "
+      "mm "
+      "|",
+      "| Median distance error | 9.2 cm at 95 cm (~9.7%) | 2.2 % | 7.7 cm at 72 cm (~10.7%) | 0.7 % |",
+      "| Median translation error | not measured | 1.2 cm | not measured | 1.0 cm |",
+      "| Median rotation error | not measured | 1.0° | not measured | 2.0° |",
+  };
+  std::string expected;
+  for (const auto& row : rows) expected += row + "\n";
+  EXPECT_EQ(table.substr(0, expected.size()), expected) << table;
+  EXPECT_NE(table.find("not swept: the runs did not sweep it"), std::string::npos) << table;
+}
+
+TEST(SweepSummary, Table61ByMarkerWithOneMarkerHasItsColumnsOnly) {
+  const std::string table = table_6_1_by_marker({MarkerColumn{Mounting::socket, together(socket_runs())}});
+  EXPECT_EQ(table.find("Thesis: paper marker"), std::string::npos) << table;
+  EXPECT_NE(table.find("| Maximum detection distance | 81 cm | 81 cm |\n"), std::string::npos) << table;
+}
+
+// ---------------------------------------------------------------------------
 // write_report
 
 using test_support::TempDir;
@@ -477,6 +628,44 @@ TEST(SweepReport, SideBySideHasAColumnAndACurvePerRun) {
   const std::string rate_map = test_support::read_file(dir.path() / "rate-map.gp");
   EXPECT_NE(rate_map.find("'rate-map-2.dat' using 1:2:(0.125):(15):3 with boxxyerror"), std::string::npos) << rate_map;
   EXPECT_NE(rate_map.find("set multiplot layout 2,1"), std::string::npos);
+}
+
+TEST(SweepReport, ByMarkerHasTheTwoColumnTableAndEveryRun) {
+  const TempDir dir;
+  ReportOptions options;
+  options.output_directory = dir.path();
+  options.plots = false;
+  const auto paper = paper_runs();
+  const auto socket = socket_runs();
+  const ReportFiles files =
+      write_report_by_marker({MarkerRuns{Mounting::paper, paper}, MarkerRuns{Mounting::socket, socket}}, options);
+  EXPECT_EQ(files.table_6_1, table_6_1_by_marker({MarkerColumn{Mounting::paper, together(paper)},
+                                                  MarkerColumn{Mounting::socket, together(socket)}}));
+  const std::string md = test_support::read_file(files.report);
+  EXPECT_NE(md.find("## Table 6.1\n\n" + files.table_6_1), std::string::npos) << md;
+  EXPECT_NE(md.find("Runs of the marker on paper: paper-distance, paper-angle-50cm, paper-angle-95cm; runs of the "
+                    "marker on a socket frame: socket-distance, "),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| Table 6.1 column | marker on paper | marker on paper | marker on paper | marker on a socket "
+                    "frame |"),
+            std::string::npos)
+      << md;
+  EXPECT_NE(md.find("| Marker | frame8 #165, 80 mm, on paper |"), std::string::npos) << md;
+  EXPECT_NE(md.find("## Points: socket-angle-60cm"), std::string::npos) << md;
+  EXPECT_EQ(files.csv.size(), 2 * 7U);
+  EXPECT_TRUE(fs::exists(dir.path() / "summary-socket-angle-95cm.csv"));
+}
+
+TEST(SweepReport, ByMarkerRefusesAMarkerWithoutRuns) {
+  const TempDir dir;
+  ReportOptions options;
+  options.output_directory = dir.path() / "out";
+  options.plots = false;
+  EXPECT_THROW((void)write_report_by_marker(
+                   {MarkerRuns{Mounting::paper, paper_runs()}, MarkerRuns{Mounting::socket, {}}}, options),
+               std::invalid_argument);
+  EXPECT_FALSE(fs::exists(options.output_directory));
 }
 
 TEST(SweepReport, WithoutPlotsNeedsNoGnuplot) {

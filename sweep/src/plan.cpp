@@ -66,7 +66,7 @@ PlanMarker parse_marker(const ConfigTable& root) {
   PlanMarker marker;
   const auto t = root.maybe_table("marker");
   if (!t) return marker;
-  t->allow_only({"family", "id", "size_m"});
+  t->allow_only({"family", "id", "size_m", "mounting"});
   if (const auto name = t->maybe<std::string>("family")) {
     const auto family = detector::family_from_name(*name);
     if (!family) {
@@ -85,6 +85,12 @@ PlanMarker parse_marker(const ConfigTable& root) {
                               id_given ? "" : " (the default: give the marker's id)"));
   }
   marker.size_m = t->optional<double>("size_m", marker.size_m, kMarkerSize);
+  if (const auto name = t->maybe<std::string>("mounting")) {
+    marker.mounting = mounting_from_name(*name);
+    if (!marker.mounting) {
+      t->fail("mounting", fmt::format("unknown mounting '{}' (known: paper, socket, switch, cut_hole)", *name));
+    }
+  }
   return marker;
 }
 
@@ -304,6 +310,33 @@ std::string describe_values(const std::vector<double>& values, std::string_view 
 }
 
 }  // namespace
+
+std::string_view to_string(Mounting mounting) {
+  switch (mounting) {
+    case Mounting::paper: return "paper";
+    case Mounting::socket: return "socket";
+    case Mounting::light_switch: return "switch";
+    case Mounting::cut_hole: return "cut_hole";
+  }
+  return "?";
+}
+
+std::optional<Mounting> mounting_from_name(std::string_view name) {
+  for (const Mounting m : {Mounting::paper, Mounting::socket, Mounting::light_switch, Mounting::cut_hole}) {
+    if (name == to_string(m)) return m;
+  }
+  return std::nullopt;
+}
+
+std::string_view mounting_text(Mounting mounting) {
+  switch (mounting) {
+    case Mounting::paper: return "on paper";
+    case Mounting::socket: return "on a socket frame";
+    case Mounting::light_switch: return "on a switch frame";
+    case Mounting::cut_hole: return "hole cut out";
+  }
+  return "?";
+}
 
 SweepPlan parse_plan(std::string_view text, std::string source) {
   if (text.size() > kMaxPlanBytes) throw ConfigError(plan_too_large(source, text.size()));

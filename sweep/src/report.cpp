@@ -430,7 +430,8 @@ std::string angle_text(double degrees) {
 std::string marker_text(const PlanMarker& marker) {
   const double mm = marker.size_m * 1000;
   const bool whole = std::abs(mm - std::round(mm)) < 0.05;
-  return fmt::format("{} #{}, {:.{}f} mm", detector::family_info(marker.family).name, marker.id, mm, whole ? 0 : 1);
+  return fmt::format("{} #{}, {:.{}f} mm{}", detector::family_info(marker.family).name, marker.id, mm, whole ? 0 : 1,
+                     marker.mounting ? fmt::format(", {}", mounting_text(*marker.mounting)) : std::string());
 }
 
 std::string status_text(const RunRecords& run) {
@@ -440,7 +441,9 @@ std::string status_text(const RunRecords& run) {
   return text;
 }
 
-std::string runs_table(const std::vector<RunRecords>& runs, const std::vector<RunSummary>& summaries) {
+// `columns`: empty, or the Table 6.1 column each run is in.
+std::string runs_table(const std::vector<const RunRecords*>& runs, const std::vector<RunSummary>& summaries,
+                       const std::vector<std::string>& columns) {
   std::string header = "| |";
   std::string rule = "| --- |";
   for (const auto& s : summaries) {
@@ -451,8 +454,9 @@ std::string runs_table(const std::vector<RunRecords>& runs, const std::vector<Ru
       {"Plan", {}},         {"Marker", {}}, {"Status", {}},        {"Started", {}}, {"Stopped", {}},
       {"Measurements", {}}, {"Frames", {}}, {"Detected when", {}}, {"Software", {}}};
   bool any_torn = false;
+  if (!columns.empty()) rows.emplace_back("Table 6.1 column", columns);
   for (std::size_t r = 0; r < runs.size(); ++r) {
-    const auto& run = runs[r];
+    const auto& run = *runs[r];
     const auto& s = summaries[r];
     int frames = 0;
     int corrupt = 0;
@@ -480,9 +484,9 @@ std::string runs_table(const std::vector<RunRecords>& runs, const std::vector<Ru
   }
   if (any_torn) {
     rows.emplace_back("Torn lines", std::vector<std::string>{});
-    for (const auto& run : runs) {
-      rows.back().second.push_back(run.torn_lines > 0 ? fmt::format("{} (a partial last line, ignored)", run.torn_lines)
-                                                      : "0");
+    for (const auto* run : runs) {
+      rows.back().second.push_back(
+          run->torn_lines > 0 ? fmt::format("{} (a partial last line, ignored)", run->torn_lines) : "0");
     }
   }
   std::string table = header + '\n' + rule + '\n';
@@ -576,18 +580,21 @@ std::string file_stem(const std::string& run_id, std::set<std::string>& taken) {
 
 }  // namespace
 
-ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOptions& options) {
-  if (runs.empty()) throw std::invalid_argument("write_report: no runs");
+namespace {
+
+// The report of `runs` (their summaries beside them) around `table` as its
+// Table 6.1: one column or curve per run everywhere else. `columns`: empty,
+// or the Table 6.1 column each run is in; `preface`: what precedes the runs'
+// table.
+ReportFiles write_runs_report(const std::vector<const RunRecords*>& runs, const std::vector<RunSummary>& summaries,
+                              std::string table, const std::vector<std::string>& columns, const std::string& preface,
+                              const ReportOptions& options) {
   std::error_code error;
   fs::create_directories(options.output_directory, error);
   if (error) {
     throw std::runtime_error(
         fmt::format("{}: cannot create the report directory: {}", options.output_directory.string(), error.message()));
   }
-
-  std::vector<RunSummary> summaries;
-  summaries.reserve(runs.size());
-  for (const auto& run : runs) summaries.push_back(summarize(run));
 
   ReportFiles files;
   std::vector<std::pair<std::string, std::string>> csv_names;  // summary, translation per run
@@ -617,9 +624,9 @@ ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOption
   for (const auto& s : summaries) ids += (ids.empty() ? "" : ", ") + s.run_id;
   const bool side_by_side = summaries.size() > 1;
   std::string md = fmt::format("# Sweep report: {}\n\n", ids);
-  md += side_by_side ? "Runs side by side, one column or curve each.\n\n" : "";
-  md += runs_table(runs, summaries);
-  md += "\n## Table 6.1\n\n" + table_6_1(summaries);
+  md += preface;
+  md += runs_table(runs, summaries, columns);
+  md += "\n## Table 6.1\n\n" + table;
 
   if (options.plots) {
     md += fmt::format(
@@ -637,7 +644,7 @@ ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOption
     const std::string suffix = side_by_side ? ": " + summaries[r].run_id : "";
     md += fmt::format("\n## Points{}\n\n", suffix) + points_table(summaries[r]);
     md += fmt::format("\n## Appendix C: translation vectors{}\n\n", suffix) + appendix_c_table(summaries[r]);
-    md += fmt::format("\n## Events{}\n\n", suffix) + events_table(runs[r]);
+    md += fmt::format("\n## Events{}\n\n", suffix) + events_table(*runs[r]);
   }
 
   md += "\n## Files\n\n";
@@ -648,7 +655,50 @@ ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOption
 
   files.report = options.output_directory / "report.md";
   write_text(files.report, md);
+  files.table_6_1 = std::move(table);
   return files;
+}
+
+}  // namespace
+
+ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOptions& options) {
+  if (runs.empty()) throw std::invalid_argument("write_report: no runs");
+  std::vector<const RunRecords*> pointers;
+  std::vector<RunSummary> summaries;
+  for (const auto& run : runs) {
+    pointers.push_back(&run);
+    summaries.push_back(summarize(run));
+  }
+  const std::string preface = runs.size() > 1 ? "Runs side by side, one column or curve each.\n\n" : "";
+  return write_runs_report(pointers, summaries, table_6_1(summaries), {}, preface, options);
+}
+
+ReportFiles write_report_by_marker(const std::vector<MarkerRuns>& markers, const ReportOptions& options) {
+  if (markers.empty()) throw std::invalid_argument("write_report_by_marker: no markers");
+  std::vector<const RunRecords*> pointers;
+  std::vector<RunSummary> summaries;
+  std::vector<std::string> columns;
+  std::vector<MarkerColumn> table_columns;
+  std::string preface;
+  for (const auto& marker : markers) {
+    if (marker.runs.empty()) {
+      throw std::invalid_argument(fmt::format("no runs of the marker {}", mounting_text(marker.mounting)));
+    }
+    std::vector<const RunRecords*> of_marker;
+    for (const auto& run : marker.runs) {
+      of_marker.push_back(&run);
+      pointers.push_back(&run);
+      summaries.push_back(summarize(run));
+      columns.emplace_back(fmt::format("marker {}", mounting_text(marker.mounting)));
+    }
+    table_columns.push_back(MarkerColumn{marker.mounting, summarize_together(of_marker)});
+    preface += fmt::format("{} of the marker {}: {}", preface.empty() ? "Runs" : "; runs",
+                           mounting_text(marker.mounting), table_columns.back().runs.run_id);
+  }
+  preface +=
+      ".\n\nTable 6.1 has a column for each marker's runs taken together, beside the thesis's column for that "
+      "marker; the other tables and the plots have one column or curve per run.\n\n";
+  return write_runs_report(pointers, summaries, table_6_1_by_marker(table_columns), columns, preface, options);
 }
 
 }  // namespace markerd::sweep

@@ -40,10 +40,28 @@ struct PlanGrid {
   SweepAxis slow_axis = SweepAxis::distance;
 };
 
+// What the printed marker is mounted on. The thesis measured it flat on paper
+// and glued onto a socket's rounded cover frame (its Table 6.1's two
+// columns); the report pairs runs by it.
+enum class Mounting : std::uint8_t {
+  paper,         // flat, printed on paper, the hole white
+  socket,        // cut out and glued onto a socket's rounded cover frame
+  light_switch,  // the same on a light switch's frame
+  cut_hole,      // flat, its hole cut out: what lies behind shows through
+};
+// "paper", "socket", "switch", "cut_hole": the plan's words.
+[[nodiscard]] std::string_view to_string(Mounting mounting);
+[[nodiscard]] std::optional<Mounting> mounting_from_name(std::string_view name);
+// "on paper", "on a socket frame", ...: for the report's marker cells.
+[[nodiscard]] std::string_view mounting_text(Mounting mounting);
+
 struct PlanMarker {
   detector::Family family = detector::Family::frame8;
   int id = 165;
   double size_m = 0.08;
+  // Unset: the plan does not say (plans older than the key, or a marker
+  // measured on no particular mounting).
+  std::optional<Mounting> mounting;
 };
 
 struct SweepPlan {

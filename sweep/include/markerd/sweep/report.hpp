@@ -24,11 +24,28 @@ struct ReportFiles {
   std::filesystem::path report;  // report.md
   std::vector<std::filesystem::path> csv;
   std::vector<std::filesystem::path> plots;
+  std::string table_6_1;  // Table 6.1 as report.md has it, with its notes
 };
 
 // One run: its report. Several: side by side (one column or curve per run),
 // the runs named by their run ids. std::runtime_error naming what failed
 // (an unwritable directory, gnuplot missing or failing with its message).
 ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOptions& options);
+
+// The runs of one marker as mounted (the thesis's paper marker or its socket
+// marker): its distance run and its angle runs, say.
+struct MarkerRuns {
+  Mounting mounting = Mounting::paper;
+  std::vector<RunRecords> runs;
+};
+
+// The thesis's two markers compared, as its Table 6.1 does: a column for each
+// marker's runs taken together (summarize_together), beside the thesis's
+// column for that marker (table_6_1_by_marker); everything else as for
+// several runs, one column or curve per run, the runs' table naming each
+// run's marker. std::invalid_argument for a marker without runs, or whose
+// runs measured different markers or at different thresholds; otherwise as
+// write_report.
+ReportFiles write_report_by_marker(const std::vector<MarkerRuns>& markers, const ReportOptions& options);
 
 }  // namespace markerd::sweep

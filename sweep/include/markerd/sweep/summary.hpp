@@ -96,9 +96,23 @@ struct RunSummary {
   std::optional<double> median_translation_error_mm;
   std::optional<double> median_distance_error_pct;  // of |error|
   std::optional<double> median_rotation_error_deg;
+  // The thesis's translation vector spread (6.2.4, "the maximum differences
+  // of the translation vector components", about 2 cm): at each facing
+  // point, the largest difference of one component between two of its
+  // measurements' mean translation vectors; the largest over the points.
+  // Empty without a facing point measured twice with a pose.
+  std::optional<double> max_tvec_difference_m;
 };
 
 [[nodiscard]] RunSummary summarize(const RunRecords& records);
+
+// Several runs of one marker (its distance sweep in one run, its angle
+// sweeps in others) as one run of their grids together: the points of all,
+// the maxima and medians over all. run_id and plan_name list the runs'.
+// std::invalid_argument when the runs measured different markers (family,
+// id, size or a stated mounting) or count a point as detected at different
+// thresholds: one column of Table 6.1 cannot mix them.
+[[nodiscard]] RunSummary summarize_together(const std::vector<const RunRecords*>& runs);
 
 // CSV, one header line then one line per point (summary.csv), and appendix
 // C's table, one line per measurement (translation.csv).
@@ -109,5 +123,19 @@ struct RunSummary {
 // viewing angle at 50 cm and 95 cm, median pose errors; the thesis's paper
 // marker in the first column, each run in one more.
 [[nodiscard]] std::string table_6_1(const std::vector<RunSummary>& runs);
+
+// One marker's column of Table 6.1: its runs, together (summarize_together).
+struct MarkerColumn {
+  Mounting mounting = Mounting::paper;
+  RunSummary runs;
+};
+
+// The thesis's Table 6.1 as it compares its two markers: for each marker
+// (paper, socket), the thesis's column for it and the runs' beside it. Rows:
+// the maximum detection distance, the maximum viewing angle at 50, 72 and
+// 95 cm and at any other distance a run swept in angle, the translation
+// vector spread, the median pose errors. A cell a marker's runs did not
+// measure says "not swept"; a number is never carried over from elsewhere.
+[[nodiscard]] std::string table_6_1_by_marker(const std::vector<MarkerColumn>& markers);
 
 }  // namespace markerd::sweep
