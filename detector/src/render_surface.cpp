@@ -321,7 +321,7 @@ RaySample SurfaceModel::trace(const Eigen::Vector3d& o, const Eigen::Vector3d& d
     // Most rays end here, on the flat band.
     const Height h = frame_height(p0.x(), p0.y());
     if (h.region == Region::frame && h.z >= 0) return {false, print_or(p0.head<2>(), frame_.reflectance)};
-    return march(o, d, s0, s1);
+    return march(o, d, s0, s1, h);
   }
   // A thin sheet of paper: what is not paper lets the ray through to the
   // insert behind the hole, or to the background.
@@ -330,77 +330,80 @@ RaySample SurfaceModel::trace(const Eigen::Vector3d& o, const Eigen::Vector3d& d
   const float paper = print_or(p0.head<2>(), -1.0F);
   if (paper >= 0) return {false, paper};
   if (insert_ == Insert::none) return {};
-  return march(o, d, s0, s1);
+  return march(o, d, s0, s1, insert_height(p0.x(), p0.y()));
 }
 
-RaySample SurfaceModel::march(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double s0, double s1) const {
-  // Above the height field where positive.
-  const auto clearance = [&](double s) {
-    const Eigen::Vector3d p = o + s * d;
-    return p.z() - height(p.x(), p.y()).z;
+RaySample SurfaceModel::march(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double s0, double s1,
+                              Height h0) const {
+  // Every height is looked up once: this is the renderer's inner loop.
+  struct Probe {
+    Eigen::Vector3d p;
+    Height h;
+    [[nodiscard]] double clearance() const { return p.z() - h.z; }  // above the height field where positive
   };
-  const auto below = [&](double s) { return clearance(s) <= 0; };
-  if (below(s0)) return shade_hit(o + s0 * d);
+  const auto probe = [&](double s) {
+    const Eigen::Vector3d p = o + s * d;
+    return Probe{p, height(p.x(), p.y())};
+  };
+  Probe prev{o + s0 * d, h0};
+  if (prev.clearance() <= 0) return shade_hit(prev.p, prev.h);
   // Over a level region the ray goes straight to where the height may
   // change (Height::free) or to below that level; over a roll, in fixed
   // plan steps.
   const double plan_per_s = std::sqrt(d.x() * d.x() + d.y() * d.y());
-  double prev = s0;
-  double free = height(o.x() + s0 * d.x(), o.y() + s0 * d.y()).free;
-  while (prev < s1) {
-    const double step = std::max(free, kMarchStep);
-    const double s = plan_per_s * (s1 - prev) <= step ? s1 : prev + step / plan_per_s;
-    const Eigen::Vector3d p = o + s * d;
-    const Height at = height(p.x(), p.y());
-    if (p.z() <= at.z) {
-      // Most hits are on a level face (band, plate, recess floor, rocker,
-      // wall): there the crossing is exact without bisecting, if the ray
-      // reaches that level over the same region within this step.
-      const bool level = at.region != Region::frame || at.z == 0;
-      if (level) {
-        const double s_level = (at.z - o.z()) / d.z();
-        if (s_level >= prev && s_level <= s) {
-          Eigen::Vector3d q = o + s_level * d;
-          const Height there = height(q.x(), q.y());
-          if (there.region == at.region && there.z == at.z) {
-            q.z() = at.z;
-            return shade_hit(q);
-          }
-        }
-      }
-      // Regula falsi, Illinois variant: on a roll the clearance is smooth
-      // and a few steps find it (a facing ray's clearance is nearly linear
-      // in s); across a vertical face it jumps, and the halving of the
-      // stale end's value shrinks the bracket geometrically all the same.
-      double lo = prev, hi = s;
-      double f_lo = clearance(lo), f_hi = clearance(hi);
-      double depth = f_hi;  // the true clearance at hi (f_hi may be halved)
-      const double length = d.norm();
-      int stale = 0;  // which end stayed last time: -1 lo, +1 hi
-      for (int k = 0; k < kMaxRefinements && (hi - lo) * length > kHitTolerance && depth < -kSurfaceTolerance; ++k) {
-        double mid = hi - f_hi * (hi - lo) / (f_hi - f_lo);
-        if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
-        const double f_mid = clearance(mid);
-        if (f_mid <= 0) {
-          hi = mid, f_hi = f_mid, depth = f_mid;
-          if (stale == -1) f_lo *= 0.5;
-          stale = -1;
-        } else {
-          lo = mid, f_lo = f_mid;
-          if (stale == 1) f_hi *= 0.5;
-          stale = 1;
-        }
-      }
-      return shade_hit(o + hi * d);
+  double s_prev = s0;
+  while (s_prev < s1) {
+    const double step = std::max(prev.h.free, kMarchStep);
+    const double s = plan_per_s * (s1 - s_prev) <= step ? s1 : s_prev + step / plan_per_s;
+    const Probe at = probe(s);
+    if (at.clearance() > 0) {
+      prev = at;
+      s_prev = s;
+      continue;
     }
-    prev = s;
-    free = at.free;
+    // Most hits are on a level face (band, plate, recess floor, rocker,
+    // wall): there the crossing is exact without refining, if the ray
+    // reaches that level over the same region within this step.
+    if (at.h.region != Region::frame || at.h.z == 0) {
+      const double s_level = (at.h.z - o.z()) / d.z();
+      if (s_level >= s_prev && s_level <= s) {
+        Probe there = probe(s_level);
+        if (there.h.region == at.h.region && there.h.z == at.h.z) {
+          there.p.z() = at.h.z;
+          return shade_hit(there.p, there.h);
+        }
+      }
+    }
+    // Regula falsi, Illinois variant: on a roll the clearance is smooth
+    // and a few steps find it (a facing ray's clearance is nearly linear
+    // in s); across a vertical face it jumps, and the halving of the
+    // stale end's value shrinks the bracket geometrically all the same.
+    double lo = s_prev, hi = s;
+    double f_lo = prev.clearance(), f_hi = at.clearance();
+    Probe best = at;  // the last point found below the surface
+    const double length = d.norm();
+    int stale = 0;  // which end stayed last time: -1 lo, +1 hi
+    for (int k = 0; k < kMaxRefinements && (hi - lo) * length > kHitTolerance && best.clearance() < -kSurfaceTolerance;
+         ++k) {
+      double mid = hi - f_hi * (hi - lo) / (f_hi - f_lo);
+      if (!(mid > lo && mid < hi)) mid = 0.5 * (lo + hi);
+      const Probe m = probe(mid);
+      if (m.clearance() <= 0) {
+        hi = mid, f_hi = m.clearance(), best = m;
+        if (stale == -1) f_lo *= 0.5;
+        stale = -1;
+      } else {
+        lo = mid, f_lo = m.clearance();
+        if (stale == 1) f_hi *= 0.5;
+        stale = 1;
+      }
+    }
+    return shade_hit(best.p, best.h);
   }
   return {};
 }
 
-RaySample SurfaceModel::shade_hit(const Eigen::Vector3d& p) const {
-  const Height h = height(p.x(), p.y());
+RaySample SurfaceModel::shade_hit(const Eigen::Vector3d& p, const Height& h) const {
   const bool on_face = p.z() < h.z - kFaceTolerance;
   const Eigen::Vector3d up(0, 0, 1);
   const auto sideways = [](const Eigen::Vector2d& v) { return Eigen::Vector3d(v.x(), v.y(), 0); };

@@ -70,10 +70,12 @@ class SurfaceModel {
   [[nodiscard]] Height frame_height(double x, double y) const;
   [[nodiscard]] Height insert_height(double x, double y) const;
   [[nodiscard]] Height height(double x, double y) const { return has_frame_ ? frame_height(x, y) : insert_height(x, y); }
-  // Marches the height field from s0 (a point above it) to s1 (a point at or
-  // below its lowest level) and shades the first point below it.
-  [[nodiscard]] RaySample march(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double s0, double s1) const;
-  [[nodiscard]] RaySample shade_hit(const Eigen::Vector3d& p) const;
+  // Marches the height field from s0 (at the top, z = 0, where the height
+  // is h0) to s1 (below its lowest level) and shades the first point below it.
+  [[nodiscard]] RaySample march(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double s0, double s1,
+                                Height h0) const;
+  // `h` is the height at p's plan position.
+  [[nodiscard]] RaySample shade_hit(const Eigen::Vector3d& p, const Height& h) const;
   [[nodiscard]] RaySample shade_frame(const Eigen::Vector3d& p, bool on_face) const;
   // The print, the paper margin or the plastic under print coordinates (metres).
   [[nodiscard]] float print_or(const Eigen::Vector2d& print_xy, float otherwise) const;
