@@ -24,10 +24,12 @@ CoverFrame switch_frame() {
 
 Occluder side_occluder(MarkerSide side, double marker_size_m, double depth_fraction, float reflectance, double z_m) {
   if (!(marker_size_m > 0) || !std::isfinite(marker_size_m)) {
-    throw std::invalid_argument(fmt::format("side_occluder: marker_size_m must be more than zero, got {}", marker_size_m));
+    throw std::invalid_argument(
+        fmt::format("side_occluder: marker_size_m must be more than zero, got {}", marker_size_m));
   }
   if (!(depth_fraction > 0 && depth_fraction <= 1)) {
-    throw std::invalid_argument(fmt::format("side_occluder: depth_fraction must be from 0 to 1, got {}", depth_fraction));
+    throw std::invalid_argument(
+        fmt::format("side_occluder: depth_fraction must be from 0 to 1, got {}", depth_fraction));
   }
   // It reaches one marker size beyond the outer edge and along the side:
   // past any margin or frame, so that only its inner edge is seen.
@@ -118,8 +120,8 @@ void check_surface_inputs(const Scene& scene) {
       bad("frame.opening_m", fmt::format("({}) must be less than frame.outer_m ({})", f.opening_m, f.outer_m));
     }
     if (f.corner_radius_m > f.outer_m / 2) {
-      bad("frame.corner_radius_m", fmt::format("({}) must not exceed half of frame.outer_m ({})", f.corner_radius_m,
-                                               f.outer_m / 2));
+      bad("frame.corner_radius_m",
+          fmt::format("({}) must not exceed half of frame.outer_m ({})", f.corner_radius_m, f.outer_m / 2));
     }
     if (f.outer_roll_m > f.height_m) {
       bad("frame.outer_roll_m", fmt::format("({}) must not exceed frame.height_m ({})", f.outer_roll_m, f.height_m));

@@ -55,8 +55,8 @@ class SurfaceModel {
   struct RoundedSquare {
     double half = 0;
     double radius = 0;
-    [[nodiscard]] double distance(double x, double y) const;                 // signed: negative inside
-    [[nodiscard]] Eigen::Vector2d outward(double x, double y) const;        // unit gradient of distance()
+    [[nodiscard]] double distance(double x, double y) const;          // signed: negative inside
+    [[nodiscard]] Eigen::Vector2d outward(double x, double y) const;  // unit gradient of distance()
   };
   enum class Region : std::uint8_t { wall, frame, plate, recess, pin, rocker, gap };
   struct Height {
@@ -69,7 +69,9 @@ class SurfaceModel {
 
   [[nodiscard]] Height frame_height(double x, double y) const;
   [[nodiscard]] Height insert_height(double x, double y) const;
-  [[nodiscard]] Height height(double x, double y) const { return has_frame_ ? frame_height(x, y) : insert_height(x, y); }
+  [[nodiscard]] Height height(double x, double y) const {
+    return has_frame_ ? frame_height(x, y) : insert_height(x, y);
+  }
   // Marches the height field from s0 (at the top, z = 0, where the height
   // is h0) to s1 (below its lowest level) and shades the first point below it.
   [[nodiscard]] RaySample march(const Eigen::Vector3d& o, const Eigen::Vector3d& d, double s0, double s1,
@@ -93,7 +95,7 @@ class SurfaceModel {
   Insert insert_;
   float insert_reflectance_;
   double plate_z_ = 0, recess_z_ = 0, pin_z_ = 0, rocker_z_ = 0, gap_z_ = 0;
-  double lowest_z_ = 0;  // nothing lies below
+  double lowest_z_ = 0;    // nothing lies below
   Eigen::Vector3d light_;  // unit, marker frame
   double ambient_;
   double flat_shade_;  // the unnormalised shading of the marker's plane

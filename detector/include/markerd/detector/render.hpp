@@ -52,7 +52,7 @@ struct CoverFrame {
   double height_m = 0.010;         // from the wall to the flat band
   double outer_roll_m = 0.006;     // radius of the rounding at the outer edge
   double inner_roll_m = 0.006;     // radius of the rounding down into the opening
-  double corner_radius_m = 0.010;  // rounding of the outer corners seen from the front (the opening's corners follow, scaled)
+  double corner_radius_m = 0.010;  // outer corners' rounding seen from the front (the opening's follow, scaled)
   float reflectance = 0.85F;       // the frame's plastic where the print does not cover it
 };
 
