@@ -389,44 +389,53 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
   const double samples = static_cast<double>(ss) * ss;
   const double level = scene.exposure * 255.0;
 
-  for (int y = y0; y <= y1; ++y) {
-    lattice_row(y + 0.5, lower);
-    auto* row = image.ptr<float>(y);
-    for (int x = x0; x <= x1; ++x) {
-      const auto k = static_cast<std::size_t>(x - x0);
-      const Eigen::Vector3d& a = upper[k];
-      const Eigen::Vector3d& b = upper[k + 1];
-      const Eigen::Vector3d& c = lower[k];
-      const Eigen::Vector3d& d = lower[k + 1];
-      double reflect = 0;
-      int misses = 0;
-      for (double fy : offsets) {
-        const Eigen::Vector3d left = a + (c - a) * fy;
-        const Eigen::Vector3d right = b + (d - b) * fy;
-        for (double fx : offsets) {
-          const Eigen::Vector3d m = left + (right - left) * fx;
-          if (solid) {
-            const surface::RaySample hit = solid->trace(eye, m);
-            if (hit.background) {
-              ++misses;
+  // The per-sample choice of path is made once, at compile time: the flat
+  // path's inner loop is exactly what it was before there were solids.
+  const auto draw_rows = [&]<bool kSolid>() {
+    for (int y = y0; y <= y1; ++y) {
+      lattice_row(y + 0.5, lower);
+      auto* row = image.ptr<float>(y);
+      for (int x = x0; x <= x1; ++x) {
+        const auto k = static_cast<std::size_t>(x - x0);
+        const Eigen::Vector3d& a = upper[k];
+        const Eigen::Vector3d& b = upper[k + 1];
+        const Eigen::Vector3d& c = lower[k];
+        const Eigen::Vector3d& d = lower[k + 1];
+        double reflect = 0;
+        int misses = 0;
+        for (double fy : offsets) {
+          const Eigen::Vector3d left = a + (c - a) * fy;
+          const Eigen::Vector3d right = b + (d - b) * fy;
+          for (double fx : offsets) {
+            const Eigen::Vector3d m = left + (right - left) * fx;
+            if constexpr (kSolid) {
+              const surface::RaySample hit = solid->trace(eye, m);
+              if (hit.background) {
+                ++misses;
+              } else {
+                reflect += hit.reflectance;
+              }
             } else {
-              reflect += hit.reflectance;
+              // w <= 0: the ray meets the plane behind the camera, or never.
+              std::optional<float> rf;
+              if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
+              if (rf) {
+                reflect += front ? *rf : kPaper;
+              } else {
+                ++misses;
+              }
             }
-            continue;
-          }
-          // w <= 0: the ray meets the plane behind the camera, or never.
-          std::optional<float> rf;
-          if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
-          if (rf) {
-            reflect += front ? *rf : kPaper;
-          } else {
-            ++misses;
           }
         }
+        row[x] = static_cast<float>((reflect * level + misses * static_cast<double>(row[x])) / samples);
       }
-      row[x] = static_cast<float>((reflect * level + misses * static_cast<double>(row[x])) / samples);
+      std::swap(upper, lower);
     }
-    std::swap(upper, lower);
+  };
+  if (solid) {
+    draw_rows.operator()<true>();
+  } else {
+    draw_rows.operator()<false>();
   }
 }
 
