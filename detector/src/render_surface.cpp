@@ -166,10 +166,10 @@ bool is_flat_print(const Scene& scene) {
 
 double SurfaceModel::RoundedSquare::distance(double x, double y) const {
   const double qx = std::abs(x) - (half - radius), qy = std::abs(y) - (half - radius);
-  // sqrt, not hypot: this is the inner loop of the march, and no operand
-  // comes near overflow.
-  const double ox = std::max(qx, 0.0), oy = std::max(qy, 0.0);
-  return std::sqrt(ox * ox + oy * oy) + std::min(std::max(qx, qy), 0.0) - radius;
+  // The inner loop of the march: a root only off the corners' arcs, and
+  // sqrt, not hypot, since no operand comes near overflow.
+  if (qx > 0 && qy > 0) return std::sqrt(qx * qx + qy * qy) - radius;
+  return std::max(qx, qy) - radius;
 }
 
 Eigen::Vector2d SurfaceModel::RoundedSquare::outward(double x, double y) const {
