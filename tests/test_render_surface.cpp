@@ -267,6 +267,15 @@ TEST(RenderSurface, SocketRecessAndPinHolesAreDark) {
   const GreyImage rocker = render_scene(cam, s);
   EXPECT_EQ(pixel_at(rocker, project_xyz(cam, s, 0.0, 0.0, -0.002)), plastic);
   EXPECT_EQ(pixel_at(rocker, project_xyz(cam, s, 0.015, -0.02, -0.002)), plastic);
+
+  // The switch frame's 3 mm rolls leave the band from 31 to 40 mm out:
+  // the line's outer part (31..32 mm) lies on the band, as flat as paper;
+  // its rocker stands 1 mm below the band.
+  s.frame = switch_frame();
+  const GreyImage flatter = render_scene(cam, s);
+  maybe_dump(flatter, "switch_facing");
+  EXPECT_EQ(pixel_at(flatter, project_xyz(cam, s, -0.0315, 0.0, 0)), kBlack);
+  EXPECT_EQ(pixel_at(flatter, project_xyz(cam, s, 0.0, 0.0, -0.001)), plastic);
 }
 
 // ------------------------------------------------------------------ occluders
