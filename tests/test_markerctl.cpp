@@ -544,6 +544,43 @@ TEST_F(Markerctl, RenderAcceptsUnitsAndNegativeValues) {
   EXPECT_EQ(a["corners"], b["corners"]);
 }
 
+// The surfaces of issue 18 from the command line: a socket frame with its
+// outlet, a margin and a covered side change what the flat print shows, in
+// the places they should.
+TEST_F(Markerctl, RenderGluesThePrintOntoAFrameAndCoversASide) {
+  const json flat = render("flat.png", {"--dist", "0.4", "--no-clutter", "--no-distort"});
+  const json socket = render(
+      "socket.png", {"--dist", "0.4", "--no-clutter", "--no-distort", "--frame", "socket", "--insert", "socket"});
+  // The truth is the flat band's plane: the same corners.
+  EXPECT_EQ(flat["corners"], socket["corners"]);
+  const cv::Mat a = cv::imread(path("flat.png"), cv::IMREAD_GRAYSCALE);
+  const cv::Mat b = cv::imread(path("socket.png"), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  // The centre: white paper flat, the socket's recess (dark) on the frame.
+  EXPECT_GT(a.at<std::uint8_t>(240, 320), 200);
+  EXPECT_LT(b.at<std::uint8_t>(240, 320 + 20), 100);
+
+  // 10 mm of paper: white at 45 mm from the centre (56 px at 0.4 m, f 516).
+  render("margin.png", {"--dist", "0.4", "--no-clutter", "--no-distort", "--margin", "10"});
+  const cv::Mat m = cv::imread(path("margin.png"), cv::IMREAD_GRAYSCALE);
+  EXPECT_EQ(a.at<std::uint8_t>(238, 319 + 58), 128);
+  EXPECT_EQ(m.at<std::uint8_t>(238, 319 + 58), 224);
+
+  // A light cover over the left side, the right side untouched.
+  render("cover.png", {"--dist", "0.4", "--no-clutter", "--no-distort", "--cover", "left", "--cover-reflectance", "1"});
+  const cv::Mat c = cv::imread(path("cover.png"), cv::IMREAD_GRAYSCALE);
+  EXPECT_EQ(c.at<std::uint8_t>(238, 319 - 45), 255);
+  EXPECT_EQ(c.at<std::uint8_t>(238, 319 + 45), a.at<std::uint8_t>(238, 319 + 45));
+
+  const Outcome negative = run({"render", "--dist", "0.4", "--margin", "-3", "-o", path("x.png")});
+  EXPECT_EQ(negative.code, 2) << negative.describe();
+  EXPECT_NE(negative.err.find("--margin"), std::string::npos) << negative.describe();
+  const Outcome unknown = run({"render", "--dist", "0.4", "--frame", "oval", "-o", path("x.png")});
+  EXPECT_NE(unknown.code, 0) << unknown.describe();
+  EXPECT_NE(unknown.err.find("--frame"), std::string::npos) << unknown.describe();
+}
+
 // ---------------------------------------------------------------- evaluate
 
 TEST_F(Markerctl, EvaluateTinyGridPrintsATable) {

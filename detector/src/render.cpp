@@ -18,15 +18,13 @@
 #include <fmt/format.h>
 
 #include "markerd/detector/frame8.hpp"
+#include "render_surface.hpp"
 
 namespace markerd::detector {
 namespace {
 
-constexpr float kPaper = 0.88F;
-constexpr float kInk = 0.05F;
-// Flat background without clutter: mid grey, lighter than the ink so that a
-// cut hole still shows the frame8 line's inner edge.
-constexpr std::uint8_t kFlatGrey = 128;
+using surface::kInk;
+using surface::kPaper;
 // The noise stream is independent of the clutter stream, so that changing the
 // noise level does not move the clutter.
 constexpr std::uint64_t kNoiseSeedMix = 0x9E3779B97F4A7C15ULL;
@@ -200,9 +198,12 @@ struct Drawer {
   }
 };
 
+// The clutter, or the flat background_grey (by default mid grey, lighter
+// than the ink so that a cut hole still shows the frame8 line's inner edge).
+// Float, as the converted 8-bit image of a whole grey level always was.
 cv::Mat make_background(int width, int height, const Scene& scene) {
-  cv::Mat img(height, width, CV_8U, cv::Scalar(kFlatGrey));
-  if (!scene.clutter) return img;
+  if (!scene.clutter) return cv::Mat(height, width, CV_32F, cv::Scalar(scene.background_grey));
+  cv::Mat img(height, width, CV_8U);
   Random rng(scene.seed);
   // A smooth illumination gradient under everything.
   const double g0 = rng.uniform(70, 190), gx = rng.uniform(-60, 60), gy = rng.uniform(-60, 60);
@@ -241,6 +242,7 @@ void check_inputs(const CameraModel& camera, const Scene& scene) {
     throw std::invalid_argument("render: blur and noise must be finite");
   }
   check_id(scene.family, scene.id);
+  surface::check_surface_inputs(scene);
 }
 
 // The camera's view of a marker-frame point (in metres) as a pixel; nullopt
@@ -276,45 +278,60 @@ Point2 invert_distortion(const CameraModel& camera, Point2 d, Point2 start) {
 }
 
 // Marker pixels: each pixel of the marker's bounding box is the mean of
-// supersample^2 rays through it, each cut with the marker plane.
+// supersample^2 rays through it. A flat print's rays are cut with its plane
+// (the path every flat scene has always taken, byte for byte); anything
+// else (a frame, a margin, an insert, occluders) is traced through the
+// surface model.
 void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) {
-  const MarkerPattern pattern(scene.family, scene.id, scene.cut_hole);
+  // On a frame the print's hole is always cut out: it is glued around the opening.
+  const MarkerPattern pattern(scene.family, scene.id, scene.cut_hole || scene.frame.has_value());
   const double s = scene.marker_size_m;
   const Eigen::Matrix3d& r = scene.pose.rotation;
   const Eigen::Vector3d& t = scene.pose.translation;
+  std::optional<surface::SurfaceModel> solid;
+  if (!surface::is_flat_print(scene)) solid.emplace(scene, pattern);
 
   // The plane's homography: marker (u, v, 1) in units of S -> camera point.
   Eigen::Matrix3d h;
   h.col(0) = r.col(0) * s;
   h.col(1) = r.col(1) * s;
   h.col(2) = t;
-  if (std::abs(h.determinant()) < 1e-15) return;  // seen edge-on: the marker has no area
-  const Eigen::Matrix3d h_inv = h.inverse();
+  // Seen edge-on a flat marker has no area; a solid one still has its depth.
+  if (!solid && std::abs(h.determinant()) < 1e-15) return;
+  // Lattice rays are carried mapped to the plane's (u, v, w) for the flat
+  // print, and as directions in the marker frame (metres) for the solid.
+  const Eigen::Matrix3d to_marker = solid ? Eigen::Matrix3d(r.transpose()) : Eigen::Matrix3d(h.inverse());
+  const Eigen::Vector3d eye = -(r.transpose() * t);  // the camera centre in the marker frame
   // Seen from behind, a print shows the blank back of the paper.
   const bool front = r.col(2).dot(t) < 0;
 
-  // Bounding box from the printed outline, densely sampled because lens
-  // distortion bends the edges.
-  const double e = pattern.printed_half_extent();
+  // Bounding box from the outlines (the printed square, or the solid's),
+  // densely sampled because lens distortion bends the edges.
+  std::vector<std::vector<Eigen::Vector3d>> outlines;
+  if (solid) {
+    outlines = solid->outlines();
+  } else {
+    const double e = pattern.printed_half_extent() * s;
+    outlines.push_back({{-e, e, 0}, {e, e, 0}, {e, -e, 0}, {-e, -e, 0}});
+  }
   int x0 = 0, y0 = 0, x1 = image.cols - 1, y1 = image.rows - 1;
   {
     double minx = 1e300, miny = 1e300, maxx = -1e300, maxy = -1e300;
     bool behind = false;
     constexpr int kSteps = 64;
-    for (int side = 0; side < 4 && !behind; ++side) {
-      for (int i = 0; i < kSteps; ++i) {
-        const double a = -e + 2 * e * i / kSteps;
-        const std::array<double, 2> uv = side == 0   ? std::array{a, e}
-                                         : side == 1 ? std::array{e, -a}
-                                         : side == 2 ? std::array{-a, -e}
-                                                     : std::array{-e, a};
-        const auto px = project_point(camera, scene, Eigen::Vector3d(uv[0] * s, uv[1] * s, 0));
-        if (!px) {
-          behind = true;
-          break;
+    for (const auto& line : outlines) {
+      for (std::size_t k = 0; k < line.size() && !behind; ++k) {
+        const Eigen::Vector3d& from = line[k];
+        const Eigen::Vector3d& to = line[(k + 1) % line.size()];
+        for (int i = 0; i < kSteps; ++i) {
+          const auto px = project_point(camera, scene, from + (to - from) * i / kSteps);
+          if (!px) {
+            behind = true;
+            break;
+          }
+          minx = std::min(minx, px->x), maxx = std::max(maxx, px->x);
+          miny = std::min(miny, px->y), maxy = std::max(maxy, px->y);
         }
-        minx = std::min(minx, px->x), maxx = std::max(maxx, px->x);
-        miny = std::min(miny, px->y), maxy = std::max(maxy, px->y);
       }
     }
     if (!behind) {
@@ -334,7 +351,7 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
   // bilinearly inside the pixel: undistortion is iterative and too slow per
   // sample, and over one pixel the inverse distortion is linear to better
   // than 1e-3 px even at the corners of the thesis's strong lens (6e-4 px
-  // measured). The ray is carried already mapped through h_inv (a linear
+  // measured). The ray is carried already mapped through to_marker (a linear
   // map, so the interpolation commutes with it).
   const bool use_distortion = scene.distort && camera.has_distortion();
   const int nx = x1 - x0 + 2;
@@ -360,7 +377,7 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
         solved[k] = n;
         if (i == 0) row_start = n;
       }
-      rays[k] = h_inv * Eigen::Vector3d(n.x, n.y, 1.0);
+      rays[k] = to_marker * Eigen::Vector3d(n.x, n.y, 1.0);
     }
   };
   std::vector<Eigen::Vector3d> upper(static_cast<std::size_t>(nx)), lower(static_cast<std::size_t>(nx));
@@ -372,35 +389,53 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
   const double samples = static_cast<double>(ss) * ss;
   const double level = scene.exposure * 255.0;
 
-  for (int y = y0; y <= y1; ++y) {
-    lattice_row(y + 0.5, lower);
-    auto* row = image.ptr<float>(y);
-    for (int x = x0; x <= x1; ++x) {
-      const auto k = static_cast<std::size_t>(x - x0);
-      const Eigen::Vector3d& a = upper[k];
-      const Eigen::Vector3d& b = upper[k + 1];
-      const Eigen::Vector3d& c = lower[k];
-      const Eigen::Vector3d& d = lower[k + 1];
-      double reflect = 0;
-      int misses = 0;
-      for (double fy : offsets) {
-        const Eigen::Vector3d left = a + (c - a) * fy;
-        const Eigen::Vector3d right = b + (d - b) * fy;
-        for (double fx : offsets) {
-          const Eigen::Vector3d m = left + (right - left) * fx;
-          // w <= 0: the ray meets the plane behind the camera, or never.
-          std::optional<float> rf;
-          if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
-          if (rf) {
-            reflect += front ? *rf : kPaper;
-          } else {
-            ++misses;
+  // The per-sample choice of path is made once, at compile time: the flat
+  // path's inner loop is exactly what it was before there were solids.
+  const auto draw_rows = [&]<bool kSolid>() {
+    for (int y = y0; y <= y1; ++y) {
+      lattice_row(y + 0.5, lower);
+      auto* row = image.ptr<float>(y);
+      for (int x = x0; x <= x1; ++x) {
+        const auto k = static_cast<std::size_t>(x - x0);
+        const Eigen::Vector3d& a = upper[k];
+        const Eigen::Vector3d& b = upper[k + 1];
+        const Eigen::Vector3d& c = lower[k];
+        const Eigen::Vector3d& d = lower[k + 1];
+        double reflect = 0;
+        int misses = 0;
+        for (double fy : offsets) {
+          const Eigen::Vector3d left = a + (c - a) * fy;
+          const Eigen::Vector3d right = b + (d - b) * fy;
+          for (double fx : offsets) {
+            const Eigen::Vector3d m = left + (right - left) * fx;
+            if constexpr (kSolid) {
+              const surface::RaySample hit = solid->trace(eye, m);
+              if (hit.background) {
+                ++misses;
+              } else {
+                reflect += hit.reflectance;
+              }
+            } else {
+              // w <= 0: the ray meets the plane behind the camera, or never.
+              std::optional<float> rf;
+              if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
+              if (rf) {
+                reflect += front ? *rf : kPaper;
+              } else {
+                ++misses;
+              }
+            }
           }
         }
+        row[x] = static_cast<float>((reflect * level + misses * static_cast<double>(row[x])) / samples);
       }
-      row[x] = static_cast<float>((reflect * level + misses * static_cast<double>(row[x])) / samples);
+      std::swap(upper, lower);
     }
-    std::swap(upper, lower);
+  };
+  if (solid) {
+    draw_rows.operator()<true>();
+  } else {
+    draw_rows.operator()<false>();
   }
 }
 

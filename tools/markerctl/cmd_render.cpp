@@ -10,6 +10,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <vector>
 
 #include "common.hpp"
 #include "markerd/detector/render.hpp"
@@ -35,9 +36,27 @@ struct RenderOptions {
   bool no_clutter = false;
   bool no_distort = false;
   bool cut_hole = false;
+  std::string frame = "none";
+  std::string insert = "none";
+  double frame_reflectance = markerd::detector::CoverFrame{}.reflectance;
+  std::string margin = "0";
+  std::vector<std::string> cover;
+  double cover_depth = 0.2;
+  double cover_reflectance = 0.1;
+  std::string cover_height = "3cm";
+  double background_grey = 128;
+  double ambient = 0.3;
   std::uint64_t seed = 1;
   std::string output;
 };
+
+markerd::detector::MarkerSide parse_side(const std::string& name) {
+  using markerd::detector::MarkerSide;
+  if (name == "top") return MarkerSide::top;
+  if (name == "right") return MarkerSide::right;
+  if (name == "bottom") return MarkerSide::bottom;
+  return MarkerSide::left;  // CLI::IsMember has let nothing else through
+}
 
 // Truth is printed finer than any detector resolves (1e-6 px, 1e-9 m).
 nlohmann::ordered_json point_json(markerd::detector::Point2 p) { return {rounded(p.x, 6), rounded(p.y, 6)}; }
@@ -72,6 +91,26 @@ int run_render(const RenderOptions& o) {
   scene.clutter = !o.no_clutter;
   scene.distort = !o.no_distort;
   scene.seed = o.seed;
+  if (o.frame != "none") {
+    scene.frame = o.frame == "socket" ? markerd::detector::socket_frame() : markerd::detector::switch_frame();
+    scene.frame->reflectance = static_cast<float>(o.frame_reflectance);
+  }
+  scene.insert = o.insert == "socket"   ? markerd::detector::Insert::socket
+                 : o.insert == "rocker" ? markerd::detector::Insert::rocker
+                                        : markerd::detector::Insert::none;
+  // A bare number is millimetres, as in `markerctl marker --margin`.
+  scene.paper_margin_m = parse_length_m(o.margin, BareUnit::millimetre, "--margin");
+  if (scene.paper_margin_m < 0) throw usage_error("--margin", fmt::format("'{}' must not be negative", o.margin));
+  const double cover_height = parse_length_m(o.cover_height, BareUnit::metre, "--cover-height");
+  if (!(cover_height > 0)) {
+    throw usage_error("--cover-height", fmt::format("'{}' must be more than zero", o.cover_height));
+  }
+  for (const auto& side : o.cover) {
+    scene.occluders.push_back(markerd::detector::side_occluder(parse_side(side), scene.marker_size_m, o.cover_depth,
+                                                               static_cast<float>(o.cover_reflectance), cover_height));
+  }
+  scene.background_grey = o.background_grey;
+  scene.ambient = o.ambient;
 
   const markerd::detector::GreyImage image = markerd::detector::render_scene(camera, scene);
   const markerd::detector::Quad corners = markerd::detector::project_marker_corners(camera, scene);
@@ -157,6 +196,45 @@ void add_render_command(CLI::App& parent, Commands& commands) {
   app->add_flag("--no-clutter", o->no_clutter, "Plain background instead of random shapes");
   app->add_flag("--no-distort", o->no_distort, "Ignore the camera's lens distortion");
   app->add_flag("--cut-hole", o->cut_hole, "frame8: the hole is cut out (the background shows through)");
+  app->add_option("--frame", o->frame,
+                  "Glue the print onto a rounded cover frame (its hole cut out): none, socket (86 mm, 10 mm "
+                  "high, 6 mm rolls), switch (8 mm high, 3 mm rolls)")
+      ->type_name("NAME")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"none", "socket", "switch"}));
+  app->add_option("--frame-reflectance", o->frame_reflectance, "The frame's plastic where the print does not cover it")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
+  app->add_option("--insert", o->insert,
+                  "What the opening (or a cut hole) shows: none (the background), socket (a Schuko outlet), "
+                  "rocker (a light switch)")
+      ->type_name("NAME")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"none", "socket", "rocker"}));
+  app->add_option("--margin", o->margin,
+                  "White paper around the marker, as markerctl marker prints it (a bare number is mm)")
+      ->type_name("LENGTH")
+      ->capture_default_str();
+  app->add_option("--cover", o->cover,
+                  "Cover one side of the marker (ring and line) by an object in front of it; repeatable")
+      ->type_name("SIDE")
+      ->check(CLI::IsMember({"top", "right", "bottom", "left"}));
+  app->add_option("--cover-depth", o->cover_depth,
+                  "How far the cover reaches in from the marker's outer edge, a share of its size")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 1.0));
+  app->add_option("--cover-reflectance", o->cover_reflectance, "The cover's reflectance (0 black .. 1 white)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
+  app->add_option("--cover-height", o->cover_height, "The cover's height above the marker's plane, towards the camera")
+      ->type_name("LENGTH")
+      ->capture_default_str();
+  app->add_option("--background-grey", o->background_grey, "Grey level of the plain background (with --no-clutter)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 255.0));
+  app->add_option("--ambient", o->ambient, "Share of unshaded light on a frame's rolls and an insert (1: no shading)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.01, 1.0));
   app->add_option("--seed", o->seed, "Seed of the clutter and noise")->capture_default_str();
   app->add_option("-o,--output", o->output, "Output image (.png, .pgm, .bmp, .tif)")->type_name("FILE")->required();
   commands.push_back({app, [o] { return run_render(*o); }});
