@@ -328,8 +328,9 @@ TEST(Frame8, HalfTurnSymmetricSliverIsNotRead) {
     cell[0][0] = cell[0][9] = 0;
     for (int r = 0; r < 10; ++r) {
       for (int c = 0; c < 10; ++c) {
-        if (r == 0 || c == 0) cell[static_cast<std::size_t>(9 - r)][static_cast<std::size_t>(9 - c)] =
-            cell[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)];
+        if (r == 0 || c == 0)
+          cell[static_cast<std::size_t>(9 - r)][static_cast<std::size_t>(9 - c)] =
+              cell[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)];
       }
     }
     const double width = std::uniform_real_distribution<double>(6.5, 10.0)(rng);
