@@ -122,12 +122,17 @@ void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, co
   fmt::print("\n| ---: |");
   for (std::size_t i = 0; i < yaw_at.size(); ++i) fmt::print(" ---: |");
   fmt::print("\n");
+  int wrong = 0;
   for (std::size_t row = 0; row < s.by_yaw.front().size(); ++row) {
     fmt::print("| {:.0f} |", s.by_yaw.front()[row].point.yaw_deg);
-    for (const auto& sweep : s.by_yaw) fmt::print(" {} |", percent(sweep[row].rate()));
+    for (const auto& sweep : s.by_yaw) {
+      fmt::print(" {} |", percent(sweep[row].rate()));
+      wrong += sweep[row].wrong_id;
+    }
     fmt::print("\n");
   }
-  fmt::print("\n");
+  // A wrong id anywhere matters more than a rate: the yaw points' too.
+  fmt::print("\nWrong ids in the yaw sweeps: {}\n\n", wrong);
 }
 
 std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps& s) {
