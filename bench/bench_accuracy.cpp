@@ -5,12 +5,15 @@
 //
 //   bench_accuracy --family all --frames 50 --dist 0.3:3.0:0.1
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
+//                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
+//                  [--background clutter|GREY] [--cover top|right|bottom|left|each]
 
 #include <unistd.h>
 
 #include <fmt/format.h>
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -19,6 +22,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "markerd/detector/camera_model.hpp"
@@ -118,12 +122,17 @@ void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, co
   fmt::print("\n| ---: |");
   for (std::size_t i = 0; i < yaw_at.size(); ++i) fmt::print(" ---: |");
   fmt::print("\n");
+  int wrong = 0;
   for (std::size_t row = 0; row < s.by_yaw.front().size(); ++row) {
     fmt::print("| {:.0f} |", s.by_yaw.front()[row].point.yaw_deg);
-    for (const auto& sweep : s.by_yaw) fmt::print(" {} |", percent(sweep[row].rate()));
+    for (const auto& sweep : s.by_yaw) {
+      fmt::print(" {} |", percent(sweep[row].rate()));
+      wrong += sweep[row].wrong_id;
+    }
     fmt::print("\n");
   }
-  fmt::print("\n");
+  // A wrong id anywhere matters more than a rate: the yaw points' too.
+  fmt::print("\nWrong ids in the yaw sweeps: {}\n\n", wrong);
 }
 
 std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps& s) {
@@ -178,7 +187,32 @@ int main(int argc, char** argv) {
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
   bool model_small_cells = false;
   bool cut_hole = false;
-  app.add_flag("--cut-hole", cut_hole, "frame8: the hole cut out, the cluttered background showing through it");
+  app.add_flag("--cut-hole", cut_hole,
+               "frame8: the hole cut out, the background showing through it (--mount cut-hole)");
+  std::string mount = "paper";
+  app.add_option("--mount", mount,
+                 "what the print is: paper (flat, hole printed white), cut-hole (flat, hole cut out), socket or "
+                 "switch (glued on a rounded cover frame, the outlet or rocker in the opening)")
+      ->check(CLI::IsMember({"paper", "cut-hole", "socket", "switch"}))
+      ->capture_default_str();
+  std::string insert_name;
+  app.add_option("--insert", insert_name,
+                 "what the opening shows: none (the background), socket, rocker (default: the mount's)")
+      ->check(CLI::IsMember({"none", "socket", "rocker"}));
+  std::string background = "clutter";
+  app.add_option("--background", background, "clutter, or a plain grey level 0..255")->capture_default_str();
+  std::string cover;
+  app.add_option("--cover", cover,
+                 "an object over one side: top, right, bottom, left, or each (in turn, frame by frame)")
+      ->check(CLI::IsMember({"top", "right", "bottom", "left", "each"}));
+  double cover_depth = 0.2;
+  app.add_option("--cover-depth", cover_depth, "how far the object reaches in from the outer edge, in marker sizes")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
+  double cover_grey = 0.1;
+  app.add_option("--cover-reflectance", cover_grey, "the object's reflectance, 0 (black) .. 1 (paper is 0.88)")
+      ->check(CLI::Range(0.0, 1.0))
+      ->capture_default_str();
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
@@ -217,7 +251,50 @@ int main(int argc, char** argv) {
   settings.scene.noise_sigma = noise;
   settings.scene.blur_sigma_px = blur;
   settings.scene.clutter = true;
-  settings.scene.cut_hole = cut_hole;
+  if (cut_hole) mount = "cut-hole";
+  using markerd::detector::Insert;
+  if (mount == "cut-hole") {
+    settings.scene.cut_hole = true;
+  } else if (mount == "socket") {
+    settings.scene.frame = markerd::detector::socket_frame();
+    settings.scene.insert = Insert::socket;
+  } else if (mount == "switch") {
+    settings.scene.frame = markerd::detector::switch_frame();
+    settings.scene.insert = Insert::rocker;
+  }
+  if (!insert_name.empty()) {
+    settings.scene.insert = insert_name == "socket"   ? Insert::socket
+                            : insert_name == "rocker" ? Insert::rocker
+                                                      : Insert::none;
+  }
+  if (background != "clutter") {
+    try {
+      std::size_t used = 0;
+      settings.scene.background_grey = std::stod(background, &used);
+      if (used != background.size() ||
+          !(settings.scene.background_grey >= 0 && settings.scene.background_grey <= 255)) {
+        throw std::invalid_argument(background);
+      }
+    } catch (const std::exception&) {
+      std::fprintf(stderr, "bench_accuracy: --background: expected clutter or a grey level 0..255, got '%s'\n",
+                   background.c_str());
+      return 2;
+    }
+    settings.scene.clutter = false;
+  }
+  if (!cover.empty()) {
+    using markerd::detector::MarkerSide;
+    static constexpr std::array<std::pair<const char*, MarkerSide>, 4> kSides{{{"top", MarkerSide::top},
+                                                                               {"right", MarkerSide::right},
+                                                                               {"bottom", MarkerSide::bottom},
+                                                                               {"left", MarkerSide::left}}};
+    for (const auto& [name, side] : kSides) {
+      if (cover == "each" || cover == name) {
+        settings.occluder_turns.push_back(
+            {markerd::detector::side_occluder(side, size_m, cover_depth, static_cast<float>(cover_grey))});
+      }
+    }
+  }
 
   fmt::print("# Detection on rendered scenes\n\n");
   fmt::print("- camera: {}x{}, fx {:.1f}, fy {:.1f}, cx {:.1f}, cy {:.1f}, k1 k2 p1 p2 k3 {} {} {} {} {}{}\n",
@@ -225,8 +302,17 @@ int main(int argc, char** argv) {
              camera.dist[2], camera.dist[3], camera.dist[4], camera_path.empty() ? " (the thesis camera)" : "");
   fmt::print("- marker: {:.1f} cm (frame8: the outer edge; aruco4x4_50, tag36h11: the outer black border)\n",
              100 * size_m);
-  fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, clutter, lens distortion, supersampling {}\n", noise,
-             blur, settings.scene.supersample);
+  fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, {}, lens distortion, supersampling {}\n", noise,
+             blur, background == "clutter" ? std::string("clutter") : "plain grey " + background,
+             settings.scene.supersample);
+  fmt::print("- mount: {}{}\n", mount,
+             settings.scene.insert == markerd::detector::Insert::socket   ? ", a socket outlet in the opening"
+             : settings.scene.insert == markerd::detector::Insert::rocker ? ", a switch's rocker in the opening"
+                                                                          : "");
+  if (!cover.empty()) {
+    fmt::print("- covered: {} side{}, {:.2f} of the size in from the outer edge, reflectance {:.2f}, 3 cm in front\n",
+               cover, cover == "each" ? " in turn" : "", cover_depth, cover_grey);
+  }
   if (model_small_cells) {
     fmt::print("- frame8 reads cells under 3 px with the ring model, told the blur sigma above\n");
   }

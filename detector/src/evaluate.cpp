@@ -85,6 +85,10 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
       scene.id = family.first_default_id + std::min(static_cast<int>(id_draw * id_count), id_count - 1);
     }
     scene.seed = scene_seed;
+    if (!settings.occluder_turns.empty()) {
+      const auto& turn = settings.occluder_turns[static_cast<std::size_t>(frame) % settings.occluder_turns.size()];
+      scene.occluders.insert(scene.occluders.end(), turn.begin(), turn.end());
+    }
 
     const GreyImage image = render_scene(camera, scene);
     const auto t0 = std::chrono::steady_clock::now();

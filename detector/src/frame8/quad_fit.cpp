@@ -12,6 +12,11 @@
 
 namespace markerd::detector::frame8 {
 
+// The least share of its quad a hole's light pixels cover: a Schuko
+// outlet's recess (39 mm across) in the 56 mm opening of a socket frame
+// takes 0.38 of it, and its pin holes a little more.
+constexpr double kMinLightShare = 0.5;
+
 // The quad of a light component, in working-image coordinates, clockwise on
 // screen; or why the component is none.
 Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& quad) {
@@ -40,6 +45,15 @@ Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& qu
       line_max_[kk] = std::max(line_max_[kk], run.x1);
     }
   }
+  // The area the component's rows span, dark islands inside it included:
+  // a hole may show something darker within it (a socket's recess and
+  // pins, clutter behind a cut-out hole) and is whole all the same. Each
+  // row's span is bounded by the two edge lines beside it.
+  double spanned = 0;
+  for (int k = 0; k < bh; ++k) {
+    const auto a = static_cast<std::size_t>(k), b = static_cast<std::size_t>(k + 1);
+    spanned += std::max(0, std::min(line_max_[a], line_max_[b]) - std::max(line_min_[a], line_min_[b]));
+  }
   // Andrew's monotone chain over points already sorted by (y, x).
   hull_.clear();
   points_.clear();
@@ -59,13 +73,42 @@ Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& qu
   if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
   quad_area = std::abs(quad_area) / 2;
   // Pixel staircases make a small hull bigger than the quad by up to about
-  // a third of a pixel along the perimeter; beyond that it is not a quad.
+  // a third of a pixel along the perimeter; beyond that it is not a quad,
+  // unless its corners are rounded: glued onto a cover frame, the print's
+  // hole follows the opening's rounded corners down its inner roll, a
+  // radius r of about a tenth of the hole's side (6.5 mm on a 56 mm socket
+  // frame), which leaves the largest quad inside the hull 0.08 to 0.11 of
+  // it short (measured on renders from 0.3 to 0.7 m). Rounded corners put
+  // the hull's sides evenly outside the quad's, by 0.29 r; a part of
+  // something else joined to the hole (clutter behind a cut-out hole) sticks
+  // out of one side, and would place the cells a cell off.
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
   }
-  if (hull_area - quad_area > 0.06 * hull_area + 0.35 * perimeter) return Rejection::not_a_quad;
-  if (c.area < 0.8 * quad_area) return Rejection::sparse_component;
+  const double staircase = 0.35 * perimeter;
+  // Below about 30 px a side the rounding costs less than the staircase
+  // allows already, and a bulge of a pixel or two is all a misplaced quad
+  // shows: only larger holes may have rounded corners.
+  constexpr double kRoundedMinSide = 30;
+  if (hull_area - quad_area > 0.06 * hull_area + staircase) {
+    if (perimeter / 4 < kRoundedMinSide) return Rejection::not_a_quad;
+    constexpr double kRoundedShortfall = 0.12;  // of the hull's area, corner radius up to 0.11 of the side
+    constexpr double kRoundedBulge = 0.07;      // of the mean side: 0.29 r, and a pixel of staircase
+    if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
+    double bulge = 0;
+    for (const Point2& p : hull_) {
+      for (int i = 0; i < 4; ++i) {
+        const Point2 a = quad[static_cast<std::size_t>(i)], b = quad[static_cast<std::size_t>((i + 1) % 4)];
+        // Clockwise on screen: the outside of side a-b is where the cross product is negative.
+        bulge = std::max(bulge, -cross(a, b, p) / distance(a, b));
+      }
+    }
+    if (bulge > kRoundedBulge * perimeter / 4 + 1.0) return Rejection::not_a_quad;
+  }
+  // The rows must span most of the quad; the light pixels themselves, a
+  // good part of it (a socket's recess takes up to 0.4 of its hole).
+  if (spanned < 0.8 * quad_area || c.area < kMinLightShare * quad_area) return Rejection::sparse_component;
   for (int i = 0; i < 4; ++i) {
     const Point2 a = quad[static_cast<std::size_t>(i)];
     const Point2 b = quad[static_cast<std::size_t>((i + 1) % 4)];

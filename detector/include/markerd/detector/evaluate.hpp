@@ -27,6 +27,9 @@ struct EvalSettings {
   double roll_jitter_deg = 5;
   bool random_ids = true;
   std::uint64_t seed = 1;
+  // Occluders that take turns: frame i adds set i % size to the scene's
+  // own (for example each side of the marker covered in turn).
+  std::vector<std::vector<Occluder>> occluder_turns;
 };
 
 struct EvalResult {
