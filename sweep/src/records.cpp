@@ -306,6 +306,7 @@ nlohmann::json to_json(const RunStart& s) {
           {"steps", s.steps},
           {"config", s.config},
           {"camera", s.camera},
+          {"marker", s.marker},
           {"rig", s.rig},
           {"detection_log", s.detection_log}};
 }
@@ -324,6 +325,7 @@ RunStart start_from_json(const nlohmann::json& j) {
   s.steps = field<std::size_t>(j, "steps");
   s.config = j.value("config", nlohmann::json::object());
   s.camera = j.value("camera", nlohmann::json::object());
+  s.marker = j.value("marker", nlohmann::json::object());  // older records: not kept
   s.rig = j.value("rig", nlohmann::json::object());
   s.detection_log = optional_field<std::string>(j, "detection_log", "");
   return s;

@@ -81,6 +81,7 @@ struct RunStart {
   std::size_t steps = 0;      // plan_steps(plan).size()
   nlohmann::json config;      // the daemon's config as it ran (file, text)
   nlohmann::json camera;      // the camera: source, model (intrinsics, distortion), frame rate
+  nlohmann::json marker;      // the marker markerd's config describes: family, id, size, mounting, frame
   nlohmann::json rig;         // geometry, axes' units, units_per_step, limits, backends
   std::string detection_log;  // where the daemon's detection stream went when the run started
 };
