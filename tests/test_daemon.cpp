@@ -635,7 +635,15 @@ TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
   write_file(path, base_config());
   const Outcome good = run_markerd({"--check-config", "--config", path.string()});
   EXPECT_EQ(good.code, 0) << good.err;
-  EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165", 0), 0U) << good.out;
+  EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165 0.08 m on paper,", 0), 0U)
+      << good.out;
+  // The mounting is part of what it says it sets up.
+  std::string socket = base_config();
+  socket.replace(socket.find("size_m = 0.08"), 13, "size_m = 0.08\nmounting = \"socket\"");
+  write_file(path, socket);
+  const Outcome on_socket = run_markerd({"--check-config", "--config", path.string()});
+  EXPECT_EQ(on_socket.code, 0) << on_socket.err;
+  EXPECT_NE(on_socket.out.find("marker: frame8 id 165 0.08 m on a socket frame,"), std::string::npos) << on_socket.out;
 
   std::string text = base_config();
   text.replace(text.find("fps = 30"), 8, "fps = -1");
