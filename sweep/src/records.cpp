@@ -296,6 +296,13 @@ PointRecord point_from_json(const nlohmann::json& j) {
   return r;
 }
 
+std::optional<Mounting> RunStart::marker_mounting() const {
+  if (plan.marker.mounting) return plan.marker.mounting;
+  const auto at = marker.find("mounting");
+  if (!marker.is_object() || at == marker.end() || !at->is_string()) return std::nullopt;
+  return mounting_from_name(at->get<std::string>());
+}
+
 nlohmann::json to_json(const RunStart& s) {
   return {{"schema", kRunRecordSchema},
           {"run_id", s.run_id},
