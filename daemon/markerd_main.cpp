@@ -149,11 +149,11 @@ int main(int argc, char** argv) {
       const auto config = markerd::daemon::load_daemon_config(config_path);
       markerd::daemon::check_control_setup(config.control);
       markerd::daemon::check_detector_setup(config);
-      std::cout << fmt::format("{}: ok (camera: {}, marker: {} id {} {} m, rig: {}, detection log: {}, control: {})\n",
-                               config_path, config.camera.source_kind,
-                               markerd::detector::family_info(config.marker.family).name, config.marker.id,
-                               config.marker.size_m, config.rig ? "yes" : "none", config.log.directory.string(),
-                               config.control.socket.string());
+      std::cout << fmt::format(
+          "{}: ok (camera: {}, marker: {} id {} {} m {}, rig: {}, detection log: {}, control: {})\n", config_path,
+          config.camera.source_kind, markerd::detector::family_info(config.marker.family).name, config.marker.id,
+          config.marker.size_m, markerd::sweep::mounting_text(config.marker.mounting), config.rig ? "yes" : "none",
+          config.log.directory.string(), config.control.socket.string());
       return 0;
     } catch (const std::exception& e) {
       std::cerr << fmt::format("markerd: {}\n", e.what());

@@ -290,6 +290,78 @@ TEST(SimCamera, RendersThePoseTheRigSnapshotImpliesAndOnlyWhenItChanges) {
   pool.release(*moved);
 }
 
+// The frame at rail 650 mm, turntable 30 deg of a simulated camera.
+std::vector<std::uint8_t> frame_of(const SimCameraSettings& settings) {
+  const detector::CameraModel camera = detector::CameraModel::thesis_640x480();
+  rig::RigGeometry geometry;
+  geometry.d0_mm = 300;
+  SimCamera sim(settings, camera, geometry);
+  FramePool pool({1, 640 * 480, 4});
+  sim.open();
+  EXPECT_TRUE(sim.wait_frame(1s));
+  Frame* frame = pool.try_acquire();
+  frame->rig = snapshot_at(650, 30);
+  sim.fill(*frame);
+  std::vector<std::uint8_t> pixels(frame->image.data, frame->image.data + 640 * 480);
+  pool.release(*frame);
+  return pixels;
+}
+
+// The scene the simulated camera is to draw at rail 650 mm, turntable 30 deg.
+detector::GreyImage expected_at_650_30(detector::Scene scene) {
+  scene.pose = detector::facing_pose(0.95, 30);
+  scene.blur_sigma_px = 0.6;
+  scene.supersample = 2;
+  return detector::render_scene(detector::CameraModel::thesis_640x480(), scene);
+}
+
+std::size_t differing_pixels(const std::vector<std::uint8_t>& a, const detector::GreyImage& b) {
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < a.size(); ++i) n += a[i] != b.data()[i] ? 1 : 0;
+  return n;
+}
+
+// A sweep measures a socket marker as it measures a paper one: the same rig
+// position shows the print on its frame, the outlet through the opening, or
+// a side covered, exactly as the renderer draws that scene; a paper marker
+// is drawn as it always was.
+TEST(SimCamera, DrawsTheMarkerOnWhatItIsMountedOnAndTheSceneAroundIt) {
+  const std::vector<std::uint8_t> paper = frame_of(quiet_settings());
+  EXPECT_EQ(differing_pixels(paper, expected_at_650_30({})), 0U);
+
+  SimCameraSettings socket = quiet_settings();
+  socket.cut_hole = true;
+  socket.frame = detector::socket_frame();
+  socket.insert = detector::Insert::socket;
+  socket.margin_m = 0.003;
+  const std::vector<std::uint8_t> on_socket = frame_of(socket);
+  detector::Scene socket_scene;
+  socket_scene.cut_hole = true;
+  socket_scene.frame = detector::socket_frame();
+  socket_scene.insert = detector::Insert::socket;
+  socket_scene.paper_margin_m = 0.003;
+  EXPECT_EQ(differing_pixels(on_socket, expected_at_650_30(socket_scene)), 0U);
+  // The frame, its shading and the outlet differ from a flat white hole over
+  // thousands of pixels (the marker spans some 60 x 50 here).
+  EXPECT_GT(differing_pixels(on_socket, expected_at_650_30({})), 500U);
+
+  SimCameraSettings covered = quiet_settings();
+  covered.cover = {detector::MarkerSide::left};
+  covered.cover_reflectance = 0.9F;
+  covered.clutter = false;
+  covered.background_grey = 60;
+  covered.ambient = 0.5;
+  detector::Scene covered_scene;
+  covered_scene.occluders.push_back(detector::side_occluder(detector::MarkerSide::left, 0.08, 0.2, 0.9F, 0.03));
+  covered_scene.clutter = false;
+  covered_scene.background_grey = 60;
+  covered_scene.ambient = 0.5;
+  const std::vector<std::uint8_t> on_covered = frame_of(covered);
+  EXPECT_EQ(differing_pixels(on_covered, expected_at_650_30(covered_scene)), 0U);
+  covered_scene.occluders.clear();
+  EXPECT_GT(differing_pixels(on_covered, expected_at_650_30(covered_scene)), 100U);
+}
+
 TEST(SimCamera, AddsFreshNoiseOfTheSetSigmaToEveryFrame) {
   SimCameraSettings settings = quiet_settings();
   settings.noise_sigma = 3.0;

@@ -22,11 +22,13 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <variant>
 #include <vector>
 
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
+#include "markerd/detector/render.hpp"
 #include "support/files.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
@@ -105,6 +107,40 @@ directory = "state"
       error = e.what();
     }
     return {error, fmt::format("{}:{}", path.string(), number)};
+  }
+
+  // The config with its first `line` replaced (the replacement may span
+  // lines); the error it gives, and "file:line" of `at_text`, the part of
+  // the replacement the error must name.
+  std::pair<std::string, std::string> error_at(const std::string& line, const std::string& replacement,
+                                               const std::string& at_text) {
+    std::string text = base_config();
+    const auto at = text.find(line);
+    EXPECT_NE(at, std::string::npos) << line;
+    if (at == std::string::npos) return {};
+    text.replace(at, line.size(), replacement);
+    const auto key_at = text.find(at_text, at);
+    EXPECT_NE(key_at, std::string::npos) << at_text;
+    const auto number = 1 + std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(key_at), '\n');
+    const fs::path path = dir_ / "markerd.toml";
+    write_file(path, text);
+    std::string error = "(no error)";
+    try {
+      (void)load_daemon_config(path);
+    } catch (const ConfigError& e) {
+      error = e.what();
+    }
+    return {error, fmt::format("{}:{}", path.string(), number)};
+  }
+
+  // The config with `line` replaced, loaded.
+  DaemonConfig config_with(const std::string& line, const std::string& replacement) {
+    std::string text = base_config();
+    const auto at = text.find(line);
+    EXPECT_NE(at, std::string::npos) << line;
+    if (at != std::string::npos) text.replace(at, line.size(), replacement);
+    write_file(dir_ / "markerd.toml", text);
+    return load_daemon_config(dir_ / "markerd.toml");
   }
 
   const test_support::TempDir temp_{"markerd-daemon"};
@@ -206,6 +242,169 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_NE(error.find((dir_ / "rig.toml").string() + ":"), std::string::npos) << error;
     EXPECT_NE(error.find("rig.rail.max_velocity: "), std::string::npos) << error;
   }
+}
+
+TEST_F(DaemonTest, TheShippedSocketConfigMountsTheMarkerOnASocketFrame) {
+  const DaemonConfig c = load_daemon_config(fs::path(MARKERD_SOURCE_DIR) / "config/markerd-sim-socket.toml");
+  EXPECT_EQ(c.marker.mounting, sweep::Mounting::socket);
+  ASSERT_TRUE(c.marker.frame.has_value());
+  EXPECT_EQ(c.marker.frame->outer_m, detector::socket_frame().outer_m);
+  const auto& sim = std::get<SimCameraSettings>(c.camera.source);
+  ASSERT_TRUE(sim.frame.has_value());
+  EXPECT_EQ(sim.insert, detector::Insert::socket);
+  EXPECT_TRUE(sim.cut_hole);
+  // The same rig and camera as the paper config: a sweep differs by the marker only.
+  const DaemonConfig paper = load_daemon_config(fs::path(MARKERD_SOURCE_DIR) / "config/markerd-sim.toml");
+  EXPECT_EQ(paper.marker.mounting, sweep::Mounting::paper);
+  EXPECT_EQ(c.camera.model_path.filename(), paper.camera.model_path.filename());
+  const auto& paper_sim = std::get<SimCameraSettings>(paper.camera.source);
+  EXPECT_EQ(sim.supersample, paper_sim.supersample);
+  EXPECT_EQ(sim.noise_sigma, paper_sim.noise_sigma);
+  EXPECT_EQ(sim.blur_sigma_px, paper_sim.blur_sigma_px);
+  EXPECT_EQ(sim.clutter, paper_sim.clutter);
+}
+
+TEST_F(DaemonTest, TheMarkersMountingGivesTheSimulatedCameraItsFrameInsertAndMargin) {
+  {
+    const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08");
+    EXPECT_EQ(c.marker.mounting, sweep::Mounting::paper);
+    EXPECT_FALSE(c.marker.frame.has_value());
+    const auto& sim = std::get<SimCameraSettings>(c.camera.source);
+    EXPECT_FALSE(sim.cut_hole);
+    EXPECT_FALSE(sim.frame.has_value());
+    EXPECT_EQ(sim.insert, detector::Insert::none);
+    EXPECT_TRUE(sim.cover.empty());
+  }
+  {
+    // The older key still means what it meant.
+    const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08\ncut_hole = true");
+    EXPECT_EQ(c.marker.mounting, sweep::Mounting::cut_hole);
+    EXPECT_TRUE(std::get<SimCameraSettings>(c.camera.source).cut_hole);
+    EXPECT_EQ(std::get<SimCameraSettings>(c.camera.source).insert, detector::Insert::none);
+  }
+  {
+    const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08\nmounting = \"cut_hole\"\ncut_hole = true");
+    EXPECT_EQ(c.marker.mounting, sweep::Mounting::cut_hole);
+  }
+  {
+    const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08\nmounting = \"socket\"\nmargin_m = 0.005");
+    const auto& sim = std::get<SimCameraSettings>(c.camera.source);
+    ASSERT_TRUE(sim.frame.has_value());
+    EXPECT_EQ(sim.frame->height_m, detector::socket_frame().height_m);
+    EXPECT_EQ(sim.insert, detector::Insert::socket);
+    EXPECT_TRUE(sim.cut_hole);
+    EXPECT_EQ(sim.margin_m, 0.005);
+  }
+  {
+    const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08\nmounting = \"switch\"");
+    const auto& sim = std::get<SimCameraSettings>(c.camera.source);
+    ASSERT_TRUE(sim.frame.has_value());
+    EXPECT_EQ(sim.frame->outer_roll_m, detector::switch_frame().outer_roll_m);
+    EXPECT_EQ(sim.insert, detector::Insert::rocker);
+  }
+  {
+    // Each dimension overridable, the rest the preset's; the insert too.
+    const DaemonConfig c = config_with("size_m = 0.08",
+                                       "size_m = 0.08\nmounting = \"socket\"\ninsert = \"none\"\n[marker.frame]\n"
+                                       "outer_m = 0.09\nopening_m = 0.055\nheight_m = 0.012\nouter_roll_m = 0.005\n"
+                                       "inner_roll_m = 0.004\ncorner_radius_m = 0.008\nreflectance = 0.7");
+    const auto& f = c.marker.frame;
+    ASSERT_TRUE(f.has_value());
+    EXPECT_EQ(f->outer_m, 0.09);
+    EXPECT_EQ(f->opening_m, 0.055);
+    EXPECT_EQ(f->height_m, 0.012);
+    EXPECT_EQ(f->outer_roll_m, 0.005);
+    EXPECT_EQ(f->inner_roll_m, 0.004);
+    EXPECT_EQ(f->corner_radius_m, 0.008);
+    EXPECT_EQ(f->reflectance, 0.7F);
+    EXPECT_EQ(std::get<SimCameraSettings>(c.camera.source).insert, detector::Insert::none);
+    const nlohmann::json record = marker_record(c.marker);
+    EXPECT_EQ(record["mounting"], "socket");
+    EXPECT_EQ(record["frame"]["height_m"], 0.012);
+    EXPECT_EQ(record["frame"]["reflectance"], 0.7);
+    EXPECT_EQ(record["insert"], "none");
+  }
+  {
+    // The scene around the marker is the simulated camera's.
+    const DaemonConfig c =
+        config_with("supersample = 2",
+                    "supersample = 2\ncover = [\"left\", \"top\"]\ncover_depth = 0.25\n"
+                    "cover_reflectance = 0.9\ncover_height_m = 0.05\nclutter = false\nbackground_grey = 40\n"
+                    "ambient = 0.5");
+    const auto& sim = std::get<SimCameraSettings>(c.camera.source);
+    EXPECT_EQ(sim.cover, (std::vector{detector::MarkerSide::left, detector::MarkerSide::top}));
+    EXPECT_EQ(sim.cover_depth, 0.25);
+    EXPECT_EQ(sim.cover_reflectance, 0.9F);
+    EXPECT_EQ(sim.cover_height_m, 0.05);
+    EXPECT_EQ(sim.background_grey, 40);
+    EXPECT_EQ(sim.ambient, 0.5);
+  }
+}
+
+TEST_F(DaemonTest, MountingAndSceneErrorsNameTheFileTheLineAndTheKey) {
+  const std::string m = "size_m = 0.08";
+  const auto expect = [&](const std::string& line, const std::string& replacement, const std::string& at_text,
+                          const std::string& message) {
+    const auto [error, where] = error_at(line, replacement, at_text);
+    EXPECT_EQ(error, where + ": " + message) << replacement;
+  };
+  expect(m, m + "\nmounting = \"wall\"", "mounting",
+         "marker.mounting: must be \"paper\", \"socket\", \"switch\" or \"cut_hole\", got \"wall\"");
+  expect(m, m + "\nmounting = \"paper\"\ncut_hole = true", "cut_hole",
+         "marker.cut_hole: = true contradicts marker.mounting (line 7) = \"paper\", whose hole is printed white "
+         "(remove cut_hole: mounting says it)");
+  expect(m, m + "\nmounting = \"socket\"\ncut_hole = false", "cut_hole",
+         "marker.cut_hole: = false contradicts marker.mounting (line 7) = \"socket\", whose hole is cut out (remove "
+         "cut_hole: mounting says it)");
+  expect(m, m + "\ncut_hole = true\nmounting = \"paper\"", "cut_hole",
+         "marker.cut_hole: = true contradicts marker.mounting (line 8) = \"paper\", whose hole is printed white "
+         "(remove cut_hole: mounting says it)");
+  expect(m, m + "\n[marker.frame]\nheight_m = 0.01", "[marker.frame]",
+         "marker.frame: is set, but mounting is \"paper\" (only mounting = \"socket\" or \"switch\" has a frame)");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\nheight_m = 0.2", "height_m",
+         "marker.frame.height_m: must be from 0.001 to 0.05 m, got 0.2");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\nheigth_m = 0.01", "heigth_m",
+         "marker.frame.heigth_m: unknown key (known here: outer_m, opening_m, height_m, outer_roll_m, inner_roll_m, "
+         "corner_radius_m, reflectance)");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\nopening_m = 0.09", "opening_m",
+         "marker.frame.opening_m: must be less than outer_m (0.086 m), got 0.09 m");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\nouter_roll_m = 0.012", "outer_roll_m",
+         "marker.frame.outer_roll_m: must not exceed height_m (0.01 m), got 0.012 m");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\ninner_roll_m = 0.01", "inner_roll_m",
+         "marker.frame.inner_roll_m: with outer_roll_m (0.006 m) must not exceed the band's width, (outer_m - "
+         "opening_m) / 2 = 0.015 m, got 0.01 m");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\ncorner_radius_m = 0.05", "corner_radius_m",
+         "marker.frame.corner_radius_m: must not exceed half of outer_m (0.043 m), got 0.05 m");
+  expect(m, m + "\nmounting = \"socket\"\n[marker.frame]\nreflectance = 1.5", "reflectance",
+         "marker.frame.reflectance: must be from 0 to 1, got 1.5");
+  expect(m, "size_m = 0.05\nmounting = \"socket\"", "size_m",
+         "marker.size_m: (0.05 m) must be more than the frame's opening (0.056 m): the print is glued around it");
+  expect(m, m + "\nmounting = \"socket\"\ninsert = \"plug\"", "insert",
+         "marker.insert: must be \"none\", \"socket\" or \"rocker\", got \"plug\"");
+  expect(m, m + "\ninsert = \"socket\"", "insert",
+         "marker.insert: = \"socket\" cannot show: the marker is on paper, its hole printed white (set mounting = "
+         "\"cut_hole\", \"socket\" or \"switch\")");
+  expect(m, m + "\nmargin_m = -0.01", "margin_m", "marker.margin_m: must be from 0 to 1 m, got -0.01");
+
+  const std::string s = "supersample = 2";
+  expect(s, s + "\ncover = [\"middle\"]", "cover",
+         "camera.sim.cover: sides are \"top\", \"right\", \"bottom\", \"left\"; got \"middle\"");
+  expect(s, s + "\ncover = \"left\"", "cover", "camera.sim.cover: must be a list of sides, e.g. [\"left\"]");
+  expect(s, s + "\ncover = [\"left\", \"left\"]", "cover", "camera.sim.cover: names \"left\" twice");
+  expect(s, s + "\ncover = [\"left\"]\ncover_depth = 2", "cover_depth",
+         "camera.sim.cover_depth: must be from 0.01 to 1 of the marker's size, got 2");
+  expect(s, s + "\ncover_depth = 0.2", "cover_depth",
+         "camera.sim.cover_depth: is set, but nothing is covered (cover = [\"left\"], ... names the sides)");
+  expect(s, s + "\ncover = [\"top\"]\ncover_reflectance = -1", "cover_reflectance",
+         "camera.sim.cover_reflectance: must be from 0 to 1, got -1");
+  expect(s, s + "\ncover = [\"top\"]\ncover_height_m = 0", "cover_height_m",
+         "camera.sim.cover_height_m: must be from 0.001 to 1 m, got 0");
+  expect(s, s + "\nbackground_grey = 40", "background_grey",
+         "camera.sim.background_grey: is the plain background's grey, but clutter = true draws random shapes "
+         "instead (set clutter = false, or remove background_grey)");
+  expect(s, s + "\nclutter = false\nbackground_grey = 300", "background_grey",
+         "camera.sim.background_grey: must be from 0 to 255 grey levels, got 300");
+  expect(s, s + "\nambient = 0", "ambient", "camera.sim.ambient: must be from 0.01 to 1, got 0");
 }
 
 // The detector's ranges are the config's: what the config accepts, markerd
@@ -436,7 +635,15 @@ TEST_F(DaemonTest, CheckConfigSaysWhatIsWrongAndStartsNothing) {
   write_file(path, base_config());
   const Outcome good = run_markerd({"--check-config", "--config", path.string()});
   EXPECT_EQ(good.code, 0) << good.err;
-  EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165", 0), 0U) << good.out;
+  EXPECT_EQ(good.out.rfind(path.string() + ": ok (camera: sim, marker: frame8 id 165 0.08 m on paper,", 0), 0U)
+      << good.out;
+  // The mounting is part of what it says it sets up.
+  std::string socket = base_config();
+  socket.replace(socket.find("size_m = 0.08"), 13, "size_m = 0.08\nmounting = \"socket\"");
+  write_file(path, socket);
+  const Outcome on_socket = run_markerd({"--check-config", "--config", path.string()});
+  EXPECT_EQ(on_socket.code, 0) << on_socket.err;
+  EXPECT_NE(on_socket.out.find("marker: frame8 id 165 0.08 m on a socket frame,"), std::string::npos) << on_socket.out;
 
   std::string text = base_config();
   text.replace(text.find("fps = 30"), 8, "fps = -1");

@@ -187,6 +187,19 @@ TEST_F(Markerctl, SweepCheckOfflineRefusesAPlanForAFamilyTheConfigDoesNotDetect)
   EXPECT_NE(r.err.find("markerd detects frame8"), std::string::npos) << r.describe();
 }
 
+// The thesis's socket plans run on the shipped socket config, and are
+// refused on the paper one with an error naming both mountings.
+TEST_F(Markerctl, SweepCheckOfflineRefusesASocketPlanOnAPaperConfig) {
+  const std::string source = MARKERD_SOURCE_DIR;
+  const std::string plan = source + "/config/plans/thesis-socket-distance.toml";
+  const Outcome paper = run({"sweep", "check", plan, "--config", source + "/config/markerd-sim.toml"});
+  EXPECT_EQ(paper.code, 1) << paper.describe();
+  EXPECT_NE(paper.err.find("the plan's marker is mounted \"socket\""), std::string::npos) << paper.describe();
+  EXPECT_NE(paper.err.find("markerd's is mounted \"paper\""), std::string::npos) << paper.describe();
+  const Outcome socket = run({"sweep", "check", plan, "--config", source + "/config/markerd-sim-socket.toml"});
+  EXPECT_EQ(socket.code, 0) << socket.describe();
+}
+
 // ---------------------------------------------------------------- usage
 
 TEST_F(Markerctl, HelpListsTheCommands) {

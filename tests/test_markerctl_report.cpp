@@ -34,10 +34,13 @@ std::string plan_text(const std::string& name, const std::string& mounting, cons
 
 // A finished run of `plan_source` in `directory`: at each of the plan's
 // points the marker is found in `detected(distance, angle)` frames of 10.
+// `marker`: the marker markerd's config described, as start.json keeps it.
 template <typename Detected>
-fs::path write_run(const fs::path& directory, const std::string& plan_source, Detected detected) {
+fs::path write_run(const fs::path& directory, const std::string& plan_source, Detected detected,
+                   const nlohmann::json& marker = nlohmann::json::object()) {
   RunStart start;
   start.plan = parse_plan(plan_source, "plan.toml");
+  start.marker = marker;
   start.run_id = start.plan.name;
   start.time = std::chrono::system_clock::from_time_t(1'796'105'700);
   const std::vector<PlanStep> steps = plan_steps(start.plan);
@@ -155,6 +158,23 @@ TEST_F(MarkerctlReport, ARunUnderTheWrongMarkerIsNamed) {
                        ": the run's plan says its marker was mounted on paper ([marker] mounting = \"paper\"), not on "
                        "a socket frame\n");
   EXPECT_FALSE(fs::exists(out()));
+}
+
+// A plan without a mounting ran on what markerd's config said: a run that
+// markerd recorded on paper does not go into the socket column.
+TEST_F(MarkerctlReport, ARunWhosePlanDoesNotSayIsPlacedByWhatMarkerdRecorded) {
+  const fs::path run = write_run(
+      dir_.path() / "unsaid-paper", plan_text("unsaid-paper", "", "[0.5, 0.7]", "[0.0]"),
+      [](double, double) { return 10; }, nlohmann::json{{"mounting", "paper"}});
+  const Outcome r = markerctl({"report", "--paper", paper_distance_.string(), "--socket", socket_distance_.string(),
+                               run.string(), "-o", out(), "--no-plots"});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_EQ(r.err, "markerctl: report: --socket " + run.string() +
+                       ": the run's markerd config said its marker was mounted on paper ([marker] mounting = "
+                       "\"paper\"), not on a socket frame\n");
+  const Outcome ok = markerctl({"report", "--paper", paper_distance_.string(), run.string(), "--socket",
+                                socket_distance_.string(), "-o", out(), "--no-plots"});
+  EXPECT_EQ(ok.code, 0) << ok.describe();
 }
 
 TEST_F(MarkerctlReport, BadArgumentsAreNamed) {

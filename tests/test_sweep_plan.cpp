@@ -275,17 +275,34 @@ TEST(SweepPlan, APlanForAFamilyTheDetectorDoesNotFindIsAProblem) {
   markerd::detector::DetectorConfig frame8;
   frame8.family = markerd::detector::Family::frame8;
   const PlanMarker tag{markerd::detector::Family::tag36h11, 5, 0.16, std::nullopt};
-  const auto problem = marker_problem(tag, frame8);
+  const auto problem = marker_problem(tag, frame8, Mounting::paper);
   ASSERT_TRUE(problem.has_value());
   EXPECT_NE(problem->find("tag36h11"), std::string::npos) << *problem;
   EXPECT_NE(problem->find("frame8"), std::string::npos) << *problem;
-  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 165, 0.16, std::nullopt}, frame8).has_value());
+  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 165, 0.16, std::nullopt}, frame8, Mounting::paper)
+                   .has_value());
   // frame8's 0 and 255 come only with uniform_ids.
-  const auto zero = marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8);
+  const auto zero = marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8, Mounting::paper);
   ASSERT_TRUE(zero.has_value());
   EXPECT_NE(zero->find("uniform_ids"), std::string::npos) << *zero;
   frame8.frame8.uniform_ids = true;
-  EXPECT_FALSE(marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8).has_value());
+  EXPECT_FALSE(
+      marker_problem({markerd::detector::Family::frame8, 0, 0.08, std::nullopt}, frame8, Mounting::paper).has_value());
+}
+
+TEST(SweepPlan, APlanForAnotherMountingThanMarkerdsIsAProblem) {
+  markerd::detector::DetectorConfig frame8;
+  const PlanMarker socket{markerd::detector::Family::frame8, 165, 0.08, Mounting::socket};
+  const auto problem = marker_problem(socket, frame8, Mounting::paper);
+  ASSERT_TRUE(problem.has_value());
+  EXPECT_NE(problem->find("the plan's marker is mounted \"socket\""), std::string::npos) << *problem;
+  EXPECT_NE(problem->find("markerd's is mounted \"paper\""), std::string::npos) << *problem;
+  EXPECT_FALSE(marker_problem(socket, frame8, Mounting::socket).has_value());
+  // A plan that does not say matches any mounting.
+  const PlanMarker unsaid{markerd::detector::Family::frame8, 165, 0.08, std::nullopt};
+  for (const Mounting m : {Mounting::paper, Mounting::socket, Mounting::light_switch, Mounting::cut_hole}) {
+    EXPECT_FALSE(marker_problem(unsaid, frame8, m).has_value()) << to_string(m);
+  }
 }
 
 TEST(SweepPlan, FloatRangesReachTheirEndWithoutDrift) {

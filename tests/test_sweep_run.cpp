@@ -25,6 +25,7 @@
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
+#include "markerd/detector/render.hpp"
 #include "markerd/rig/sim_drive.hpp"
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/runner.hpp"
@@ -545,6 +546,69 @@ TEST_F(SweepRunTest, APlanForAFamilyTheDaemonDoesNotDetectIsRefusedAtCheckAndSta
     EXPECT_NE(error.find("tag36h11"), std::string::npos) << reply.dump();
     EXPECT_NE(error.find("frame8"), std::string::npos) << reply.dump();
   }
+}
+
+// A socket plan on a markerd whose marker is on paper (and the reverse)
+// would fill the report's socket column with paper figures.
+TEST_F(SweepRunTest, APlanForAnotherMountingIsRefusedAtCheckAndStart) {
+  auto d = make_daemon();  // markerd-sweep.toml says no mounting: paper
+  auto& r = runner(*d);
+  std::string text = kPlan;
+  text.replace(text.find("size_m = 0.08\n"), 14, "size_m = 0.08\nmounting = \"socket\"\n");
+  const sweep::SweepPlan plan = sweep::parse_plan(text, "socket.toml");
+  for (const auto& attempt :
+       {std::function<void()>([&] { (void)r.check(plan); }), std::function<void()>([&] { (void)r.start(plan); })}) {
+    try {
+      attempt();
+      ADD_FAILURE() << "a socket plan passed on a markerd whose marker is on paper";
+    } catch (const sweep::SweepError& e) {
+      EXPECT_NE(std::string(e.what()).find("mounted \"socket\""), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("mounted \"paper\""), std::string::npos) << e.what();
+    }
+  }
+  EXPECT_EQ(r.progress().state, RunState::idle);
+  EXPECT_TRUE(fs::is_empty(dir_ / "state/runs"));
+
+  daemon::ControlClient client(dir_ / "control.sock");
+  for (const char* command : {"sweep.check", "sweep.start"}) {
+    const nlohmann::json reply = client.call({{"cmd", command}, {"plan", text}, {"source", "socket.toml"}});
+    EXPECT_FALSE(reply.value("ok", true)) << reply.dump();
+    const std::string error = reply.value("error", std::string());
+    EXPECT_NE(error.find("mounted \"socket\""), std::string::npos) << reply.dump();
+    EXPECT_NE(error.find("mounted \"paper\""), std::string::npos) << reply.dump();
+  }
+  // A plan that does not say its mounting runs on any.
+  EXPECT_NO_THROW((void)r.check(sweep::parse_plan(kPlan, "small.toml")));
+}
+
+// The start record says what the marker was mounted on, with the frame's
+// dimensions, so that runs on paper and on a socket are told apart by their
+// records alone; and the socket plan runs on a socket markerd.
+TEST_F(SweepRunTest, TheStartRecordCarriesTheMarkersMounting) {
+  std::string config = read_file(dir_ / "markerd.toml");
+  config.replace(config.find("[marker]\n"), 9, "[marker]\nmounting = \"socket\"\n");
+  write_file(dir_ / "markerd.toml", config);
+  auto d = make_daemon();
+  auto& r = runner(*d);
+  std::string text = kPlan;
+  text.replace(text.find("size_m = 0.08\n"), 14, "size_m = 0.08\nmounting = \"socket\"\n");
+  const fs::path run = r.start(sweep::parse_plan(text, "socket.toml"));
+  r.abort("the record is all this test needs");
+  EXPECT_EQ(r.wait_finished(30s), RunState::aborted);
+  const sweep::RunRecords records = sweep::read_run(run);
+  const nlohmann::json& marker = records.start.marker;
+  EXPECT_EQ(marker.value("mounting", ""), "socket") << marker.dump();
+  EXPECT_EQ(marker.value("family", ""), "frame8") << marker.dump();
+  EXPECT_EQ(marker.value("insert", ""), "socket") << marker.dump();
+  ASSERT_TRUE(marker.contains("frame") && marker["frame"].is_object()) << marker.dump();
+  EXPECT_DOUBLE_EQ(marker["frame"].value("outer_m", 0.0), detector::socket_frame().outer_m);
+  EXPECT_DOUBLE_EQ(marker["frame"].value("height_m", 0.0), detector::socket_frame().height_m);
+  EXPECT_DOUBLE_EQ(marker["frame"].value("reflectance", 0.0), 0.85);
+  ASSERT_TRUE(records.start.camera.contains("scene")) << records.start.camera.dump();
+  EXPECT_EQ(records.start.camera["scene"]["cover"], nlohmann::json::array());
+  // Written to start.json, not only kept in memory.
+  const nlohmann::json start = nlohmann::json::parse(read_file(run / "start.json"));
+  EXPECT_EQ(start["marker"]["mounting"], "socket");
 }
 
 TEST_F(SweepRunTest, WrongTypedSweepArgumentsAreNamed) {

@@ -478,6 +478,26 @@ TEST(SweepSummary, RunsOfOneMarkerTogetherAreOneRunOfTheirGrids) {
   EXPECT_NEAR(*s.median_distance_error_pct, 100 * 5.0 / 720, 1e-9);
 }
 
+// A plan that does not say its mounting ran on what markerd's config said,
+// which the start record keeps: the run is told apart by it.
+TEST(SweepSummary, APlanWithoutAMountingTakesTheOneMarkerdRecorded) {
+  auto runs = socket_runs();
+  for (auto& run : runs) {
+    run.start.plan.marker.mounting.reset();
+    run.start.marker = {{"mounting", "socket"}};
+  }
+  EXPECT_EQ(runs[0].start.marker_mounting(), Mounting::socket);
+  EXPECT_EQ(together(runs).marker.mounting, Mounting::socket);
+  EXPECT_EQ(summarize(runs[0]).marker.mounting, Mounting::socket);
+  // Measured on paper by markerd's config: not one marker with the socket runs.
+  runs[2].start.marker = {{"mounting", "paper"}};
+  EXPECT_THROW((void)together(runs), std::invalid_argument);
+  // Records older than both say nothing.
+  runs[2].start.marker = nlohmann::json::object();
+  EXPECT_EQ(runs[2].start.marker_mounting(), std::nullopt);
+  EXPECT_NO_THROW((void)together(runs));
+}
+
 TEST(SweepSummary, RunsOfDifferentMarkersDoNotGoTogether) {
   auto runs = socket_runs();
   runs[1].start.plan.marker.id = 12;

@@ -7,45 +7,55 @@
 # distance sweep, five measurements per point) and follows it, and
 # markerctl report writes the report with its plots and prints Table 6.1.
 #
-#   bash tools/run-demo.sh [PLAN] [--time-scale N]
+#   bash tools/run-demo.sh [PLAN...] [--config FILE] [--time-scale N]
 #
-# Everything it writes is under build/demo/ (config, logs, run records,
-# report); markerd is stopped when the script ends, however it ends.
+# Several plans run one after the other on the same markerd. --config runs
+# another simulated config (config/markerd-sim-socket.toml: the marker on a
+# socket frame, for the plans config/plans/thesis-socket-*.toml).
+# Everything it writes is under build/demo/ (build/demo-CONFIG/ for another
+# config: config, logs, run records, report); markerd is stopped when the
+# script ends, however it ends.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 top=$PWD
 
-plan=config/plans/thesis.toml
+plans=()
+config=config/markerd-sim.toml
 time_scale=20
 while [[ $# -gt 0 ]]; do
   case $1 in
     --time-scale) time_scale=$2; shift 2 ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
-    *) plan=$1; shift ;;
+    --config) config=$2; shift 2 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    *) plans+=("$1"); shift ;;
   esac
 done
+[[ ${#plans[@]} -gt 0 ]] || plans=(config/plans/thesis.toml)
+[[ -f $config ]] || { echo "run-demo: --config $config: no such file" >&2; exit 1; }
 
 bash tools/install-deps.sh
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo
 cmake --build build -j"$(nproc)" --target markerd markerctl
 
 demo=$top/build/demo
+# Another config's runs go beside the default's, so that both can be reported together.
+[[ $config -ef config/markerd-sim.toml ]] || demo=$top/build/demo-$(basename "$config" .toml)
 rm -rf "$demo"
 mkdir -p "$demo/logs" "$demo/state"
 # The shipped simulated rig, with its simulated time running faster than
 # real time: moves and homing shrink, frames still come at the camera's rate.
 sed "s/^time_scale = .*/time_scale = $time_scale/" config/rig-sim.toml > "$demo/rig-sim.toml"
 grep -q "^time_scale = $time_scale" "$demo/rig-sim.toml" || { echo "run-demo: config/rig-sim.toml has no time_scale line" >&2; exit 1; }
-# config/markerd-sim.toml with this directory's rig, logs, state and socket
-# in place of systemd's directories.
+# The config (config/markerd-sim.toml) with this directory's rig, logs,
+# state and socket in place of systemd's directories.
 sed -e "s|^rig = .*|rig = \"rig-sim.toml\"|" \
     -e "s|^model = \"cameras/|model = \"$top/config/cameras/|" \
     -e "s|^group = .*||" \
-    config/markerd-sim.toml > "$demo/markerd.toml"
+    "$config" > "$demo/markerd.toml"
 sed -i -e '/^\[log\]/a directory = "logs"' -e '/^\[control\]/a socket = "control.sock"' \
        -e '/^\[sweep\]/a directory = "state"' "$demo/markerd.toml"
 for table in log control sweep; do
-  grep -q "^\[$table\]" "$demo/markerd.toml" || { echo "run-demo: config/markerd-sim.toml has no [$table] table" >&2; exit 1; }
+  grep -q "^\[$table\]" "$demo/markerd.toml" || { echo "run-demo: $config has no [$table] table" >&2; exit 1; }
 done
 
 markerctl=$top/build/tools/markerctl
@@ -59,10 +69,17 @@ for _ in $(seq 100); do
   sleep 0.1
 done
 
-echo "== dry run"
-"$markerctl" sweep check "$plan"
-echo "== the sweep (markerd's log: $demo/markerd.log)"
-"$markerctl" sweep start --wait "$plan"
-run_dir=$(ls -d "$demo"/state/runs/*/ | tail -1)
+run_dirs=()
+for plan in "${plans[@]}"; do
+  echo "== dry run: $plan"
+  "$markerctl" sweep check "$plan"
+  echo "== the sweep (markerd's log: $demo/markerd.log)"
+  "$markerctl" sweep start --wait "$plan"
+  run_dirs+=("$(ls -d "$demo"/state/runs/*/ | tail -1)")
+done
 echo "== report"
-"$markerctl" report "$run_dir"
+if [[ ${#run_dirs[@]} -eq 1 ]]; then
+  "$markerctl" report "${run_dirs[0]}"
+else
+  "$markerctl" report -o "$demo/report" "${run_dirs[@]}"
+fi

@@ -12,6 +12,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cmath>
 #include <thread>
 #include <type_traits>
 #include <utility>
@@ -65,6 +66,10 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
     return daemon::detector_config(daemon_.config_);
   }
 
+  [[nodiscard]] sweep::Mounting marker_mounting() const override { return daemon_.config_.marker.mounting; }
+
+  [[nodiscard]] nlohmann::json marker_record() const override { return daemon::marker_record(daemon_.config_.marker); }
+
   [[nodiscard]] nlohmann::json config_record() const override {
     return {{"file", daemon_.config_.source}, {"text", config_text_}};
   }
@@ -84,6 +89,19 @@ class Daemon::SweepEnvironment final : public sweep::SweepEnvironment {
                     {"distortion", m.dist}};
     } else {
       j["model"] = nullptr;
+    }
+    // What the simulated camera draws around the marker: a run behind a
+    // covered side is told apart from an open one by its records alone.
+    if (const auto* sim = std::get_if<SimCameraSettings>(&camera.source)) {
+      nlohmann::json cover = nlohmann::json::array();
+      for (const detector::MarkerSide side : sim->cover) cover.push_back(to_string(side));
+      j["scene"] = {{"cover", cover},
+                    {"cover_depth", sim->cover_depth},
+                    {"cover_reflectance", std::round(static_cast<double>(sim->cover_reflectance) * 1e6) / 1e6},
+                    {"cover_height_m", sim->cover_height_m},
+                    {"clutter", sim->clutter},
+                    {"background_grey", sim->background_grey},
+                    {"ambient", sim->ambient}};
     }
     return j;
   }

@@ -38,8 +38,58 @@ std::chrono::milliseconds positive_ms(const ConfigTable& t, std::string_view key
   return std::chrono::milliseconds(t.optional<std::int64_t>(key, fallback.count(), {1, 24LL * 3600 * 1000, "ms"}));
 }
 
+std::optional<detector::Insert> insert_from_name(std::string_view name) {
+  for (const detector::Insert insert : {detector::Insert::none, detector::Insert::socket, detector::Insert::rocker}) {
+    if (name == to_string(insert)) return insert;
+  }
+  return std::nullopt;
+}
+
+// "marker.mounting (line 12)": the other key of a contradiction, for its error.
+std::string key_at(const ConfigTable& t, std::string_view key) {
+  const toml::node* node = t.raw().get(key);
+  const std::string name = t.key_path().empty() ? std::string(key) : fmt::format("{}.{}", t.key_path(), key);
+  if (node != nullptr && node->source().begin.line > 0)
+    return fmt::format("{} (line {})", name, node->source().begin.line);
+  return name;
+}
+
+// [marker.frame]: the preset's dimensions, each overridable, in the ranges of
+// the parts there are (SOCKET_FRAME.md: 70 to 95 mm outside, 5 to 15 mm high)
+// with room to spare, and the renderer's own rules between them.
+detector::CoverFrame parse_frame(const ConfigTable& t, detector::CoverFrame f) {
+  t.allow_only({"outer_m", "opening_m", "height_m", "outer_roll_m", "inner_roll_m", "corner_radius_m", "reflectance"});
+  f.outer_m = t.optional<double>("outer_m", f.outer_m, {0.01, 0.5, "m"});
+  f.opening_m = t.optional<double>("opening_m", f.opening_m, {0.005, 0.5, "m"});
+  f.height_m = t.optional<double>("height_m", f.height_m, {0.001, 0.05, "m"});
+  f.outer_roll_m = t.optional<double>("outer_roll_m", f.outer_roll_m, {0, 0.05, "m"});
+  f.inner_roll_m = t.optional<double>("inner_roll_m", f.inner_roll_m, {0, 0.05, "m"});
+  f.corner_radius_m = t.optional<double>("corner_radius_m", f.corner_radius_m, {0, 0.25, "m"});
+  f.reflectance = static_cast<float>(t.optional<double>("reflectance", f.reflectance, {0, 1}));
+  if (!(f.opening_m < f.outer_m)) {
+    t.fail("opening_m", fmt::format("must be less than outer_m ({:g} m), got {:g} m", f.outer_m, f.opening_m));
+  }
+  if (f.corner_radius_m > f.outer_m / 2) {
+    t.fail("corner_radius_m",
+           fmt::format("must not exceed half of outer_m ({:g} m), got {:g} m", f.outer_m / 2, f.corner_radius_m));
+  }
+  if (f.outer_roll_m > f.height_m) {
+    t.fail("outer_roll_m", fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.outer_roll_m));
+  }
+  if (f.inner_roll_m > f.height_m) {
+    t.fail("inner_roll_m", fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.inner_roll_m));
+  }
+  const double band = (f.outer_m - f.opening_m) / 2;
+  if (f.outer_roll_m + f.inner_roll_m > band) {
+    t.fail("inner_roll_m", fmt::format("with outer_roll_m ({:g} m) must not exceed the band's width, (outer_m - "
+                                       "opening_m) / 2 = {:g} m, got {:g} m",
+                                       f.outer_roll_m, band, f.inner_roll_m));
+  }
+  return f;
+}
+
 MarkerSettings parse_marker(const ConfigTable& t) {
-  t.allow_only({"family", "id", "size_m", "cut_hole"});
+  t.allow_only({"family", "id", "size_m", "cut_hole", "mounting", "frame", "insert", "margin_m"});
   MarkerSettings m;
   const auto family_name = t.optional<std::string>("family", "frame8");
   const auto family = detector::family_from_name(family_name);
@@ -54,7 +104,55 @@ MarkerSettings parse_marker(const ConfigTable& t) {
   // From a printed thumbnail to a poster: beyond these the detector's pixel
   // sizes and the poses mean nothing.
   m.size_m = t.optional<double>("size_m", m.size_m, {0.001, 10, "m"});
-  m.cut_hole = t.optional<bool>("cut_hole", m.cut_hole);
+  // `cut_hole = true` is older than `mounting` and still means a flat print
+  // with its hole cut out; with both, they must tell the same story.
+  const auto cut_hole = t.maybe<bool>("cut_hole");
+  if (const auto name = t.maybe<std::string>("mounting")) {
+    const auto mounting = sweep::mounting_from_name(*name);
+    if (!mounting) {
+      t.fail("mounting", fmt::format(R"(must be "paper", "socket", "switch" or "cut_hole", got "{}")", *name));
+    }
+    m.mounting = *mounting;
+    if (cut_hole && *cut_hole != m.cut_hole()) {
+      t.fail("cut_hole",
+             fmt::format("= {} contradicts {} = \"{}\", whose hole is {} (remove cut_hole: mounting says it)",
+                         *cut_hole, key_at(t, "mounting"), *name, m.cut_hole() ? "cut out" : "printed white"));
+    }
+  } else if (cut_hole && *cut_hole) {
+    m.mounting = sweep::Mounting::cut_hole;
+  }
+  const bool on_frame = m.mounting == sweep::Mounting::socket || m.mounting == sweep::Mounting::light_switch;
+  if (auto frame = t.maybe_table("frame")) {
+    if (!on_frame) {
+      t.fail("frame", fmt::format("is set, but mounting is \"{}\" (only mounting = \"socket\" or \"switch\" has a "
+                                  "frame)",
+                                  to_string(m.mounting)));
+    }
+    m.frame = parse_frame(*frame,
+                          m.mounting == sweep::Mounting::socket ? detector::socket_frame() : detector::switch_frame());
+  } else if (on_frame) {
+    m.frame = m.mounting == sweep::Mounting::socket ? detector::socket_frame() : detector::switch_frame();
+  }
+  if (m.frame && !(m.frame->opening_m < m.size_m)) {
+    t.fail("size_m",
+           fmt::format("({:g} m) must be more than the frame's opening ({:g} m): the print is glued around it",
+                       m.size_m, m.frame->opening_m));
+  }
+  // What a socket or a switch has behind its frame; a cut hole shows the wall.
+  m.insert = m.mounting == sweep::Mounting::socket         ? detector::Insert::socket
+             : m.mounting == sweep::Mounting::light_switch ? detector::Insert::rocker
+                                                           : detector::Insert::none;
+  if (const auto name = t.maybe<std::string>("insert")) {
+    const auto insert = insert_from_name(*name);
+    if (!insert) t.fail("insert", fmt::format(R"(must be "none", "socket" or "rocker", got "{}")", *name));
+    if (*insert != detector::Insert::none && !m.cut_hole()) {
+      t.fail("insert", fmt::format("= \"{}\" cannot show: the marker is on paper, its hole printed white (set "
+                                   "mounting = \"cut_hole\", \"socket\" or \"switch\")",
+                                   *name));
+    }
+    m.insert = *insert;
+  }
+  m.margin_m = t.optional<double>("margin_m", m.margin_m, {0, 1, "m"});
   return m;
 }
 
@@ -98,7 +196,10 @@ CameraSettings parse_camera(const ConfigTable& t, const std::filesystem::path& d
     s.family = marker.family;
     s.id = marker.id;
     s.marker_size_m = marker.size_m;
-    s.cut_hole = marker.cut_hole;
+    s.cut_hole = marker.cut_hole();
+    s.frame = marker.frame;
+    s.insert = marker.insert;
+    s.margin_m = marker.margin_m;
     if (!c.model) t.fail("model", "is required by the simulated camera (it renders through the camera model)");
     c.source = s;
   } else if (c.source_kind == "file") {
@@ -228,6 +329,37 @@ SweepSettings parse_sweep(const ConfigTable& t, const std::filesystem::path& dir
 }
 
 }  // namespace
+
+std::string_view to_string(detector::Insert insert) {
+  switch (insert) {
+    case detector::Insert::none: return "none";
+    case detector::Insert::socket: return "socket";
+    case detector::Insert::rocker: return "rocker";
+  }
+  return "?";
+}
+
+nlohmann::json marker_record(const MarkerSettings& marker) {
+  nlohmann::json j{{"family", detector::family_info(marker.family).name},
+                   {"id", marker.id},
+                   {"size_m", marker.size_m},
+                   {"mounting", sweep::to_string(marker.mounting)},
+                   {"frame", nullptr},
+                   {"insert", to_string(marker.insert)},
+                   {"margin_m", marker.margin_m}};
+  if (marker.frame) {
+    const detector::CoverFrame& f = *marker.frame;
+    j["frame"] = {{"outer_m", f.outer_m},
+                  {"opening_m", f.opening_m},
+                  {"height_m", f.height_m},
+                  {"outer_roll_m", f.outer_roll_m},
+                  {"inner_roll_m", f.inner_roll_m},
+                  {"corner_radius_m", f.corner_radius_m},
+                  // As written in the config, not as the float it is kept in.
+                  {"reflectance", std::round(static_cast<double>(f.reflectance) * 1e6) / 1e6}};
+  }
+  return j;
+}
 
 DaemonConfig parse_daemon_config(const ConfigTable& root) {
   root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "sweep", "rig"});

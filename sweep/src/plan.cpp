@@ -394,7 +394,8 @@ SweepPlan load_plan(const std::filesystem::path& path) {
   return parse_plan(read_plan_file(path), path.string());
 }
 
-std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector) {
+std::optional<std::string> marker_problem(const PlanMarker& marker, const detector::DetectorConfig& detector,
+                                          Mounting mounted) {
   const detector::FamilyInfo& info = detector::family_info(marker.family);
   if (marker.family != detector.family) {
     return fmt::format(
@@ -408,6 +409,13 @@ std::optional<std::string> marker_problem(const PlanMarker& marker, const detect
         "the plan's marker is {} #{}, an id markerd's detector does not report (frame8's 0 and 255 "
         "need [detector.frame8] uniform_ids = true in markerd's config)",
         info.name, marker.id);
+  }
+  if (marker.mounting && *marker.mounting != mounted) {
+    return fmt::format(
+        "the plan's marker is mounted \"{}\" ([marker] mounting), but markerd's is mounted \"{}\" (its config's "
+        "[marker] mounting): run the plan on a markerd configured with mounting = \"{}\", or give the plan the "
+        "mounting markerd has",
+        to_string(*marker.mounting), to_string(mounted), to_string(*marker.mounting));
   }
   return std::nullopt;
 }

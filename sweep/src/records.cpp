@@ -296,6 +296,13 @@ PointRecord point_from_json(const nlohmann::json& j) {
   return r;
 }
 
+std::optional<Mounting> RunStart::marker_mounting() const {
+  if (plan.marker.mounting) return plan.marker.mounting;
+  const auto at = marker.find("mounting");
+  if (!marker.is_object() || at == marker.end() || !at->is_string()) return std::nullopt;
+  return mounting_from_name(at->get<std::string>());
+}
+
 nlohmann::json to_json(const RunStart& s) {
   return {{"schema", kRunRecordSchema},
           {"run_id", s.run_id},
@@ -306,6 +313,7 @@ nlohmann::json to_json(const RunStart& s) {
           {"steps", s.steps},
           {"config", s.config},
           {"camera", s.camera},
+          {"marker", s.marker},
           {"rig", s.rig},
           {"detection_log", s.detection_log}};
 }
@@ -324,6 +332,7 @@ RunStart start_from_json(const nlohmann::json& j) {
   s.steps = field<std::size_t>(j, "steps");
   s.config = j.value("config", nlohmann::json::object());
   s.camera = j.value("camera", nlohmann::json::object());
+  s.marker = j.value("marker", nlohmann::json::object());  // older records: not kept
   s.rig = j.value("rig", nlohmann::json::object());
   s.detection_log = optional_field<std::string>(j, "detection_log", "");
   return s;

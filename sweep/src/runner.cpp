@@ -51,7 +51,7 @@ SweepRunner::SweepRunner(rig::Rig& rig, rig::RigConfig rig_config, SweepEnvironm
 SweepRunner::~SweepRunner() { stop(); }
 
 PlanCheck SweepRunner::check(const SweepPlan& plan) const {
-  if (auto problem = marker_problem(plan.marker, environment_.detector_config())) {
+  if (auto problem = marker_problem(plan.marker, environment_.detector_config(), environment_.marker_mounting())) {
     throw SweepError(fmt::format("plan {} cannot run on this markerd: {}", plan.source, *problem));
   }
   return check_plan(plan, rig_config_, environment_.camera_fps());
@@ -116,6 +116,7 @@ fs::path SweepRunner::start(SweepPlan plan) {
   start.steps = run->steps.size();
   start.config = environment_.config_record();
   start.camera = environment_.camera_record();
+  start.marker = environment_.marker_record();
   start.rig = rig_record(rig_config_);
   start.detection_log = environment_.detection_log_path();
   // The journal first: a markerd killed between here and the run's first

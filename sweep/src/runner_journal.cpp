@@ -120,7 +120,7 @@ bool SweepRunner::resume_from_journal() {
     throw std::runtime_error(fmt::format("sweep run {}: its plan now expands to {} steps, it started with {}",
                                          directory.string(), run->steps.size(), records.start.steps));
   }
-  if (auto problem = marker_problem(run->plan.marker, environment_.detector_config())) {
+  if (auto problem = marker_problem(run->plan.marker, environment_.detector_config(), environment_.marker_mounting())) {
     throw std::runtime_error(fmt::format("sweep run {}: {}", directory.string(), *problem));
   }
   run->directory = directory;

@@ -480,6 +480,7 @@ void header_from(RunSummary& summary, const RunRecords& records) {
   summary.run_id = start.run_id;
   summary.plan_name = start.plan.name;
   summary.marker = start.plan.marker;
+  summary.marker.mounting = start.marker_mounting();
   summary.status = records.stop ? std::string(to_string(records.stop->status)) : std::string("incomplete");
   summary.detection_threshold = start.plan.detection_threshold;
 }
@@ -502,9 +503,11 @@ RunSummary summarize_together(const std::vector<const RunRecords*>& runs) {
   header_from(summary, first);
   FrameErrors errors;
   for (const RunRecords* run : runs) {
-    const PlanMarker& marker = run->start.plan.marker;
+    PlanMarker marker = run->start.plan.marker;
+    marker.mounting = run->start.marker_mounting();
     if (run != runs.front()) {
-      const PlanMarker& expected = first.start.plan.marker;
+      PlanMarker expected = first.start.plan.marker;
+      expected.mounting = first.start.marker_mounting();
       const bool same_marker = marker.family == expected.family && marker.id == expected.id &&
                                std::abs(marker.size_m - expected.size_m) < 1e-9 &&
                                (!marker.mounting || !expected.mounting || marker.mounting == expected.mounting);

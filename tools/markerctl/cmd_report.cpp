@@ -68,13 +68,15 @@ markerd::sweep::MarkerRuns read_marker_runs(const std::vector<std::string>& dire
   for (const auto& directory : directories) {
     const std::string argument = fmt::format("{} {}", option, directory);
     marker.runs.push_back(read_run_directory(directory, argument));
-    const auto& stated = marker.runs.back().start.plan.marker.mounting;
+    const markerd::sweep::RunStart& start = marker.runs.back().start;
+    const auto stated = start.marker_mounting();
     if (stated && *stated != mounting) {
-      throw usage_error(
-          "report", fmt::format("{}: the run's plan says its marker was mounted {} ([marker] "
-                                "mounting = \"{}\"), not {}",
-                                argument, markerd::sweep::mounting_text(*stated), markerd::sweep::to_string(*stated),
-                                markerd::sweep::mounting_text(mounting)));
+      throw usage_error("report",
+                        fmt::format("{}: the run's {} its marker was mounted {} ([marker] "
+                                    "mounting = \"{}\"), not {}",
+                                    argument, start.plan.marker.mounting ? "plan says" : "markerd config said",
+                                    markerd::sweep::mounting_text(*stated), markerd::sweep::to_string(*stated),
+                                    markerd::sweep::mounting_text(mounting)));
     }
   }
   std::vector<const markerd::sweep::RunRecords*> together;
@@ -95,7 +97,7 @@ std::optional<std::vector<markerd::sweep::MarkerRuns>> markers_by_records(
   markerd::sweep::MarkerRuns paper{Mounting::paper, {}};
   markerd::sweep::MarkerRuns socket{Mounting::socket, {}};
   for (const auto& run : runs) {
-    const auto& mounting = run.start.plan.marker.mounting;
+    const auto mounting = run.start.marker_mounting();
     if (mounting == Mounting::paper) {
       paper.runs.push_back(run);
     } else if (mounting == Mounting::socket) {

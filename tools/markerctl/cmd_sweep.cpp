@@ -120,7 +120,8 @@ int run_check(const std::string& socket, const std::string& plan_path, const std
       const markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
       if (!config.rig)
         throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
-      if (auto problem = markerd::sweep::marker_problem(plan.marker, markerd::daemon::detector_config(config))) {
+      if (auto problem = markerd::sweep::marker_problem(plan.marker, markerd::daemon::detector_config(config),
+                                                        config.marker.mounting)) {
         throw runtime_error(context, fmt::format("plan {} cannot run with {}: {}", plan_path, config_path, *problem));
       }
       const double fps = std::visit([](const auto& s) { return s.fps; }, config.camera.source);

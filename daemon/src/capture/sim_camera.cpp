@@ -28,7 +28,8 @@ std::uint64_t splitmix(std::uint64_t& state) {
 
 SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   t.allow_only({"fps", "exposure", "blur_sigma_px", "noise_sigma", "supersample", "clutter", "distort", "seed",
-                "rail_mm", "turntable_deg", "outage_every_s", "outage_s"});
+                "rail_mm", "turntable_deg", "outage_every_s", "outage_s", "cover", "cover_depth", "cover_reflectance",
+                "cover_height_m", "background_grey", "ambient"});
   SimCameraSettings s;
   s.fps = t.optional<double>("fps", s.fps);
   if (!(s.fps > 0 && s.fps <= 1000)) t.fail("fps", fmt::format("must be > 0 and <= 1000, got {}", s.fps));
@@ -47,6 +48,40 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
     t.fail("supersample", fmt::format("must be 1 .. 8, got {}", s.supersample));
   s.clutter = t.optional<bool>("clutter", s.clutter);
   s.distort = t.optional<bool>("distort", s.distort);
+  // The ranges are markerctl render's, where it has one.
+  if (t.contains("background_grey") && s.clutter) {
+    t.fail("background_grey",
+           "is the plain background's grey, but clutter = true draws random shapes instead "
+           "(set clutter = false, or remove background_grey)");
+  }
+  s.background_grey = t.optional<double>("background_grey", s.background_grey, {0, 255, "grey levels"});
+  // No ambient light at all would leave a face turned away from the light black and the shading undefined.
+  s.ambient = t.optional<double>("ambient", s.ambient, {0.01, 1});
+  if (t.contains("cover")) {
+    const toml::array* sides = t.raw().get("cover")->as_array();
+    if (sides == nullptr) t.fail("cover", R"(must be a list of sides, e.g. ["left"])");
+    for (const toml::node& node : *sides) {
+      const auto name = node.value<std::string>();
+      const auto side = name ? marker_side_from_name(*name) : std::nullopt;
+      if (!side) {
+        t.fail("cover", fmt::format(R"(sides are "top", "right", "bottom", "left"; got {})",
+                                    name ? fmt::format("\"{}\"", *name) : std::string("a value that is not a string")));
+      }
+      if (std::find(s.cover.begin(), s.cover.end(), *side) != s.cover.end()) {
+        t.fail("cover", fmt::format("names \"{}\" twice", *name));
+      }
+      s.cover.push_back(*side);
+    }
+  }
+  for (const char* key : {"cover_depth", "cover_reflectance", "cover_height_m"}) {
+    if (t.contains(key) && s.cover.empty()) {
+      t.fail(key, "is set, but nothing is covered (cover = [\"left\"], ... names the sides)");
+    }
+  }
+  s.cover_depth = t.optional<double>("cover_depth", s.cover_depth, {0.01, 1, "of the marker's size"});
+  s.cover_reflectance = static_cast<float>(t.optional<double>("cover_reflectance", s.cover_reflectance, {0, 1}));
+  // Above the marker's plane (a frame's band is up to a few cm high), within a metre of it.
+  s.cover_height_m = t.optional<double>("cover_height_m", s.cover_height_m, {0.001, 1, "m"});
   const auto seed = t.optional<std::int64_t>("seed", 1);
   if (seed < 0) t.fail("seed", fmt::format("must be >= 0, got {}", seed));
   s.seed = static_cast<std::uint64_t>(seed);
@@ -66,8 +101,26 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
   return s;
 }
 
+std::optional<detector::MarkerSide> marker_side_from_name(std::string_view name) {
+  using detector::MarkerSide;
+  for (const MarkerSide side : {MarkerSide::top, MarkerSide::right, MarkerSide::bottom, MarkerSide::left}) {
+    if (name == to_string(side)) return side;
+  }
+  return std::nullopt;
+}
+
+std::string_view to_string(detector::MarkerSide side) {
+  switch (side) {
+    case detector::MarkerSide::top: return "top";
+    case detector::MarkerSide::right: return "right";
+    case detector::MarkerSide::bottom: return "bottom";
+    case detector::MarkerSide::left: return "left";
+  }
+  return "?";
+}
+
 SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry)
-    : settings_(settings), camera_(camera), geometry_(geometry) {
+    : settings_(std::move(settings)), camera_(camera), geometry_(geometry), scene_(make_scene()) {
   if (camera_.width <= 0 || camera_.height <= 0) {
     throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
   }
@@ -131,16 +184,21 @@ bool SimCamera::wait_frame(std::chrono::milliseconds timeout) {
 
 void SimCamera::skip() noexcept { ++sequence_; }
 
-void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
-  if (rendered_at_ && rendered_at_->first == rail_mm && rendered_at_->second == turntable_deg) return;
-  const rig::MarkerGroundTruth truth = rig::ground_truth(geometry_, rail_mm, turntable_deg);
+detector::Scene SimCamera::make_scene() const {
   detector::Scene scene;
   scene.family = settings_.family;
   scene.id = settings_.id;
   scene.marker_size_m = settings_.marker_size_m;
   scene.cut_hole = settings_.cut_hole;
-  scene.pose.rotation = truth.rotation;
-  scene.pose.translation = truth.translation;
+  scene.frame = settings_.frame;
+  scene.insert = settings_.insert;
+  scene.paper_margin_m = settings_.margin_m;
+  for (const detector::MarkerSide side : settings_.cover) {
+    scene.occluders.push_back(detector::side_occluder(side, settings_.marker_size_m, settings_.cover_depth,
+                                                      settings_.cover_reflectance, settings_.cover_height_m));
+  }
+  scene.background_grey = settings_.background_grey;
+  scene.ambient = settings_.ambient;
   scene.exposure = settings_.exposure;
   scene.blur_sigma_px = settings_.blur_sigma_px;
   scene.noise_sigma = 0;  // added per frame
@@ -148,7 +206,15 @@ void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
   scene.clutter = settings_.clutter;
   scene.distort = settings_.distort;
   scene.seed = settings_.seed;
-  clean_ = detector::render_scene(camera_, scene);
+  return scene;
+}
+
+void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
+  if (rendered_at_ && rendered_at_->first == rail_mm && rendered_at_->second == turntable_deg) return;
+  const rig::MarkerGroundTruth truth = rig::ground_truth(geometry_, rail_mm, turntable_deg);
+  scene_.pose.rotation = truth.rotation;
+  scene_.pose.translation = truth.translation;
+  clean_ = detector::render_scene(camera_, scene_);
   rendered_at_ = {rail_mm, turntable_deg};
   ++renders_;
 }

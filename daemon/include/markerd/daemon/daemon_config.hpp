@@ -6,8 +6,10 @@
 
 #include <chrono>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <variant>
 
 #include "markerd/daemon/capture/capture_loop.hpp"
@@ -20,17 +22,34 @@
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
+#include "markerd/detector/render.hpp"
 #include "markerd/rig/rig_config.hpp"
+#include "markerd/sweep/plan.hpp"
 
 namespace markerd::daemon {
 
-// [marker]: the marker under test.
+// [marker]: the marker under test, as it stands on the turntable: the print
+// and what it is mounted on. A real rig's config says so too: a sweep plan
+// naming another mounting is refused (sweep::marker_problem).
 struct MarkerSettings {
   detector::Family family = detector::Family::frame8;
   int id = 165;  // what the simulated camera shows
   double size_m = 0.08;
-  bool cut_hole = false;  // frame8: the hole printed white; true: cut out, the background shows through
+  sweep::Mounting mounting = sweep::Mounting::paper;
+  // socket, switch: the cover frame (the preset with [marker.frame]'s overrides).
+  std::optional<detector::CoverFrame> frame;
+  detector::Insert insert = detector::Insert::none;  // what the hole shows, when it is cut out
+  double margin_m = 0;                               // white paper beyond the marker's outer edge
+
+  // frame8's hole is cut out (on a frame it always is).
+  [[nodiscard]] bool cut_hole() const { return mounting != sweep::Mounting::paper; }
 };
+
+// "none", "socket", "rocker": the config's words, markerctl render's --insert.
+[[nodiscard]] std::string_view to_string(detector::Insert insert);
+// The marker as a run's start record keeps it: family, id, size, mounting,
+// the frame's dimensions, the insert, the margin.
+[[nodiscard]] nlohmann::json marker_record(const MarkerSettings& marker);
 
 // One alternative per capture backend.
 using CameraSourceSettings = std::variant<SimCameraSettings, V4l2Settings, LibcameraSettings, FileSourceSettings>;

@@ -99,12 +99,16 @@ SweepPlan load_plan(const std::filesystem::path& path);
 [[nodiscard]] std::string plan_too_large(std::string_view source, std::size_t bytes);
 
 // Why markerd's detectors, set up as `detector`, cannot measure the plan's
-// marker (another family; an id the detector does not report), or nothing.
-// markerd runs one family's detector, from its config: a plan for another
-// family would end "done" with nothing detected. The marker's size is no
-// problem: the runner rescales poses to it.
+// marker (another family; an id the detector does not report), or the
+// marker markerd's config says is on the turntable is mounted otherwise than
+// the plan says (`mounted`), or nothing. markerd runs one family's
+// detector, from its config: a plan for another family would end "done"
+// with nothing detected; a socket plan run on a paper marker would fill the
+// report's socket column with paper figures. A plan that does not say its
+// mounting matches any. The marker's size is no problem: the runner
+// rescales poses to it.
 [[nodiscard]] std::optional<std::string> marker_problem(const PlanMarker& marker,
-                                                        const detector::DetectorConfig& detector);
+                                                        const detector::DetectorConfig& detector, Mounting mounted);
 
 // One unit of work: a measurement (repeat) at a point. A run is the plan's
 // steps in order; the journal records each one done.

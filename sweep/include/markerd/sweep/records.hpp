@@ -81,8 +81,15 @@ struct RunStart {
   std::size_t steps = 0;      // plan_steps(plan).size()
   nlohmann::json config;      // the daemon's config as it ran (file, text)
   nlohmann::json camera;      // the camera: source, model (intrinsics, distortion), frame rate
+  nlohmann::json marker;      // the marker markerd's config describes: family, id, size, mounting, frame
   nlohmann::json rig;         // geometry, axes' units, units_per_step, limits, backends
   std::string detection_log;  // where the daemon's detection stream went when the run started
+
+  // What the measured marker was mounted on: the plan's word, else (a plan
+  // that does not say) markerd's config's, as `marker` keeps it; nothing for
+  // records older than both. markerd refuses a plan that says otherwise
+  // than its config, so the two never disagree.
+  [[nodiscard]] std::optional<Mounting> marker_mounting() const;
 };
 
 // The event documents of events.jsonl.

@@ -70,10 +70,14 @@ class SweepEnvironment {
   // What markerd's detectors find (the family, frame8's options) and the
   // marker size their poses assume.
   [[nodiscard]] virtual detector::DetectorConfig detector_config() const = 0;
+  // What the marker on the turntable is mounted on (the config's [marker]).
+  [[nodiscard]] virtual Mounting marker_mounting() const = 0;
   // Parts of the start document: the config markerd runs with, the camera
   // (source, model), where the detection log goes.
   [[nodiscard]] virtual nlohmann::json config_record() const = 0;
   [[nodiscard]] virtual nlohmann::json camera_record() const = 0;
+  // The marker as the config describes it (family, id, size, mounting, frame).
+  [[nodiscard]] virtual nlohmann::json marker_record() const = 0;
   [[nodiscard]] virtual std::string detection_log_path() const = 0;
 };
 

@@ -19,6 +19,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "markerd/base/config_table.hpp"
@@ -26,6 +27,7 @@
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/family.hpp"
 #include "markerd/detector/image.hpp"
+#include "markerd/detector/render.hpp"
 #include "markerd/rig/geometry.hpp"
 #include "markerd/rig/rig.hpp"
 
@@ -38,6 +40,20 @@ struct SimCameraSettings {
   int id = 165;
   double marker_size_m = 0.08;
   bool cut_hole = false;  // frame8's hole printed white (true: cut out, showing the background)
+  // What the print is mounted on ([marker] mounting): glued onto a cover
+  // frame, what its cut hole shows, the paper beyond its edge.
+  std::optional<detector::CoverFrame> frame;
+  detector::Insert insert = detector::Insert::none;
+  double margin_m = 0;
+  // The scene around it ([camera.sim]): objects covering whole sides of the
+  // marker (markerctl render's --cover and its options), the plain
+  // background's grey, the share of unshaded light.
+  std::vector<detector::MarkerSide> cover;
+  double cover_depth = 0.2;  // a share of the marker's size, in from its outer edge
+  float cover_reflectance = 0.1F;
+  double cover_height_m = 0.03;
+  double background_grey = 128;  // with clutter = false
+  double ambient = 0.3;
   // Imaging (see markerd::Scene).
   double exposure = 1.0;
   double blur_sigma_px = 0.6;
@@ -56,9 +72,13 @@ struct SimCameraSettings {
   std::chrono::milliseconds outage_for{0};
 };
 
-// [camera.sim]: the imaging and the frame rate; the marker comes from the
-// config's [marker] table and the image size from the camera model.
+// [camera.sim]: the imaging, the frame rate and the scene around the marker;
+// the marker and its mounting come from the config's [marker] table and the
+// image size from the camera model.
 SimCameraSettings parse_sim_camera_settings(const ConfigTable& table);
+// "top", "right", "bottom", "left": the config's words, markerctl render's --cover.
+[[nodiscard]] std::string_view to_string(detector::MarkerSide side);
+[[nodiscard]] std::optional<detector::MarkerSide> marker_side_from_name(std::string_view name);
 
 class SimCamera final : public CaptureSource {
  public:
@@ -91,6 +111,7 @@ class SimCamera final : public CaptureSource {
 
  private:
   void render_if_moved(double rail_mm, double turntable_deg);
+  [[nodiscard]] detector::Scene make_scene() const;
   // Why the camera is away now (unplugged, or in a scheduled outage); nothing while it is there.
   [[nodiscard]] std::optional<std::string> absent();
 
@@ -108,6 +129,7 @@ class SimCamera final : public CaptureSource {
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 
+  detector::Scene scene_;                                 // all but the pose, which each render sets
   detector::GreyImage clean_;                             // the last noise-free render
   std::optional<std::pair<double, double>> rendered_at_;  // its rail and turntable positions
   std::uint64_t renders_ = 0;
