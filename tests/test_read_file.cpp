@@ -77,11 +77,12 @@ TEST(CheckRegularFile, TellsAMissingFileFromOneThatCannotBeUsed) {
 TEST(ReadRegularFile, NamesANameTooLongAndTheLimit) {
   const std::string long_name = "/tmp/" + std::string(256, 'p') + "/plan.toml";
   EXPECT_EQ(error_of(long_name, 1000),
-            long_name + ": the plan cannot be used: a name in its path is 256 bytes long, longer than the 255 a file "
-                        "system takes");
+            long_name +
+                ": the plan cannot be used: a name in its path is 256 bytes long, longer than the 255 a file "
+                "system takes");
   std::string long_path = "/tmp";
   while (long_path.size() < 5000) long_path += "/" + std::string(200, 'd');
-  EXPECT_EQ(error_of(long_path, 1000),
-            long_path + ": the plan cannot be used: its path is " + std::to_string(long_path.size()) +
-                " bytes long, longer than the 4095 a path may be");
+  EXPECT_EQ(error_of(long_path, 1000), long_path + ": the plan cannot be used: its path is " +
+                                           std::to_string(long_path.size()) +
+                                           " bytes long, longer than the 4095 a path may be");
 }
