@@ -206,6 +206,20 @@ TEST(CameraModel, TopLevelListIsACameraModelError) {
   expect_load_error(dir.write("list.yaml", "%YAML:1.0\n- 1\n- 2\n"), "not a map of keys");
 }
 
+// OpenCV's YAML reader measures a key back from its ':' over the spaces
+// before it: on an indented line with nothing before the ':' it steps back
+// past the key's start and std::string gets a negative length. The
+// std::length_error from inside FileStorage::open (a fuzz finding) is a
+// parse error naming the line.
+TEST(CameraModel, IndentedEmptyKeyIsAParseError) {
+  const TempDir dir;
+  const std::string matrix =
+      "camera_matrix: !!opencv-matrix\n   rows: 3\n   : d\n   cols: 3\n   dt: d\n"
+      "   data: [ 516., 0., 319., 0., 515., 238., 0., 0., 1. ]\n";
+  expect_load_error(dir.write("empty-key.yaml", kHeader + matrix + kGoodDistortion),
+                    "the camera file cannot be parsed: line 7: an empty key (a ':' with no name before it)");
+}
+
 // OpenCV reserves rows x cols before it finds the data short: the declared
 // size is checked first.
 TEST(CameraModel, DeclaredMatrixSizeIsCheckedBeforeReading) {

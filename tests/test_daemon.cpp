@@ -200,6 +200,15 @@ TEST_F(DaemonTest, ConfigErrorsNameTheFileTheLineAndTheKey) {
     EXPECT_EQ(error, where + ": rig: no such rig file: " + (dir_ / "nowhere.toml").string());
   }
   {
+    // A name longer than the file system takes is the config's error at
+    // the key, not std::filesystem's error escaping (a fuzz finding).
+    const std::string name = std::string(300, 'r') + ".toml";
+    const auto [error, where] = error_with("rig = \"rig.toml\"", "rig = \"" + name + "\"");
+    EXPECT_EQ(error, where + ": rig: " + (dir_ / name).string() +
+                         ": the rig file cannot be used: a name in its path is 305 bytes long, longer than the "
+                         "255 a file system takes");
+  }
+  {
     // Numbers have ranges: no overflow into a short timeout, no "not an int".
     const auto [error, where] = error_with("frame_timeout_ms = 2000", "frame_timeout_ms = 9223372036854775807");
     EXPECT_EQ(error, where + ": camera.frame_timeout_ms: must be from 1 to 86400000 ms, got 9223372036854775807");

@@ -226,4 +226,9 @@ TEST(ModbusConfig, BusAndDriveErrorsNameFileLineAndKey) {
                 ": the register map is a directory, not a file");
   EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 1\nmap = \"drives/nothing.toml\"\n"),
             "rig.toml:4: rig.rail.modbus.map: no such file: " + (kSourceDir / "config/drives/nothing.toml").string());
+  const std::string long_name = std::string(256, 'm') + ".toml";
+  EXPECT_EQ(drive("bus = \"rtu0\"\nunit_id = 1\nmap = \"drives/" + long_name + "\"\n"),
+            "rig.toml:4: rig.rail.modbus.map: " + (kSourceDir / "config/drives" / long_name).string() +
+                ": the register map cannot be used: a name in its path is 261 bytes long, longer than the 255 a "
+                "file system takes");
 }

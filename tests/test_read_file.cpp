@@ -9,6 +9,7 @@
 #include "markerd/base/read_file.hpp"
 #include "support/temp_dir.hpp"
 
+using markerd::check_regular_file;
 using markerd::FileError;
 using markerd::read_regular_file;
 
@@ -52,4 +53,36 @@ TEST(ReadRegularFile, RefusesAFileOverTheLimitWithItsSize) {
 TEST(ReadRegularFile, NamesAMissingFileAndItsCause) {
   EXPECT_EQ(error_of("/nonexistent/plan.toml", 1000),
             "/nonexistent/plan.toml: the plan cannot be read: No such file or directory");
+}
+
+// Callers word a missing file their own way ("no such rig file"); every
+// other reason stays FileError's message.
+TEST(CheckRegularFile, TellsAMissingFileFromOneThatCannotBeUsed) {
+  const auto missing = [](const std::filesystem::path& path) {
+    try {
+      (void)check_regular_file(path, 1000, "the rig file");
+    } catch (const FileError& e) {
+      return e.missing();
+    }
+    ADD_FAILURE() << "no error for " << path;
+    return false;
+  };
+  EXPECT_TRUE(missing("/nonexistent/rig.toml"));
+  EXPECT_TRUE(missing("/dev/null/rig.toml"));  // ENOTDIR: no such file either
+  EXPECT_FALSE(missing("/tmp"));
+  EXPECT_FALSE(missing("/tmp/" + std::string(300, 'x')));
+}
+
+// ENAMETOOLONG says which limit the name breaks.
+TEST(ReadRegularFile, NamesANameTooLongAndTheLimit) {
+  const std::string long_name = "/tmp/" + std::string(256, 'p') + "/plan.toml";
+  EXPECT_EQ(error_of(long_name, 1000),
+            long_name +
+                ": the plan cannot be used: a name in its path is 256 bytes long, longer than the 255 a file "
+                "system takes");
+  std::string long_path = "/tmp";
+  while (long_path.size() < 5000) long_path += "/" + std::string(200, 'd');
+  EXPECT_EQ(error_of(long_path, 1000), long_path + ": the plan cannot be used: its path is " +
+                                           std::to_string(long_path.size()) +
+                                           " bytes long, longer than the 4095 a path may be");
 }

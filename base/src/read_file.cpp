@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <climits>
 #include <cstring>
 
 namespace markerd {
@@ -19,6 +20,30 @@ namespace {
 
 [[noreturn]] void fail(const std::filesystem::path& path, std::string_view what, std::string_view message) {
   throw FileError(fmt::format("{}: {} {}", path.string(), what, message));
+}
+
+// ENAMETOOLONG has two causes, and a user with a path of several hundred
+// bytes wants to know which limit it breaks.
+std::string name_too_long_words(const std::filesystem::path& path) {
+  std::size_t longest = 0;
+  for (const auto& part : path) longest = std::max(longest, part.native().size());
+  if (longest > NAME_MAX) {
+    return fmt::format("cannot be used: a name in its path is {} bytes long, longer than the {} a file system takes",
+                       longest, NAME_MAX);
+  }
+  if (path.native().size() >= PATH_MAX) {
+    return fmt::format("cannot be used: its path is {} bytes long, longer than the {} a path may be",
+                       path.native().size(), PATH_MAX - 1);
+  }
+  return fmt::format("cannot be read: {}", errno_text(ENAMETOOLONG));  // too long once its links are followed
+}
+
+// stat() or open() failed with `error`.
+[[noreturn]] void fail_to_look_up(const std::filesystem::path& path, std::string_view what, int error) {
+  const std::string words =
+      error == ENAMETOOLONG ? name_too_long_words(path) : fmt::format("cannot be read: {}", errno_text(error));
+  // ENOTDIR: a part of the path is a file, so nothing lies beneath it.
+  throw FileError(fmt::format("{}: {} {}", path.string(), what, words), error == ENOENT || error == ENOTDIR);
 }
 
 std::string_view kind_of(mode_t mode) {
@@ -57,7 +82,7 @@ std::string format_bytes(std::size_t bytes) {
 
 std::size_t check_regular_file(const std::filesystem::path& path, std::size_t max_bytes, std::string_view what) {
   struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
+  if (::stat(path.c_str(), &st) != 0) fail_to_look_up(path, what, errno);
   check_stat(path, st, max_bytes, what);
   return static_cast<std::size_t>(st.st_size);
 }
@@ -66,7 +91,7 @@ std::string read_regular_file(const std::filesystem::path& path, std::size_t max
   // O_NONBLOCK: opening a FIFO must not wait for a writer before fstat can
   // tell that it is one; on a regular file the flag changes nothing.
   const UniqueFd file(::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY));
-  if (!file) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));
+  if (!file) fail_to_look_up(path, what, errno);
   const int fd = file.get();
   struct stat st {};
   if (::fstat(fd, &st) != 0) fail(path, what, fmt::format("cannot be read: {}", errno_text(errno)));

@@ -372,11 +372,12 @@ DaemonConfig parse_daemon_config(const ConfigTable& root) {
   const toml::node* rig = root.raw().get("rig");
   if (rig != nullptr && rig->is_string()) {
     const std::filesystem::path file = resolve(dir, root.required<std::string>("rig"));
-    if (!std::filesystem::exists(file)) root.fail("rig", fmt::format("no such rig file: {}", file.string()));
-    // A directory or a FIFO is reported here, at the key that names it.
+    // A missing file, a directory, a FIFO or a name too long is reported
+    // here, at the key that names it.
     try {
       (void)check_regular_file(file, ConfigTable::kMaxFileBytes, "the rig file");
     } catch (const FileError& e) {
+      if (e.missing()) root.fail("rig", fmt::format("no such rig file: {}", file.string()));
       root.fail("rig", e.what());
     }
     config.rig = rig::load_rig_config(file);

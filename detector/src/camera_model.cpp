@@ -4,7 +4,10 @@
 #include <opencv2/core/persistence.hpp>
 
 #include <fmt/format.h>
+#include <algorithm>
 #include <cmath>
+#include <exception>
+#include <stdexcept>
 #include <string_view>
 #include <tuple>
 
@@ -38,6 +41,28 @@ std::string parse_error_words(const cv::Exception& e) {
 
 [[noreturn]] void fail(const std::filesystem::path& path, const std::string& what) {
   throw CameraModelError(fmt::format("{}: {}", path.string(), what));
+}
+
+// OpenCV's reader can fail with exceptions of the standard library's own,
+// not cv::Exception. The one known (OpenCV 4.6's YAMLParser::parseKey, and
+// upstream since): an indented line with nothing before its ':' makes the
+// key's end step back over the indentation, past the key's start, and the
+// negative length reaches std::string as std::length_error. At the top
+// level the same key is OpenCV's "An empty key", so that line is named.
+std::string reader_failure_words(std::string_view text, const std::exception& e) {
+  if (dynamic_cast<const std::length_error*>(&e) != nullptr) {
+    std::size_t number = 1;
+    for (std::size_t start = 0; start < text.size(); ++number) {
+      const std::size_t end = std::min(text.find('\n', start), text.size());
+      const std::string_view line = text.substr(start, end - start);
+      const std::size_t first = line.find_first_not_of(' ');
+      if (first != std::string_view::npos && first > 0 && line[first] == ':') {
+        return fmt::format("line {}: an empty key (a ':' with no name before it)", number);
+      }
+      start = end + 1;
+    }
+  }
+  return fmt::format("OpenCV's reader failed: {}", e.what());
 }
 
 // The only format read is OpenCV's YAML. OpenCV picks its parser from the
@@ -196,19 +221,25 @@ CameraModel CameraModel::load(const std::filesystem::path& path) {
   if (text.find_first_not_of(" \t\r\n") == std::string::npos) fail(path, "the camera file is empty");
   check_yaml(path, text);
   cv::FileStorage fs;
+  bool opened = false;
   try {
-    if (!fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY)) {
-      fail(path, "the camera file is not OpenCV's YAML");
-    }
+    opened = fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY);
   } catch (const cv::Exception& e) {
     fail(path, fmt::format("the camera file cannot be parsed: {}", parse_error_words(e)));
+  } catch (const std::exception& e) {
+    fail(path, fmt::format("the camera file cannot be parsed: {}", reader_failure_words(text, e)));
   }
+  if (!opened) fail(path, "the camera file is not OpenCV's YAML");
   // OpenCV asserts on what it does not expect in a node it is asked about;
   // any of those is a wrong camera file, never an escaping cv::Exception.
   try {
     return parse(fs, path);
+  } catch (const CameraModelError&) {
+    throw;
   } catch (const cv::Exception& e) {
     fail(path, fmt::format("the camera file is not a camera model: {}", e.err));
+  } catch (const std::exception& e) {
+    fail(path, fmt::format("the camera file is not a camera model: OpenCV's reader failed: {}", e.what()));
   }
 }
 

@@ -34,10 +34,10 @@ ModbusDriveSettings parse_modbus_drive(const ConfigTable& t, const std::filesyst
   s.unit_id = static_cast<int>(t.required<std::int64_t>("unit_id", {1, 247}));
   const std::filesystem::path map = t.required<std::string>("map");
   s.map = map.is_absolute() ? map : config_dir / map;
-  if (!std::filesystem::exists(s.map)) t.fail("map", fmt::format("no such file: {}", s.map.string()));
   try {
     (void)check_regular_file(s.map, ConfigTable::kMaxFileBytes, "the register map");
   } catch (const FileError& e) {
+    if (e.missing()) t.fail("map", fmt::format("no such file: {}", s.map.string()));
     t.fail("map", e.what());
   }
   s.completion_margin = std::chrono::milliseconds(

@@ -14,7 +14,16 @@ namespace markerd {
 
 class FileError : public std::runtime_error {
  public:
-  using std::runtime_error::runtime_error;
+  explicit FileError(const std::string& message, bool missing = false)
+      : std::runtime_error(message), missing_(missing) {}
+
+  // Nothing is there by that name (the caller may say "no such rig file"),
+  // as opposed to something there that cannot be used or a name that the
+  // file system cannot look up at all (too long, a loop of links).
+  [[nodiscard]] bool missing() const noexcept { return missing_; }
+
+ private:
+  bool missing_;
 };
 
 // The whole file. `what` names the file's role in errors ("the config", "the
@@ -24,8 +33,11 @@ class FileError : public std::runtime_error {
                                             std::string_view what);
 
 // Checks what read_regular_file checks without reading, for files that a
-// library then opens itself (an image decoder, OpenCV's FileStorage). Returns
-// the file's size.
+// library then opens itself (an image decoder, OpenCV's FileStorage), and for
+// a path a config names, where every reason it cannot be used (missing, a
+// directory, a name too long) must become the config's error at its key:
+// unlike std::filesystem::exists or status, it throws nothing but FileError.
+// Returns the file's size.
 std::size_t check_regular_file(const std::filesystem::path& path, std::size_t max_bytes, std::string_view what);
 
 // "64 KiB", "1.5 MiB": sizes in errors.
