@@ -14,8 +14,10 @@ namespace markerd::detector::frame8 {
 
 // The least share of its quad a hole's light pixels cover: a Schuko
 // outlet's recess (39 mm across) in the 56 mm opening of a socket frame
-// takes 0.38 of it, and its pin holes a little more.
-constexpr double kMinLightShare = 0.5;
+// takes 0.38 of it, its pin holes a little more, and from about a metre,
+// where the recess is 15 px across, the threshold takes its blurred rim
+// too (at 0.5 the socket was lost from 1.0 m on).
+constexpr double kMinLightShare = 0.3;
 
 // The quad of a light component, in working-image coordinates, clockwise on
 // screen; or why the component is none.
