@@ -55,6 +55,29 @@ inline bool wait_until(const std::function<bool()>& done, std::chrono::milliseco
   }
 }
 
+// Waits until `count()` reaches `target` (or `stop()` holds), for as long
+// as the count keeps growing: a guest under emulation on a loaded host may
+// log a frame every few seconds, and how fast is no test's business. False
+// when the count stood still for `stall`, or after `cap` in all.
+inline bool wait_for_progress(const std::function<std::size_t()>& count, std::size_t target,
+                              const std::function<bool()>& stop, std::chrono::milliseconds stall,
+                              std::chrono::milliseconds cap) {
+  const auto start = Clock::now();
+  auto last_change = start;
+  std::size_t last = count();
+  for (;;) {
+    const std::size_t now_count = count();
+    if (now_count >= target || stop()) return true;
+    const auto now = Clock::now();
+    if (now_count != last) {
+      last = now_count;
+      last_change = now;
+    }
+    if (now - last_change >= stall || now - start >= cap) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  }
+}
+
 inline double seconds_since(Clock::time_point start) {
   return std::chrono::duration<double>(Clock::now() - start).count();
 }

@@ -59,6 +59,11 @@ constexpr double kMaxRotationErrorDeg = 3.0;
 // loaded 2-core host.
 constexpr auto kStartTimeout = 90s;
 constexpr auto kPhaseTimeout = 90s;
+// Waiting for lines: as long as they keep coming (the guest's rate is the
+// host's load, not markerd's: a libcamera half after a slow v4l2 half once
+// logged 59 of 90 lines in 90 s), but not for a stream that stopped.
+constexpr auto kStall = 60s;
+constexpr auto kPhaseCap = 600s;
 
 std::int64_t ns(Clock::time_point t) {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(t.time_since_epoch()).count();
@@ -201,8 +206,9 @@ class MarkerdUvc : public testing::Test {
     EXPECT_EQ(s["camera"]["source"].get<std::string>().rfind(backend + " ", 0), 0U) << s.dump();
     const double streaming_after = seconds_since(test_start);
     check_cameras(daemon::ControlClient(socket_).call({{"cmd", "cameras"}}, 60s), backend == "v4l2");
-    ASSERT_TRUE(wait_until([&] { return follower.lines() >= kLines || !markerd.running(); }, kPhaseTimeout))
-        << "only " << follower.lines() << " lines logged within " << kPhaseTimeout.count() << " s";
+    ASSERT_TRUE(wait_for_progress([&] { return follower.lines(); }, kLines, [&] { return !markerd.running(); }, kStall,
+                                  kPhaseCap))
+        << "only " << follower.lines() << " lines logged, none for " << kStall.count() << " s";
     // The drop counts of the status cover at least the lines logged before it.
     const std::size_t counted_lines = follower.lines();
     const json counted_status = status();
@@ -248,10 +254,9 @@ class MarkerdUvc : public testing::Test {
         return line.at("status") == "ok" && capture_time(line) >= replugged;
       });
     };
-    ASSERT_TRUE(
-        wait_until([&] { return static_cast<std::size_t>(read_after()) >= kLinesAfterReplug || !markerd.running(); },
-                   kPhaseTimeout, 200ms))
-        << "only " << read_after() << " frames logged within " << kPhaseTimeout.count() << " s of the replug";
+    ASSERT_TRUE(wait_for_progress([&] { return static_cast<std::size_t>(read_after()); }, kLinesAfterReplug,
+                                  [&] { return !markerd.running(); }, kStall, kPhaseCap))
+        << "only " << read_after() << " frames logged after the replug, none for " << kStall.count() << " s";
     const auto exit_status = markerd.terminate(20s);
     ASSERT_TRUE(exit_status.has_value()) << "markerd did not exit within 20 s of SIGTERM";
     EXPECT_TRUE(WIFEXITED(*exit_status) && WEXITSTATUS(*exit_status) == 0) << describe_wait_status(*exit_status);
