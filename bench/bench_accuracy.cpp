@@ -154,6 +154,19 @@ std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps&
   return row;
 }
 
+// A binary PGM: readable by markerctl detect and any image viewer.
+void write_pgm(const std::string& path, const markerd::detector::GreyImage& image) {
+  std::FILE* f = std::fopen(path.c_str(), "wb");
+  if (!f) {
+    std::fprintf(stderr, "bench_accuracy: cannot write %s\n", path.c_str());
+    return;
+  }
+  std::fprintf(f, "P5\n%d %d\n255\n", image.width(), image.height());
+  const auto view = image.view();
+  for (int y = 0; y < view.height; ++y) std::fwrite(view.row(y), 1, static_cast<std::size_t>(view.width), f);
+  std::fclose(f);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -213,6 +226,10 @@ int main(int argc, char** argv) {
   app.add_option("--cover-reflectance", cover_grey, "the object's reflectance, 0 (black) .. 1 (paper is 0.88)")
       ->check(CLI::Range(0.0, 1.0))
       ->capture_default_str();
+  std::string dump_wrong;
+  app.add_option("--dump-wrong", dump_wrong,
+                 "write each frame with a wrong id into this directory, as PGM named by distance, yaw, ids and seed")
+      ->check(CLI::ExistingDirectory);
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
@@ -338,6 +355,18 @@ int main(int argc, char** argv) {
       config.frame8.model_small_cells = model_small_cells;
       config.frame8.blur_sigma_px = blur;
       auto detector = markerd::detector::make_detector(config);
+      if (!dump_wrong.empty()) {
+        settings.on_wrong_id = [&](const markerd::detector::GreyImage& image, const markerd::detector::Scene& scene,
+                                   const std::vector<markerd::detector::Detection>& found) {
+          int wrong = -1;
+          for (const auto& d : found) wrong = d.id != scene.id ? d.id : wrong;
+          const double dist = scene.pose.translation.norm();
+          const std::string path = fmt::format("{}/{}-{:.2f}m-id{}-read{}-seed{}.pgm", dump_wrong, info.name, dist,
+                                               scene.id, wrong, scene.seed);
+          write_pgm(path, image);
+          std::fprintf(stderr, "bench_accuracy: wrong id, frame written to %s\n", path.c_str());
+        };
+      }
       const auto run = [&](double d, double yaw) {
         if (progress) std::fprintf(stderr, "\r%s: %.2f m, %.0f deg   ", std::string(info.name).c_str(), d, yaw);
         return markerd::detector::evaluate_point(*detector, camera, settings, {d, yaw});

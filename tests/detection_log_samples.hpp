@@ -48,6 +48,7 @@ inline std::vector<detector::Detection> detections(const rig::MarkerGroundTruth&
   frame8.corners = quad(301.5, 201.25, 80.0);
   frame8.inner_corners = quad(313.5, 213.25, 56.0);
   frame8.quarter_turns = 1;
+  frame8.orientation_ambiguous = true;
   frame8.bits_corrected = 2;
   frame8.margin = 0.8765432;
   detector::PoseEstimate pose;

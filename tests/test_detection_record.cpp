@@ -129,6 +129,7 @@ TEST(DetectionRecord, FullRecordRoundTripsEveryField) {
   expect_quad(d0.at("corners"), f8.corners);
   expect_quad(d0.at("inner_corners"), *f8.inner_corners);
   EXPECT_EQ(d0.at("quarter_turns"), 1);
+  EXPECT_EQ(d0.at("orientation_ambiguous"), true);
   EXPECT_EQ(d0.at("bits_corrected"), 2);
   EXPECT_NEAR(d0.at("margin").get<double>(), f8.margin, 0.5e-5 + 1e-12);
   const json& pose = d0.at("pose");

@@ -436,6 +436,67 @@ TEST(Frame8, MarkerOnASocketFrameFacing) {
   EXPECT_EQ(wrong, 0);
 }
 
+// One side of the marker hidden by a dark object in front of it (issue 18):
+// its ring, its line and half a cell of the hole, as the issue's figure
+// has it. The hole's component then ends at the object's edge; the other
+// three edges still vote every bit. Each side, ids of every kind, near and
+// far, turned either way: found, never another id. Where the white corner
+// is hidden the orientation is one of two and must say so; where it is seen
+// the orientation and the corners are the marker's.
+TEST(Frame8, MarkerWithOneSideCoveredByADarkObject) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  constexpr std::array<int, 6> kIds{3, 77, 128, 165, 200, 254};
+  int frames = 0, detected = 0, wrong = 0, ambiguity_wrong = 0, corners_off = 0;
+  std::uint64_t seed = 40;
+  for (const MarkerSide side : {MarkerSide::top, MarkerSide::right, MarkerSide::bottom, MarkerSide::left}) {
+    // C1, the white corner, is the top-right one.
+    const bool c1_hidden = side == MarkerSide::top || side == MarkerSide::right;
+    for (const double d : {0.5, 0.8, 1.1}) {
+      for (const double yaw : {-15.0, 0.0, 15.0}) {
+        const int id = kIds[static_cast<std::size_t>(seed % kIds.size())];
+        Scene s = scene(id, d, yaw, 0, ++seed);
+        s.occluders.push_back(side_occluder(side, s.marker_size_m));
+        const Quad truth = project_marker_corners(kCamera, s);
+        ++frames;
+        bool found = false;
+        for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
+          if (f.id != id) {
+            ++wrong;
+            ADD_FAILURE() << "id " << f.id << " for " << id << " at " << d << " m, yaw " << yaw;
+            continue;
+          }
+          found = true;
+          if (f.orientation_ambiguous != c1_hidden) ++ambiguity_wrong;
+          if (c1_hidden) continue;
+          // The seen side's corners are measured; the hidden side's follow
+          // from how far the hole reaches behind the cover, which the
+          // neighbouring edges' cells fix only where they change colour
+          // (measured here: up to 0.8 of a cell off; not asserted).
+          const auto s_index = static_cast<std::size_t>(side);
+          const std::size_t seen_a = (s_index + 2) % 4, seen_b = (s_index + 3) % 4;
+          const double seen_error =
+              std::max(distance(f.corners[seen_a], truth[seen_a]), distance(f.corners[seen_b], truth[seen_b]));
+          if (f.quarter_turns != 0 || seen_error > 1.0) {
+            ++corners_off;
+            ADD_FAILURE() << "side " << static_cast<int>(side) << " at " << d << " m, yaw " << yaw << ": turns "
+                          << f.quarter_turns << ", seen corners off by " << seen_error << " px";
+          }
+        }
+        detected += found;
+      }
+    }
+  }
+  // Measured: 34 of 36. Before the reads with a side hidden, the same
+  // covers in bench_accuracy (--cover each) were found in 15 to 20% of frames.
+  EXPECT_GE(detected, 32) << "of " << frames;
+  EXPECT_EQ(wrong, 0);
+  EXPECT_EQ(ambiguity_wrong, 0);
+  EXPECT_EQ(corners_off, 0);
+}
+
 // Clutter with dark frames, checkered patches and text: nothing.
 TEST(Frame8, NoDetectionOnClutter) {
   auto det = make_detector(DetectorConfig{});

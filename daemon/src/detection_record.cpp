@@ -134,6 +134,7 @@ void detection(JsonWriter& json, const detector::Detection& d, const std::option
     json.null();
   }
   json.key("quarter_turns").integer(d.quarter_turns);
+  json.key("orientation_ambiguous").boolean(d.orientation_ambiguous);
   json.key("bits_corrected").integer(d.bits_corrected);
   json.key("margin").number(d.margin, kRatioDecimals);
   json.key("pose");

@@ -97,6 +97,10 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
     times.push_back(std::chrono::duration<double, std::milli>(t1 - t0).count());
     ++result.frames;
 
+    if (settings.on_wrong_id &&
+        std::any_of(found.begin(), found.end(), [&](const Detection& d) { return d.id != scene.id; })) {
+      settings.on_wrong_id(image, scene, found);
+    }
     const Detection* best = nullptr;
     double best_error = 0;
     const Quad truth = project_marker_corners(camera, scene);

@@ -46,6 +46,7 @@ nlohmann::ordered_json detection_json(const std::string& file, const markerd::de
   j["corners"] = quad_json(d.corners);
   if (d.inner_corners) j["inner_corners"] = quad_json(*d.inner_corners);
   j["quarter_turns"] = d.quarter_turns;
+  j["orientation_ambiguous"] = d.orientation_ambiguous;
   j["bits_corrected"] = d.bits_corrected;
   j["margin"] = rounded(d.margin, 4);
   if (d.pose) {
@@ -151,6 +152,7 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->footer(
       "Detect markers in image files and print one JSON object per detection per line:\n"
       "  {\"file\", \"family\", \"id\", \"corners\": [[x,y] x4], \"inner_corners\" (frame8), \"quarter_turns\",\n"
+      "   \"orientation_ambiguous\" (frame8: the white corner hidden, quarter_turns one of two),\n"
       "   \"bits_corrected\", \"margin\", \"rvec\", \"tvec\", \"quaternion\" [w,x,y,z], \"reprojection_error_px\",\n"
       "   \"ambiguous\", \"time_ms\"}\n"
       "Corners are pixels (pixel centres at integers), TL TR BR BL of the outer printed square, to 1e-4 px.\n"

@@ -227,6 +227,33 @@ struct PatternEdge {
   double value;
 };
 
+// One side of the marker hidden by something in front of it: its ring, its
+// line and perhaps some of the hole, `depth` cells in from the outer edge of
+// the quad's `side` (0 top, 1 right, 2 bottom, 3 left; -1: nothing hidden).
+struct HiddenSide {
+  int side = -1;
+  double depth = 0;
+  // How far a grid point lies in from the hidden side's outer edge.
+  [[nodiscard]] double in_from_side(Point2 g) const {
+    switch (side) {
+      case 0: return g.y;
+      case 1: return frame8::grid - g.x;
+      case 2: return frame8::grid - g.y;
+      default: return g.x;
+    }
+  }
+  [[nodiscard]] bool covers(Point2 g) const { return side >= 0 && in_from_side(g) < depth; }
+  // Any part of the cell: a cell half under the cover reads as neither colour.
+  [[nodiscard]] bool covers(frame8::Cell c) const {
+    if (side < 0) return false;
+    const double nearest = side == 0   ? c.row
+                           : side == 1 ? frame8::grid - 1 - c.col
+                           : side == 2 ? frame8::grid - 1 - c.row
+                                       : c.col;
+    return nearest < depth;
+  }
+};
+
 struct CellSample {
   float mean = 0, lo = 0, hi = 0;  // over the points sampled in the cell
   bool valid = false;

@@ -22,6 +22,7 @@ const char* Frame8Detector::read_name(Read how) {
     case Read::ring_model: return "ring_model";
     case Read::aligned_ring_model: return "aligned_ring_model";
     case Read::second_pass: return "second_pass";
+    case Read::side_hidden: return "side_hidden";
   }
   return "?";
 }

@@ -9,8 +9,9 @@ namespace markerd::detector::frame8 {
 // or fitted by the ring model when `model` is given. `rotation` is set once
 // the orientation is (even when a structural check then rejects the read).
 Rejection Frame8Detector::decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
-                                 const frame8::RingModel::Levels* model) const {
+                                 const frame8::RingModel::Levels* model, const HiddenSide& hidden) const {
   RingRead r;
+  r.hidden = hidden;
   if (const Rejection why = read_cells(H, cell_size, model, r); why != Rejection::none) return why;
   if (const Rejection why = fit_grey_model(cell_size, r); why != Rejection::none) return why;
   weigh_edges(H, r);
@@ -23,6 +24,7 @@ Rejection Frame8Detector::decode(const Homography& H, CellSize cell_size, Detect
   det.id = r.id;
   det.bits_corrected = r.corrected;
   det.margin = r.margin;
+  det.orientation_ambiguous = r.orientation_ambiguous;
   return Rejection::none;
 }
 

@@ -184,19 +184,28 @@ Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, co
     const float v = model->cell[static_cast<std::size_t>(c.row * frame8::grid + c.col)];
     return CellSample{v, v, v, true};
   };
+  // Hidden cells are no samples: they say nothing of the code.
   for (int k = 0; k < 4; ++k) {
-    r.corner[static_cast<std::size_t>(k)] = level(frame8::corner_cell(k));
-    if (!r.corner[static_cast<std::size_t>(k)].valid) return Rejection::corner_off_image;
+    auto& c = r.corner[static_cast<std::size_t>(k)];
+    if (r.hidden.covers(frame8::corner_cell(k))) {
+      c = CellSample{};
+      continue;
+    }
+    c = level(frame8::corner_cell(k));
+    if (!c.valid) return Rejection::corner_off_image;
   }
   int valid_cells = 0;
   for (int e = 0; e < 4; ++e) {
     for (int b = 0; b < 8; ++b) {
       auto& c = r.cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
-      c = level(frame8::data_cell(e, b));
+      const frame8::Cell where = frame8::data_cell(e, b);
+      c = r.hidden.covers(where) ? CellSample{} : level(where);
       valid_cells += c.valid;
     }
   }
-  if (valid_cells < 24) return Rejection::cells_off_image;
+  // With a side hidden, its eight cells and up to three of each
+  // neighbouring edge's are left out: every bit still has two votes.
+  if (valid_cells < (r.hidden.side < 0 ? 24 : 18)) return Rejection::cells_off_image;
   // A square's opposite sides differ in the image by the ratio of their
   // depths, which for a marker of a few dozen pixels is a few percent at
   // any focal length: clutter's slivers and trapezoids differ by far more,

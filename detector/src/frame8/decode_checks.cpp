@@ -57,6 +57,7 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // white of its neighbours, so the bar there is lower: it follows the
   // line's width in pixels on that side, which foreshortening narrows.
   for (int side = 0; side < 4; ++side) {
+    if (side == r.hidden.side) continue;
     if (model) {
       // The model measured the line's own level, free of the blur.
       if (r.soft(model->line[static_cast<std::size_t>(side)]) > -kClearLine) return Rejection::model_line_light;
@@ -93,6 +94,7 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   if (cell_size.mean >= kResolvedCells && cell_size.narrow >= kCheckedLineCells) {
     static constexpr std::array<Point2, 4> kLineCorners{{{1.25, 1.25}, {8.75, 1.25}, {8.75, 8.75}, {1.25, 8.75}}};
     for (const Point2& g : kLineCorners) {
+      if (r.hidden.covers(g)) continue;
       float v = 0;
       const Point2 p = grid_point(H, g.x, g.y);
       if (!sample(full_, p.x, p.y, v) || r.soft(v) > -r.confident) return Rejection::line_corner_light;
@@ -102,6 +104,7 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
     for (int k = 0; k < 7; ++k) {
       const double along = kInnerLo + 0.5 + k;
       for (int side = 0; side < 4; ++side) {
+        if (r.hidden.covers(side_point(side, along, 1.25))) continue;
         float v = 0;
         const Point2 p = grid_point(H, side_point(side, along, 1.25));
         if (!sample(full_, p.x, p.y, v)) continue;

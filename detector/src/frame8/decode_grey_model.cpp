@@ -3,23 +3,41 @@
 
 #include "frame8/detector.hpp"
 
+#include <algorithm>
+
 namespace markerd::detector::frame8 {
 
 Rejection Frame8Detector::fit_grey_model(CellSize cell_size, RingRead& r) const {
   // Seeded by the corners: three black, one white.
+  // With a side hidden, two corners are left, perhaps both black: then
+  // the lightest cell stands in for the white seed.
   const auto& corner = r.corner;
-  int white_corner = 0;
-  for (int k = 1; k < 4; ++k) {
-    if (corner[static_cast<std::size_t>(k)].mean > corner[static_cast<std::size_t>(white_corner)].mean) {
+  int white_corner = -1;
+  for (int k = 0; k < 4; ++k) {
+    if (corner[static_cast<std::size_t>(k)].valid &&
+        (white_corner < 0 ||
+         corner[static_cast<std::size_t>(k)].mean > corner[static_cast<std::size_t>(white_corner)].mean)) {
       white_corner = k;
     }
   }
+  if (white_corner < 0) return Rejection::white_corner_count;
   double black = 0;
+  int black_seeds = 0;
   for (int k = 0; k < 4; ++k) {
-    if (k != white_corner) black += corner[static_cast<std::size_t>(k)].mean;
+    if (k == white_corner || !corner[static_cast<std::size_t>(k)].valid) continue;
+    black += corner[static_cast<std::size_t>(k)].mean;
+    ++black_seeds;
   }
-  black /= 3;
+  if (black_seeds == 0) return Rejection::white_corner_count;
+  black /= black_seeds;
   double white = corner[static_cast<std::size_t>(white_corner)].mean;
+  if (r.hidden.side >= 0) {
+    for (const auto& edge : r.cell) {
+      for (const auto& c : edge) {
+        if (c.valid) white = std::max(white, static_cast<double>(c.mean));
+      }
+    }
+  }
   for (int iter = 0; iter < 3; ++iter) {
     const double thr = 0.5 * (black + white);
     double sb = 0, sw = 0;

@@ -5,9 +5,44 @@
 
 #include "frame8/detector.hpp"
 
+#include <algorithm>
+#include <cmath>
+
 namespace markerd::detector::frame8 {
 
+// With a side hidden, its two corners are: the two left must be clearly
+// read, and at most one of them white. When neither is, C1 is one of the
+// two hidden corners, and the orientation is reported as ambiguous rather
+// than guessed; the code, the same along every edge, holds either way.
+static Rejection read_corners_beside_hidden_side(RingRead& r) {
+  const int first_hidden = r.hidden.side, second_hidden = (r.hidden.side + 1) % 4;
+  int white = -1, whites = 0;
+  double clarity = 1.0;
+  for (int k = 0; k < 4; ++k) {
+    if (k == first_hidden || k == second_hidden) continue;
+    const CellSample& c = r.corner[static_cast<std::size_t>(k)];
+    if (!r.clear(c)) return Rejection::white_corner_unclear;
+    clarity = std::min(clarity, std::abs(r.soft(c.mean)));
+    if (r.soft(c.mean) > 0) {
+      white = k;
+      ++whites;
+    }
+  }
+  if (whites > 1) return Rejection::white_corner_count;
+  r.orientation_ambiguous = whites == 0;
+  r.white_corner = whites == 1 ? white : second_hidden;
+  r.orientation_clarity = clarity;
+  r.corners_read = true;
+  r.by_short_edges = false;
+  return Rejection::none;
+}
+
 Rejection Frame8Detector::read_corners(RingRead& r) const {
+  if (r.hidden.side >= 0) {
+    // A marker turned far has no votes left with a side hidden as well.
+    if (r.short_side >= 0) return Rejection::white_corner_unclear;
+    return read_corners_beside_hidden_side(r);
+  }
   const auto& corner = r.corner;
   // Four dark corners are never a marker: that is every dark square frame
   // with a light inside.

@@ -34,6 +34,7 @@ void Frame8Detector::weigh_edges(const Homography& H, RingRead& r) {
       r.short_side = e;
     }
   }
+  if (r.hidden.side >= 0) weight[static_cast<std::size_t>(r.hidden.side)] = 0.0;
 }
 
 Rejection Frame8Detector::vote_bits(RingRead& r) {
@@ -56,6 +57,7 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
     for (int e = 0; e < 4; ++e) {
       const auto& c = r.cell[static_cast<std::size_t>(e)][static_cast<std::size_t>(b)];
       if (r.weight[static_cast<std::size_t>(e)] == 0.0) continue;  // an edge without a vote
+      if (!c.valid && r.hidden.side >= 0) continue;                // hidden, not erased
       if (!r.clear(c)) {
         ++r.erased;
         continue;  // an erasure, not a vote
@@ -69,6 +71,9 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
     }
     // At most one wrong edge per bit position is correctable; a second is detected.
     if (dissent > 1 || agree < 1 || agree <= dissent) return Rejection::bit_uncorrectable;
+    // With a side hidden the code has lost a quarter of its redundancy
+    // already: what is left must agree, twice at least, on every bit.
+    if (r.hidden.side >= 0 && (dissent > 0 || agree < 2)) return Rejection::bit_uncorrectable;
     r.corrected += dissent;
     r.margin = std::min(r.margin, std::abs(sum) / wsum);
     if (bit) r.id |= 1 << b;

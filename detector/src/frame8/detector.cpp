@@ -204,7 +204,31 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     // when it reads), then the ring model.
     if (!read && worth_it) read = read_by_profile_fit(step_only, cell_px, cell_size, det, rotation, H, inner);
     if (!read) read = by_model = read_by_model(H, cell_size, worth_it, det, rotation);
+    HiddenSide hidden;
+    if (!read && worth_it && read_with_side_hidden(inner, cell_size, det, rotation, hidden, H)) {
+      return finish_with_side_hidden(H, hidden, rotation, cell_px, det);
+    }
     if (!read) return sampled;
+  }
+  // A quad that ends at something dark in front of the marker may have
+  // read the code with its cells a cell or more off: the hole goes on
+  // behind it. Read again with that side hidden: another id rejects the
+  // candidate; with a camera, a hole found to reach further (more nearly a
+  // square in perspective) replaces the read. Without one, a side whose
+  // middle cells are all black looks just as covered (ids 1, 128, 129),
+  // and the quad as seen is kept.
+  if (config_.camera && cell_size.narrow >= kResolvedCells && any_side_looks_covered(H)) {
+    Detection again;
+    int again_rotation = 0;
+    HiddenSide hidden;
+    Homography again_H;
+    if (read_with_side_hidden(inner, cell_size, again, again_rotation, hidden, again_H)) {
+      if (again.id != det.id) return Rejection::hidden_side_disagrees;
+      if (hidden.depth > kInnerLo) {
+        det = again;
+        return finish_with_side_hidden(again_H, hidden, again_rotation, cell_px, det);
+      }
+    }
   }
   if (cell_px < kThinLineCells && !by_model) {
     // Measure again knowing which cells are white, then read again.

@@ -65,7 +65,7 @@ class Frame8Detector final : public MarkerDetector {
 
   // Stage 4: decoding (decode.cpp), through 4a to 4e.
   Rejection decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
-                   const frame8::RingModel::Levels* model) const;
+                   const frame8::RingModel::Levels* model, const HiddenSide& hidden = {}) const;
   bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
   // 4a: the cells (decode_cells.cpp).
   Rejection read_cells(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
@@ -92,7 +92,7 @@ class Frame8Detector final : public MarkerDetector {
   // Stage 5: the whole pattern (pattern_fit.cpp).
   bool locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset,
                    double& strength) const;
-  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px);
+  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px, const HiddenSide& hidden = {});
   bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
   Rejection finish_by_pattern(int rotation, Detection& det);
 
@@ -102,6 +102,19 @@ class Frame8Detector final : public MarkerDetector {
   // The detector that runs them (detector.cpp).
   void consider_component(std::int32_t root, std::vector<Detection>& out);
   Rejection refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
+  // Stage 3b, a side hidden (hidden_side.cpp): the last read of a quad.
+  [[nodiscard]] bool looks_covered(const Homography& H, int side) const;
+  [[nodiscard]] bool any_side_looks_covered(const Homography& H) const {
+    for (int side = 0; side < 4; ++side) {
+      if (looks_covered(H, side)) return true;
+    }
+    return false;
+  }
+  [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
+  bool read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
+                             HiddenSide& hidden, Homography& H);
+  Rejection finish_with_side_hidden(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
+                                    Detection& det);
   bool read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
                            int& rotation, Homography& H, std::array<Point2, 4>& inner);
   [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
@@ -110,7 +123,15 @@ class Frame8Detector final : public MarkerDetector {
 
   // The debug output (debug.cpp), only with Frame8Options::debug_dir: per
   // candidate its quad, what became of it and each read tried.
-  enum class Read : std::uint8_t { sampled, step_only, profile_fit, ring_model, aligned_ring_model, second_pass };
+  enum class Read : std::uint8_t {
+    sampled,
+    step_only,
+    profile_fit,
+    ring_model,
+    aligned_ring_model,
+    second_pass,
+    side_hidden
+  };
   static const char* read_name(Read how);
   struct DebugCandidate {
     std::array<Point2, 4> quad{};  // full-resolution pixels

@@ -65,8 +65,9 @@ bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, 
 // the hole's edge (a step where the ring cell beyond is black, the line's
 // centre where it is white) and every boundary between ring cells of
 // different colours. The outer edge is left out: what lies beyond it is
-// unknown.
-int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px) {
+// unknown; so is everything near a hidden side.
+int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px,
+                                          const HiddenSide& hidden) {
   const auto cells = frame8::ring_cells(id);
   // White at a grid point of the quad: turned back into the marker's own
   // grid, where the marker's corner j sits at the quad's corner j + rotation.
@@ -82,6 +83,8 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotat
   pattern_count_ = 0;
   auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis) {
     if (pattern_count_ >= kMaxPatternEdges) return;
+    // Clear of a hidden side by a third of a cell: its edge is the cover's.
+    if (hidden.side >= 0 && hidden.in_from_side(g) < hidden.depth + 0.35) return;
     double off = 0, strength = 0;
     if (!locate_edge(H, g, normal, half, dip, off, strength)) return;
     const Point2 p = grid_point(H, g.x + off * normal.x, g.y + off * normal.y);

@@ -11,6 +11,9 @@
 namespace markerd::detector::frame8 {
 
 struct RingRead {
+  // What a read of a quad with one side hidden (hidden_side.cpp) leaves out.
+  HiddenSide hidden;
+
   // 4a: the corner cells C0..C3 and, per edge, the data cells by bit.
   std::array<CellSample, 4> corner{};
   std::array<std::array<CellSample, 8>, 4> cell{};
@@ -29,6 +32,9 @@ struct RingRead {
   double orientation_clarity = 0;
   bool corners_read = false;
   bool by_short_edges = false;
+  // The white corner was hidden: C1 is one of the hidden side's two corners,
+  // and white_corner names one of them.
+  bool orientation_ambiguous = false;
 
   // 4d: the code, its cell reads overruled and erased, per edge the cells
   // the other edges outvoted, and the weakest bit's margin.

@@ -18,6 +18,10 @@ struct Detection {
   // Quarter turns of the marker in the image: 0 when its top edge faces the
   // image top, 1 when it faces the image right (turned 90 deg clockwise), ...
   int quarter_turns = 0;
+  // frame8 only: the white corner was hidden (a side of the marker covered),
+  // so the marker's orientation is one of two a quarter turn apart. The id
+  // holds either way; corners, quarter_turns and pose follow one of the two.
+  bool orientation_ambiguous = false;
   // Cell reads the code overruled (frame8: edges outvoted per bit position).
   int bits_corrected = 0;
   // How clearly the code was read, 0 (a coin toss) to 1 (every cell at full

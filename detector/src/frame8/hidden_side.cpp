@@ -1,0 +1,182 @@
+// Stage 3b, a side hidden: the last read of a quad whose other reads failed.
+// Something in front of the marker (a finger, a cable, the edge of a cover)
+// hides one side's ring, perhaps its line, and perhaps reaches into the
+// hole: then the hole's component ends at the cover's edge, up to a few
+// cells short of the line, and the quad's map puts every cell off by as
+// much. Each side is tried hidden to a series of depths, the hole extended
+// beyond the quad where the side looks covered, the hidden cells left out
+// of the read (RingRead::hidden). The three edges left vote every bit;
+// every depth that reads must read the same code, and the best read is kept.
+
+#include "frame8/detector.hpp"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <limits>
+
+#include "markerd/detector/pose.hpp"
+
+namespace markerd::detector::frame8 {
+
+// How far the hidden part reaches in from the marker's outer edge, in
+// cells: the ring alone, the ring and the line, then on into the hole a
+// quarter cell at a time, to 0.35 of the marker's size (a cover 0.2 deep
+// seen turned, above the marker, reaches further). Deeper, too few cells of
+// the neighbouring edges are left to vote.
+constexpr std::array<double, 10> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5};
+
+// Beyond a seen side the line gives way to the ring, whose light cells
+// are as light as the hole; beyond a covered side, out to where the ring
+// would be, all is the cover's one grey, darker than the hole.
+bool Frame8Detector::looks_covered(const Homography& H, int side) const {
+  // Far enough from the hole's corners to stay clear of the neighbouring sides.
+  constexpr std::array<double, 6> kAlong{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
+  constexpr std::array<double, 3> kBeyond{1.2, 0.8, 0.4};
+  // The cover's grey may vary by this share of its contrast with the hole.
+  constexpr float kUniform = 0.3F;
+  constexpr float kMinContrast = 30;
+  std::array<float, kAlong.size()> hole{};
+  float lo = 255, hi = 0;
+  for (std::size_t k = 0; k < kAlong.size(); ++k) {
+    const Point2 p = grid_point(H, side_point(side, kAlong[k], kInnerLo + 0.5));
+    if (!sample(full_, p.x, p.y, hole[k])) return false;
+    for (const double in : kBeyond) {
+      const Point2 q = grid_point(H, side_point(side, kAlong[k], in));
+      float v = 0;
+      if (!sample(full_, q.x, q.y, v)) return false;
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+    }
+  }
+  // The median: the hole may hold an insert's darker parts.
+  std::nth_element(hole.begin(), hole.begin() + hole.size() / 2, hole.end());
+  const float hole_level = hole[hole.size() / 2];
+  return hole_level - lo >= kMinContrast && hi - lo <= kUniform * (hole_level - lo);
+}
+
+// How far a hole's corners (pixels) are from any square's seen through the
+// camera: the pose's reprojection error. 0 without a camera model.
+double Frame8Detector::square_misfit(const std::array<Point2, 4>& hole) const {
+  if (!config_.camera) return 0;
+  std::array<Eigen::Vector2d, 4> normalized{};
+  for (std::size_t j = 0; j < 4; ++j) {
+    const Point2 p = config_.camera->pixel_to_normalized(hole[j]);
+    normalized[j] = {p.x, p.y};
+  }
+  const auto pose = estimate_square_pose_normalized(*config_.camera, normalized, 1.0);
+  return pose ? pose->best.reprojection_error_px : std::numeric_limits<double>::infinity();
+}
+
+bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det,
+                                           int& rotation, HiddenSide& hidden, Homography& H) {
+  // Cells under three pixels are read by their blur with the neighbours,
+  // which a cover's edge would mix into the read.
+  if (cell_size.narrow < kResolvedCells) return false;
+  Homography seen;
+  if (!Homography::from_unit_square(inner, seen)) return false;
+  // The hole when `side` is hidden `depth` cells deep: the quad's unit
+  // square is the part seen, kInnerSide - h cells deep, and the whole hole
+  // reaches this far in its units.
+  auto hole_for = [&](int side, double depth, std::array<Point2, 4>& hole) {
+    const double reach = kInnerSide / (kInnerSide - std::max(depth - kInnerLo, 0.0));
+    double u0 = 0, u1 = 1, v0 = 0, v1 = 1;
+    switch (side) {
+      case 0: v0 = 1 - reach; break;
+      case 1: u1 = reach; break;
+      case 2: v1 = reach; break;
+      default: u0 = 1 - reach; break;
+    }
+    hole = {seen.map(u0, v0), seen.map(u1, v0), seen.map(u1, v1), seen.map(u0, v1)};
+    return Homography::from_unit_square(hole, H);
+  };
+  auto read_at = [&](int side, std::size_t k, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
+    hidden = HiddenSide{side, kHiddenDepth[k]};
+    if (!hole_for(side, hidden.depth, hole)) return false;
+    const Rejection why = decode(H, cell_size, read, read_rotation, nullptr, hidden);
+    note_attempt(Read::side_hidden, why);
+    // Ids 0 and 255 are one colour all round: with a side hidden, any
+    // dark frame around a light patch reads as one of them.
+    return why == Rejection::none && read.id != 0 && read.id != 255;
+  };
+  // Where the neighbouring edges' cells change colour, only the right
+  // depth reads; where they do not (id 254: all white), a run of depths
+  // does. With a camera the hole most nearly a square seen in perspective
+  // is taken; without one, the middle of the longest run.
+  std::array<unsigned, 4> reads{};  // per side, a bit per depth that read
+  int id = -1, best_side = -1;
+  std::size_t best_k = 0;
+  double best_misfit = std::numeric_limits<double>::infinity();
+  for (int side = 0; side < 4; ++side) {
+    int covered = -1;  // looks_covered(), once it is needed
+    for (std::size_t k = 0; k < kHiddenDepth.size(); ++k) {
+      // A hole that reaches beyond what the quad saw needs a cover in front of it.
+      if (kHiddenDepth[k] > kInnerLo) {
+        if (covered < 0) covered = looks_covered(seen, side) ? 1 : 0;
+        if (covered == 0) break;
+      }
+      Detection read;
+      int read_rotation = 0;
+      std::array<Point2, 4> hole{};
+      if (!read_at(side, k, read, read_rotation, hole)) continue;
+      // Two codes that fit the same quad, each with its own cover: neither is trusted.
+      if (id >= 0 && read.id != id) return false;
+      id = read.id;
+      reads[static_cast<std::size_t>(side)] |= 1U << k;
+      const double misfit = square_misfit(hole);
+      if (misfit < best_misfit) {
+        best_misfit = misfit;
+        best_side = side;
+        best_k = k;
+      }
+    }
+  }
+  if (id < 0) return false;
+  if (!config_.camera) {
+    best_side = static_cast<int>(std::max_element(reads.begin(), reads.end(),
+                                                  [](unsigned a, unsigned b) { return std::popcount(a) < std::popcount(b); }) -
+                                 reads.begin());
+    const unsigned bits = reads[static_cast<std::size_t>(best_side)];
+    const int middle = (std::popcount(bits) - 1) / 2;
+    unsigned rest = bits;
+    for (int skip = 0; skip < middle; ++skip) rest &= rest - 1;
+    best_k = static_cast<std::size_t>(std::countr_zero(rest));
+  }
+  std::array<Point2, 4> hole{};
+  return read_at(best_side, best_k, det, rotation, hole);
+}
+
+// The corners from the pattern's edges clear of the hidden side (they fix
+// how far the hole reaches better than the quarter cells tried); failing
+// that, from the extended quad, undistorted with a camera.
+Rejection Frame8Detector::finish_with_side_hidden(const Homography& H, const HiddenSide& hidden, int rotation,
+                                                  double cell_px, Detection& det) {
+  // The pattern's fit may move the hole's corners by the part of a cell the
+  // quarter cells missed, no more: beyond that it has fitted something else.
+  constexpr double kMaxCornerMove = 0.5;
+  if (collect_pattern_edges(H, det.id, rotation, cell_px, hidden) >= kMinPatternEdges) {
+    Detection by_pattern = det;
+    if (finish_by_pattern(rotation, by_pattern) == Rejection::none && by_pattern.inner_corners) {
+      const std::array<Point2, 4> hole{H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+      const double limit = kMaxCornerMove * cell_px;
+      bool near = true;
+      for (int j = 0; j < 4; ++j) {
+        // Corner j of the marker is the quad's corner j + rotation.
+        const Point2 expected = hole[static_cast<std::size_t>((j + rotation) % 4)];
+        near = near && distance((*by_pattern.inner_corners)[static_cast<std::size_t>(j)], expected) <= limit;
+      }
+      if (near) {
+        det = by_pattern;
+        return Rejection::none;
+      }
+    }
+  }
+  if (!config_.camera) return report(grid_map(H), rotation, det);
+  std::array<Point2, 4> hole{H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+  for (Point2& p : hole) p = config_.camera->pixel_to_normalized(p);
+  Homography normalized;
+  if (!Homography::from_unit_square(hole, normalized)) return Rejection::degenerate_quad;
+  return report(grid_map(normalized), rotation, det);
+}
+
+}  // namespace markerd::detector::frame8
