@@ -103,10 +103,10 @@ class Frame8Detector final : public MarkerDetector {
   void consider_component(std::int32_t root, std::vector<Detection>& out);
   Rejection refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
   // Stage 3b, a side hidden (hidden_side.cpp): the last read of a quad.
-  [[nodiscard]] bool looks_covered(const Homography& H, int side) const;
+  [[nodiscard]] bool looks_covered(const Homography& H, int side, bool into_hole) const;
   [[nodiscard]] bool any_side_looks_covered(const Homography& H) const {
     for (int side = 0; side < 4; ++side) {
-      if (looks_covered(H, side)) return true;
+      if (looks_covered(H, side, true)) return true;
     }
     return false;
   }

@@ -14,6 +14,7 @@
 #include <array>
 #include <bit>
 #include <limits>
+#include <span>
 
 #include "markerd/detector/pose.hpp"
 
@@ -28,21 +29,30 @@ constexpr std::array<double, 10> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.
 
 // Beyond a seen side the line gives way to the ring, whose light cells
 // are as light as the hole; beyond a covered side, out to where the ring
-// would be, all is the cover's one grey, darker than the hole.
-bool Frame8Detector::looks_covered(const Homography& H, int side) const {
-  // Far enough from the hole's corners to stay clear of the neighbouring sides.
-  constexpr std::array<double, 6> kAlong{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
-  constexpr std::array<double, 3> kBeyond{1.2, 0.8, 0.4};
+// would be, all is the cover's one grey, darker than the hole. `into_hole`:
+// the quad's side may be the cover's edge (the samples from the line out,
+// clear of the neighbouring sides); otherwise the ring's outer half from
+// corner to corner, where a cover that leaves the hole whole still lies
+// (every id but 0 has a light cell there on every side).
+bool Frame8Detector::looks_covered(const Homography& H, int side, bool into_hole) const {
+  constexpr std::array<double, 6> kMiddle{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
+  constexpr std::array<double, 10> kWhole{0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5, 9.5};
+  constexpr std::array<double, 3> kBeyondQuad{1.2, 0.8, 0.4};
+  constexpr std::array<double, 1> kOuterRing{0.25};
+  const auto along = into_hole ? std::span<const double>(kMiddle) : std::span<const double>(kWhole);
+  const auto beyond = into_hole ? std::span<const double>(kBeyondQuad) : std::span<const double>(kOuterRing);
   // The cover's grey may vary by this share of its contrast with the hole.
   constexpr float kUniform = 0.3F;
   constexpr float kMinContrast = 30;
-  std::array<float, kAlong.size()> hole{};
-  float lo = 255, hi = 0;
-  for (std::size_t k = 0; k < kAlong.size(); ++k) {
-    const Point2 p = grid_point(H, side_point(side, kAlong[k], kInnerLo + 0.5));
+  std::array<float, kMiddle.size()> hole{};
+  for (std::size_t k = 0; k < kMiddle.size(); ++k) {
+    const Point2 p = grid_point(H, side_point(side, kMiddle[k], kInnerLo + 0.5));
     if (!sample(full_, p.x, p.y, hole[k])) return false;
-    for (const double in : kBeyond) {
-      const Point2 q = grid_point(H, side_point(side, kAlong[k], in));
+  }
+  float lo = 255, hi = 0;
+  for (const double a : along) {
+    for (const double in : beyond) {
+      const Point2 q = grid_point(H, side_point(side, a, in));
       float v = 0;
       if (!sample(full_, q.x, q.y, v)) return false;
       lo = std::min(lo, v);
@@ -99,51 +109,50 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, C
     // dark frame around a light patch reads as one of them.
     return why == Rejection::none && read.id != 0 && read.id != 255;
   };
+  // One side hidden, the other three showing their rings: a light patch
+  // on a dark ground looks covered all round, and is no marker to read so.
+  int side = -1;
+  for (int s = 0; s < 4; ++s) {
+    if (!looks_covered(seen, s, false)) continue;
+    if (side >= 0) return false;
+    side = s;
+  }
+  if (side < 0) return false;
   // Where the neighbouring edges' cells change colour, only the right
   // depth reads; where they do not (id 254: all white), a run of depths
   // does. With a camera the hole most nearly a square seen in perspective
-  // is taken; without one, the middle of the longest run.
-  std::array<unsigned, 4> reads{};  // per side, a bit per depth that read
-  int id = -1, best_side = -1;
+  // is taken; without one, the middle of the run.
+  unsigned reads = 0;  // a bit per depth that read
+  int id = -1;
   std::size_t best_k = 0;
   double best_misfit = std::numeric_limits<double>::infinity();
-  for (int side = 0; side < 4; ++side) {
-    int covered = -1;  // looks_covered(), once it is needed
-    for (std::size_t k = 0; k < kHiddenDepth.size(); ++k) {
-      // A hole that reaches beyond what the quad saw needs a cover in front of it.
-      if (kHiddenDepth[k] > kInnerLo) {
-        if (covered < 0) covered = looks_covered(seen, side) ? 1 : 0;
-        if (covered == 0) break;
-      }
-      Detection read;
-      int read_rotation = 0;
-      std::array<Point2, 4> hole{};
-      if (!read_at(side, k, read, read_rotation, hole)) continue;
-      // Two codes that fit the same quad, each with its own cover: neither is trusted.
-      if (id >= 0 && read.id != id) return false;
-      id = read.id;
-      reads[static_cast<std::size_t>(side)] |= 1U << k;
-      const double misfit = square_misfit(hole);
-      if (misfit < best_misfit) {
-        best_misfit = misfit;
-        best_side = side;
-        best_k = k;
-      }
+  for (std::size_t k = 0; k < kHiddenDepth.size(); ++k) {
+    // A hole that reaches beyond what the quad saw needs the cover over the line too.
+    if (kHiddenDepth[k] > kInnerLo && k > 0 && kHiddenDepth[k - 1] <= kInnerLo && !looks_covered(seen, side, true)) {
+      break;
+    }
+    Detection read;
+    int read_rotation = 0;
+    std::array<Point2, 4> hole{};
+    if (!read_at(side, k, read, read_rotation, hole)) continue;
+    // Two codes that fit the same quad, each with its own cover: neither is trusted.
+    if (id >= 0 && read.id != id) return false;
+    id = read.id;
+    reads |= 1U << k;
+    const double misfit = square_misfit(hole);
+    if (misfit < best_misfit) {
+      best_misfit = misfit;
+      best_k = k;
     }
   }
   if (id < 0) return false;
   if (!config_.camera) {
-    best_side = static_cast<int>(std::max_element(reads.begin(), reads.end(),
-                                                  [](unsigned a, unsigned b) { return std::popcount(a) < std::popcount(b); }) -
-                                 reads.begin());
-    const unsigned bits = reads[static_cast<std::size_t>(best_side)];
-    const int middle = (std::popcount(bits) - 1) / 2;
-    unsigned rest = bits;
-    for (int skip = 0; skip < middle; ++skip) rest &= rest - 1;
+    unsigned rest = reads;
+    for (int skip = (std::popcount(reads) - 1) / 2; skip > 0; --skip) rest &= rest - 1;
     best_k = static_cast<std::size_t>(std::countr_zero(rest));
   }
   std::array<Point2, 4> hole{};
-  return read_at(best_side, best_k, det, rotation, hole);
+  return read_at(side, best_k, det, rotation, hole);
 }
 
 // The corners from the pattern's edges clear of the hidden side (they fix
