@@ -212,19 +212,23 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
   }
   // A quad that ends at something dark in front of the marker may have
   // read the code with its cells a cell or more off: the hole goes on
-  // behind it. Read again with that side hidden: another id rejects the
-  // candidate; with a camera, a hole found to reach further (more nearly a
-  // square in perspective) replaces the read. Without one, a side whose
-  // middle cells are all black looks just as covered (ids 1, 128, 129),
-  // and the quad as seen is kept.
-  if (config_.camera && cell_size.narrow >= kResolvedCells && any_side_looks_covered(H)) {
+  // behind it. Where cells are resolved it is read again with that side
+  // hidden: another id rejects the candidate; with a camera, a hole found
+  // to reach further (more nearly a square in perspective) replaces the
+  // read (without one, an edge painted over reads at several depths as
+  // well as the quad seen, which is kept). Where they are not, a read that
+  // outvoted cells beside such a side is not to be trusted: a marker far
+  // off with half its hole behind a dark object read one bit wrong so.
+  if (const bool covered = any_side_looks_covered(H); covered && cell_size.narrow < kResolvedCells) {
+    if (det.bits_corrected > 0) return Rejection::covered_side_small_cells;
+  } else if (covered) {
     Detection again;
     int again_rotation = 0;
     HiddenSide hidden;
     Homography again_H;
     if (read_with_side_hidden(inner, cell_size, again, again_rotation, hidden, again_H)) {
       if (again.id != det.id) return Rejection::hidden_side_disagrees;
-      if (hidden.depth > kInnerLo) {
+      if (config_.camera && hidden.depth > kInnerLo) {
         det = again;
         return finish_with_side_hidden(again_H, hidden, again_rotation, cell_px, det);
       }
