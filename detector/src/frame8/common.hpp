@@ -188,6 +188,22 @@ struct CellSize {
   double mean;
 };
 
+// The cell size of a hole's quad. Whether cells are resolved is decided by
+// their narrow side: a marker turned far shows cells of a pixel across
+// beside cells of four. Its two short sides are opposite each other; one
+// short side alone is no such marker, and says nothing of the cells. The
+// width across a pair of sides is the area over their mean length: a short
+// side that slopes (a marker turned far and seen off the axis) is longer
+// than the marker is wide, by up to a half at 80 degrees.
+inline CellSize cell_size_of(const std::array<Point2, 4>& hole) {
+  std::array<double, 4> side_len{};
+  for (std::size_t i = 0; i < 4; ++i) side_len[i] = distance(hole[i], hole[(i + 1) % 4]);
+  const double area = std::abs(twice_signed_area(hole.data(), hole.size())) / 2;
+  const double across = 2 * area / std::max(side_len[0] + side_len[2], side_len[1] + side_len[3]);
+  const double perimeter = side_len[0] + side_len[1] + side_len[2] + side_len[3];
+  return {across / kInnerSide, perimeter / 4 / kInnerSide};
+}
+
 // The cell sizes (pixels per cell) at which stages change how they work.
 // Cells below kMinCells (the mean over the marker) are not read: beyond
 // 3.3 m for the thesis's marker and camera. Clutter offers many such small

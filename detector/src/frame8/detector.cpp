@@ -164,21 +164,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     longest = std::max(longest, len);
   }
   if (shortest < kMinSideRatio * longest) return Rejection::sliver;
-  // Whether cells are resolved is decided by their narrow side: a marker
-  // turned far shows cells of a pixel across beside cells of four. Its two
-  // short sides are opposite each other; one short side alone is no such
-  // marker, and says nothing of the cells. The width across a pair of
-  // sides is the area over their mean length: a short side that slopes
-  // (a marker turned far and seen off the axis) is longer than the marker
-  // is wide, by up to a half at 80 degrees.
-  std::array<double, 4> side_len{};
-  for (int i = 0; i < 4; ++i) {
-    side_len[static_cast<std::size_t>(i)] =
-        distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
-  }
-  const double area = std::abs(twice_signed_area(inner.data(), inner.size())) / 2;
-  const double across = 2 * area / std::max(side_len[0] + side_len[2], side_len[1] + side_len[3]);
-  const CellSize cell_size{across / kInnerSide, cell_px};
+  const CellSize cell_size = cell_size_of(inner);
   Homography H;
   if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
   int rotation = 0;

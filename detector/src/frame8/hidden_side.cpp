@@ -81,8 +81,9 @@ double Frame8Detector::square_misfit(const std::array<Point2, 4>& hole) const {
 bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det,
                                            int& rotation, HiddenSide& hidden, Homography& H) {
   // Cells under three pixels are read by their blur with the neighbours,
-  // which a cover's edge would mix into the read.
-  if (cell_size.narrow < kResolvedCells) return false;
+  // which a cover's edge would mix into the read: each hole tried must have
+  // larger ones (the quad seen, cut short, may have narrower).
+  if (cell_size.mean < kResolvedCells) return false;
   Homography seen;
   if (!Homography::from_unit_square(inner, seen)) return false;
   // The hole when `side` is hidden `depth` cells deep: the quad's unit
@@ -103,7 +104,9 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, C
   auto read_at = [&](int side, std::size_t k, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
     hidden = HiddenSide{side, kHiddenDepth[k]};
     if (!hole_for(side, hidden.depth, hole)) return false;
-    const Rejection why = decode(H, cell_size, read, read_rotation, nullptr, hidden);
+    const CellSize size = cell_size_of(hole);
+    if (size.narrow < kResolvedCells) return false;
+    const Rejection why = decode(H, size, read, read_rotation, nullptr, hidden);
     note_attempt(Read::side_hidden, why);
     // Ids 0 and 255 are one colour all round: with a side hidden, any
     // dark frame around a light patch reads as one of them.
