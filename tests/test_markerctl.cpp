@@ -393,6 +393,27 @@ TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
   }
 }
 
+// A dark object over the top side hides the white corner C1: the id is
+// found and its orientation reported as one of two; over the bottom side C1
+// is seen and the orientation is not in doubt.
+TEST_F(Markerctl, DetectSaysWhenTheWhiteCornerIsHidden) {
+  for (const char* side : {"top", "bottom"}) {
+    SCOPED_TRACE(side);
+    const std::string name = std::string("cover-") + side + ".png";
+    render(name, {"--dist", "0.6", "--noise", "2", "--blur", "0.6", "--cover", side});
+    const Outcome r =
+        run({"detect", "--blur-sigma", "0.6", "--camera", thesis_camera_file, "--size", "0.08", path(name)});
+    ASSERT_EQ(r.code, 0) << r.describe();
+    const auto lines = json_lines(r);
+    ASSERT_EQ(lines.size(), 1U) << r.describe();
+    EXPECT_EQ(lines[0]["id"], 165);
+    EXPECT_EQ(lines[0]["orientation_ambiguous"], std::string(side) == "top") << r.describe();
+  }
+  const Outcome bad = run({"detect", "--blur-sigma", "6", path("cover-top.png")});
+  EXPECT_EQ(bad.code, 2) << bad.describe();
+  EXPECT_NE(bad.err.find("--blur-sigma"), std::string::npos) << bad.describe();
+}
+
 TEST_F(Markerctl, PoseNeedsBothCameraAndSize) {
   render("f.png", {"--dist", "0.5"});
   const Outcome camera_only = run({"detect", "--camera", thesis_camera_file, path("f.png")});

@@ -26,6 +26,7 @@ struct DetectOptions {
   int threshold_offset = markerd::detector::Frame8Options{}.threshold_offset;
   double min_margin = markerd::detector::Frame8Options{}.min_margin;
   bool uniform_ids = false;
+  double blur_sigma_px = markerd::detector::Frame8Options{}.blur_sigma_px;
   std::string debug_dir;
   bool verbose = false;
   std::vector<std::string> images;
@@ -76,6 +77,7 @@ int run_detect(const DetectOptions& o) {
   config.frame8.threshold_offset = o.threshold_offset;
   config.frame8.min_margin = o.min_margin;
   config.frame8.uniform_ids = o.uniform_ids;
+  config.frame8.blur_sigma_px = o.blur_sigma_px;
   if (!o.debug_dir.empty() && family != markerd::detector::Family::frame8) {
     throw usage_error("--debug", "only the frame8 detector has a debug output");
   }
@@ -180,6 +182,11 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->add_option("--min-margin", o->min_margin, "frame8: least decoding margin (0..1)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
+  app->add_option(
+         "--blur-sigma", o->blur_sigma_px,
+         "frame8: the camera's blur, pixels (sigma), for reading small cells ([detector.frame8] blur_sigma_px)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, markerd::detector::Frame8Options::kMaxBlurSigmaPx));
   app->add_flag("--uniform-ids", o->uniform_ids,
                 "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
   app->add_option("--debug", o->debug_dir,
