@@ -44,6 +44,7 @@ Stage stage_of(Rejection r) {
     case Rejection::line_not_ink: return Stage::structure;
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
+    case Rejection::unconfirmed_remeasure: return Stage::structure;
     case Rejection::pattern_fit_failed: return Stage::pattern_fit;
     case Rejection::no_pose: return Stage::corners_and_pose;
   }
@@ -108,6 +109,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_not_ink: return "line_not_ink";
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
+    case Rejection::unconfirmed_remeasure: return "unconfirmed_remeasure";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
     case Rejection::no_pose: return "no_pose";
   }
