@@ -423,7 +423,7 @@ TEST(RenderSurface, RejectsBadInputNamingTheField) {
   expect_rejected(with_frame([](CoverFrame& f) { f.outer_roll_m = -0.001; }), "frame.outer_roll_m");
   expect_rejected(with_frame([](CoverFrame& f) { f.inner_roll_m = 0.011; }), "frame.inner_roll_m");
   expect_rejected(with_frame([](CoverFrame& f) { f.outer_roll_m = 0.009, f.inner_roll_m = 0.009; }),
-                  "frame.outer_roll_m + frame.inner_roll_m");
+                  "frame.inner_roll_m with outer_roll_m");
   expect_rejected(with_frame([](CoverFrame& f) { f.corner_radius_m = 0.05; }), "frame.corner_radius_m");
   expect_rejected(with_frame([](CoverFrame& f) { f.reflectance = 1.5F; }), "frame.reflectance");
   Scene s = good;

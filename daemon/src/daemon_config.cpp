@@ -66,25 +66,7 @@ detector::CoverFrame parse_frame(const ConfigTable& t, detector::CoverFrame f) {
   f.inner_roll_m = t.optional<double>("inner_roll_m", f.inner_roll_m, {0, 0.05, "m"});
   f.corner_radius_m = t.optional<double>("corner_radius_m", f.corner_radius_m, {0, 0.25, "m"});
   f.reflectance = static_cast<float>(t.optional<double>("reflectance", f.reflectance, {0, 1}));
-  if (!(f.opening_m < f.outer_m)) {
-    t.fail("opening_m", fmt::format("must be less than outer_m ({:g} m), got {:g} m", f.outer_m, f.opening_m));
-  }
-  if (f.corner_radius_m > f.outer_m / 2) {
-    t.fail("corner_radius_m",
-           fmt::format("must not exceed half of outer_m ({:g} m), got {:g} m", f.outer_m / 2, f.corner_radius_m));
-  }
-  if (f.outer_roll_m > f.height_m) {
-    t.fail("outer_roll_m", fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.outer_roll_m));
-  }
-  if (f.inner_roll_m > f.height_m) {
-    t.fail("inner_roll_m", fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.inner_roll_m));
-  }
-  const double band = (f.outer_m - f.opening_m) / 2;
-  if (f.outer_roll_m + f.inner_roll_m > band) {
-    t.fail("inner_roll_m", fmt::format("with outer_roll_m ({:g} m) must not exceed the band's width, (outer_m - "
-                                       "opening_m) / 2 = {:g} m, got {:g} m",
-                                       f.outer_roll_m, band, f.inner_roll_m));
-  }
+  if (const auto problem = detector::cover_frame_problem(f)) t.fail(problem->field, problem->why);
   return f;
 }
 

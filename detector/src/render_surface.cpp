@@ -22,6 +22,32 @@ CoverFrame switch_frame() {
   return f;
 }
 
+std::optional<FrameProblem> cover_frame_problem(const CoverFrame& f) {
+  if (!(f.opening_m < f.outer_m)) {
+    return FrameProblem{"opening_m",
+                        fmt::format("must be less than outer_m ({:g} m), got {:g} m", f.outer_m, f.opening_m)};
+  }
+  if (f.corner_radius_m > f.outer_m / 2) {
+    return FrameProblem{"corner_radius_m", fmt::format("must not exceed half of outer_m ({:g} m), got {:g} m",
+                                                       f.outer_m / 2, f.corner_radius_m)};
+  }
+  if (f.outer_roll_m > f.height_m) {
+    return FrameProblem{"outer_roll_m",
+                        fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.outer_roll_m)};
+  }
+  if (f.inner_roll_m > f.height_m) {
+    return FrameProblem{"inner_roll_m",
+                        fmt::format("must not exceed height_m ({:g} m), got {:g} m", f.height_m, f.inner_roll_m)};
+  }
+  const double band = (f.outer_m - f.opening_m) / 2;
+  if (f.outer_roll_m + f.inner_roll_m > band) {
+    return FrameProblem{"inner_roll_m", fmt::format("with outer_roll_m ({:g} m) must not exceed the band's width, "
+                                                    "(outer_m - opening_m) / 2 = {:g} m, got {:g} m",
+                                                    f.outer_roll_m, band, f.inner_roll_m)};
+  }
+  return std::nullopt;
+}
+
 Occluder side_occluder(MarkerSide side, double marker_size_m, double depth_fraction, float reflectance, double z_m) {
   if (!(marker_size_m > 0) || !std::isfinite(marker_size_m)) {
     throw std::invalid_argument(
@@ -116,25 +142,7 @@ void check_surface_inputs(const Scene& scene) {
     check_non_negative("frame.inner_roll_m", f.inner_roll_m);
     check_non_negative("frame.corner_radius_m", f.corner_radius_m);
     check_unit("frame.reflectance", f.reflectance);
-    if (!(f.opening_m < f.outer_m)) {
-      bad("frame.opening_m", fmt::format("({}) must be less than frame.outer_m ({})", f.opening_m, f.outer_m));
-    }
-    if (f.corner_radius_m > f.outer_m / 2) {
-      bad("frame.corner_radius_m",
-          fmt::format("({}) must not exceed half of frame.outer_m ({})", f.corner_radius_m, f.outer_m / 2));
-    }
-    if (f.outer_roll_m > f.height_m) {
-      bad("frame.outer_roll_m", fmt::format("({}) must not exceed frame.height_m ({})", f.outer_roll_m, f.height_m));
-    }
-    if (f.inner_roll_m > f.height_m) {
-      bad("frame.inner_roll_m", fmt::format("({}) must not exceed frame.height_m ({})", f.inner_roll_m, f.height_m));
-    }
-    const double band = (f.outer_m - f.opening_m) / 2;
-    if (f.outer_roll_m + f.inner_roll_m > band) {
-      bad("frame.outer_roll_m + frame.inner_roll_m",
-          fmt::format("({}) must not exceed the band's width, (outer_m - opening_m) / 2 = {}",
-                      f.outer_roll_m + f.inner_roll_m, band));
-    }
+    if (const auto problem = cover_frame_problem(f)) bad("frame." + problem->field, problem->why);
   }
   check_unit("insert_reflectance", scene.insert_reflectance);
   check_non_negative("paper_margin_m", scene.paper_margin_m);

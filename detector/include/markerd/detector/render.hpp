@@ -8,6 +8,7 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <optional>
+#include <string>
 #include <vector>
 
 #include "markerd/detector/camera_model.hpp"
@@ -63,6 +64,16 @@ struct CoverFrame {
 // is covered. Both take the 80 mm frame8 print: its 56 mm hole is the opening.
 CoverFrame socket_frame();
 CoverFrame switch_frame();
+
+// The rules between a frame's dimensions (each value's own range is the
+// caller's: the renderer and markerd's config differ there). The first one
+// broken, as the field it names and why ("opening_m", "must be less than
+// outer_m (0.086 m), got 0.09 m"); nothing when the frame is consistent.
+struct FrameProblem {
+  std::string field;
+  std::string why;
+};
+std::optional<FrameProblem> cover_frame_problem(const CoverFrame& frame);
 
 // What the opening (or a cut hole without a frame) shows. none: the
 // background, as a cut hole always did. socket: a Schuko outlet's plate a
