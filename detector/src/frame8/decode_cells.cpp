@@ -203,9 +203,9 @@ Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, co
       valid_cells += c.valid;
     }
   }
-  // With a side hidden, its eight cells and up to three of each
+  // With a side hidden, its eight cells and up to four of each
   // neighbouring edge's are left out: every bit still has two votes.
-  if (valid_cells < (r.hidden.side < 0 ? 24 : 18)) return Rejection::cells_off_image;
+  if (valid_cells < (r.hidden.side < 0 ? 24 : 16)) return Rejection::cells_off_image;
   // A square's opposite sides differ in the image by the ratio of their
   // depths, which for a marker of a few dozen pixels is a few percent at
   // any focal length: clutter's slivers and trapezoids differ by far more,

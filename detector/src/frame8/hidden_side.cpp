@@ -22,10 +22,11 @@ namespace markerd::detector::frame8 {
 
 // How far the hidden part reaches in from the marker's outer edge, in
 // cells: the ring alone, the ring and the line, then on into the hole a
-// quarter cell at a time, to 0.35 of the marker's size (a cover 0.2 deep
-// seen turned, above the marker, reaches further). Deeper, too few cells of
-// the neighbouring edges are left to vote.
-constexpr std::array<double, 10> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5};
+// quarter cell at a time, to 0.4 of the marker's size (an object 0.2 deep
+// and 3 cm in front, seen turned 30 deg, reaches that far). Deeper, bits
+// would be left with a single vote: each neighbouring edge has lost four
+// cells, and every bit is still read on the opposite edge and one other.
+constexpr std::array<double, 12> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0};
 
 // Beyond a seen side the line gives way to the ring, whose light cells
 // are as light as the hole; beyond a covered side, out to where the ring
