@@ -436,6 +436,35 @@ TEST(Frame8, MarkerOnASocketFrameFacing) {
   EXPECT_EQ(wrong, 0);
 }
 
+// The print on a light switch's frame (issue 18), near: the rocker, lighter
+// than the frame's roll and parted from the line by its shadow, is the hole's
+// light component, a fraction of a cell inside the line all round; read
+// grown by a quarter cell at a time. 0.3 to 0.6 m, every id class.
+TEST(Frame8, MarkerOnASwitchFrameNear) {
+  DetectorConfig cfg;
+  cfg.camera = kCamera;
+  cfg.marker_size_m = 0.08;
+  auto det = make_detector(cfg);
+  EvalSettings settings;
+  settings.scene.marker_size_m = 0.08;
+  settings.scene.noise_sigma = 2;
+  settings.scene.blur_sigma_px = 0.6;
+  settings.scene.frame = switch_frame();
+  settings.scene.insert = Insert::rocker;
+  settings.frames_per_point = 10;
+  settings.seed = 12;
+  int detected = 0, frames = 0, wrong = 0;
+  for (const double d : {0.3, 0.4, 0.5, 0.6}) {
+    const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
+    detected += r.detected;
+    frames += r.frames;
+    wrong += r.wrong_id;
+  }
+  // Measured: 38 of 40; 5 before the grown reads.
+  EXPECT_GE(detected, 34) << "of " << frames;
+  EXPECT_EQ(wrong, 0);
+}
+
 // The socket frame turned (issue 18), 10 and 20 deg either way: never
 // another id, never the wrong orientation. Found in 21 of 32 (issue 18 asks
 // for at least 90% to within 10 deg of the flat print's 80 deg: far from

@@ -23,6 +23,7 @@ const char* Frame8Detector::read_name(Read how) {
     case Read::aligned_ring_model: return "aligned_ring_model";
     case Read::second_pass: return "second_pass";
     case Read::side_hidden: return "side_hidden";
+    case Read::inset: return "inset";
   }
   return "?";
 }

@@ -199,7 +199,10 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     if (!read) read = by_model = read_by_model(H, cell_size, worth_it, det, rotation);
     HiddenSide hidden;
     if (!read && worth_it && read_with_side_hidden(inner, cell_size, det, rotation, hidden, H)) {
-      return finish_with_side_hidden(H, hidden, rotation, cell_px, det);
+      return finish_from_hole(H, hidden, rotation, cell_px, det);
+    }
+    if (!read && worth_it && read_inset(inner, cell_size, det, rotation, H)) {
+      return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
     if (!read) return sampled;
     remeasured = !by_model;
@@ -224,7 +227,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
       if (again.id != det.id) return Rejection::hidden_side_disagrees;
       if (config_.camera && hidden.depth > kInnerLo) {
         det = again;
-        return finish_with_side_hidden(again_H, hidden, again_rotation, cell_px, det);
+        return finish_from_hole(again_H, hidden, again_rotation, cell_px, det);
       }
     }
   }

@@ -102,7 +102,8 @@ class Frame8Detector final : public MarkerDetector {
   // The detector that runs them (detector.cpp).
   void consider_component(std::int32_t root, std::vector<Detection>& out);
   Rejection refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
-  // Stage 3b, a side hidden (hidden_side.cpp): the last read of a quad.
+  // Stage 3b, a side hidden (hidden_side.cpp) or the hole inset all round
+  // (inset_hole.cpp): the last reads of a quad.
   [[nodiscard]] bool looks_covered(const Homography& H, int side, bool into_hole) const;
   [[nodiscard]] bool any_side_looks_covered(const Homography& H) const {
     for (int side = 0; side < 4; ++side) {
@@ -113,8 +114,9 @@ class Frame8Detector final : public MarkerDetector {
   [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
   bool read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
                              HiddenSide& hidden, Homography& H);
-  Rejection finish_with_side_hidden(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
-                                    Detection& det);
+  bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
+  Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
+                             Detection& det);
   bool read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
                            int& rotation, Homography& H, std::array<Point2, 4>& inner);
   [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
@@ -130,7 +132,8 @@ class Frame8Detector final : public MarkerDetector {
     ring_model,
     aligned_ring_model,
     second_pass,
-    side_hidden
+    side_hidden,
+    inset
   };
   static const char* read_name(Read how);
   struct DebugCandidate {

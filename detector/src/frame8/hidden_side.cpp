@@ -159,11 +159,12 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, C
   return read_at(side, best_k, det, rotation, hole);
 }
 
-// The corners from the pattern's edges clear of the hidden side (they fix
-// how far the hole reaches better than the quarter cells tried); failing
-// that, from the extended quad, undistorted with a camera.
-Rejection Frame8Detector::finish_with_side_hidden(const Homography& H, const HiddenSide& hidden, int rotation,
-                                                  double cell_px, Detection& det) {
+// The corners of a hole read beyond the quad seen (a side hidden, or grown
+// all round: inset_hole.cpp): from the pattern's edges clear of the hidden
+// side (they fix how far the hole reaches better than the quarter cells
+// tried); failing that, from the hole itself, undistorted with a camera.
+Rejection Frame8Detector::finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
+                                           Detection& det) {
   // The pattern's fit may move the hole's corners by the part of a cell the
   // quarter cells missed, no more: beyond that it has fitted something else.
   constexpr double kMaxCornerMove = 0.5;
