@@ -503,6 +503,71 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
   EXPECT_EQ(wrong, 0);
 }
 
+struct CoveredSideReads {
+  int frames = 0, detected = 0, wrong = 0, ambiguity_wrong = 0, corners_off = 0;
+};
+
+// Each side covered, six ids, 0.5 to 1.1 m, yaw -15 to 15 deg, the marker
+// rolled by `roll_deg` in its plane; with the thesis camera or without a
+// camera model (the image then without the lens's distortion).
+CoveredSideReads read_covered_sides(bool with_camera, double roll_deg) {
+  DetectorConfig cfg;
+  if (with_camera) {
+    cfg.camera = kCamera;
+    cfg.marker_size_m = 0.08;
+  }
+  auto det = make_detector(cfg);
+  constexpr std::array<int, 6> kIds{3, 77, 128, 165, 200, 254};
+  CoveredSideReads out;
+  std::uint64_t seed = 40;
+  for (const MarkerSide side : {MarkerSide::top, MarkerSide::right, MarkerSide::bottom, MarkerSide::left}) {
+    // C1, the white corner, is the top-right one.
+    const bool c1_hidden = side == MarkerSide::top || side == MarkerSide::right;
+    for (const double d : {0.5, 0.8, 1.1}) {
+      for (const double yaw : {-15.0, 0.0, 15.0}) {
+        const int id = kIds[static_cast<std::size_t>(seed % kIds.size())];
+        Scene s = scene(id, d, yaw, roll_deg, ++seed);
+        s.distort = with_camera;
+        s.occluders.push_back(side_occluder(side, s.marker_size_m));
+        const Quad truth = project_marker_corners(kCamera, s);
+        ++out.frames;
+        bool found = false;
+        for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
+          if (f.id != id) {
+            ++out.wrong;
+            ADD_FAILURE() << "id " << f.id << " for " << id << " at " << d << " m, yaw " << yaw << ", roll "
+                          << roll_deg;
+            continue;
+          }
+          found = true;
+          if (f.orientation_ambiguous != c1_hidden) ++out.ambiguity_wrong;
+          if (c1_hidden) continue;
+          // The seen side's corners are measured (in the marker's own
+          // order: right only when the orientation is); the hidden side's
+          // follow from how far the hole reaches behind the cover, which
+          // the neighbouring edges' cells fix only where they change colour
+          // (measured here: up to 0.8 of a cell off; not asserted).
+          const auto s_index = static_cast<std::size_t>(side);
+          const std::size_t seen_a = (s_index + 2) % 4, seen_b = (s_index + 3) % 4;
+          const double seen_error =
+              std::max(distance(f.corners[seen_a], truth[seen_a]), distance(f.corners[seen_b], truth[seen_b]));
+          // Without a camera the hole's perspective beyond the cover is
+          // extrapolated from the quad seen, which tilts the seen side's
+          // corners too: a quarter of a cell (measured: up to 0.18).
+          const double cell_px = distance(truth[0], truth[1]) / frame8::grid;
+          if (seen_error > (with_camera ? 1.0 : 0.25 * cell_px)) {
+            ++out.corners_off;
+            ADD_FAILURE() << "side " << static_cast<int>(side) << " at " << d << " m, yaw " << yaw << ", roll "
+                          << roll_deg << ": seen corners off by " << seen_error << " px";
+          }
+        }
+        out.detected += found;
+      }
+    }
+  }
+  return out;
+}
+
 // One side of the marker hidden by a dark object in front of it (issue 18):
 // its ring, its line and half a cell of the hole, as the issue's figure
 // has it. The hole's component then ends at the object's edge; the other
@@ -511,57 +576,26 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
 // is hidden the orientation is one of two and must say so; where it is seen
 // the orientation and the corners are the marker's.
 TEST(Frame8, MarkerWithOneSideCoveredByADarkObject) {
-  DetectorConfig cfg;
-  cfg.camera = kCamera;
-  cfg.marker_size_m = 0.08;
-  auto det = make_detector(cfg);
-  constexpr std::array<int, 6> kIds{3, 77, 128, 165, 200, 254};
-  int frames = 0, detected = 0, wrong = 0, ambiguity_wrong = 0, corners_off = 0;
-  std::uint64_t seed = 40;
-  for (const MarkerSide side : {MarkerSide::top, MarkerSide::right, MarkerSide::bottom, MarkerSide::left}) {
-    // C1, the white corner, is the top-right one.
-    const bool c1_hidden = side == MarkerSide::top || side == MarkerSide::right;
-    for (const double d : {0.5, 0.8, 1.1}) {
-      for (const double yaw : {-15.0, 0.0, 15.0}) {
-        const int id = kIds[static_cast<std::size_t>(seed % kIds.size())];
-        Scene s = scene(id, d, yaw, 0, ++seed);
-        s.occluders.push_back(side_occluder(side, s.marker_size_m));
-        const Quad truth = project_marker_corners(kCamera, s);
-        ++frames;
-        bool found = false;
-        for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
-          if (f.id != id) {
-            ++wrong;
-            ADD_FAILURE() << "id " << f.id << " for " << id << " at " << d << " m, yaw " << yaw;
-            continue;
-          }
-          found = true;
-          if (f.orientation_ambiguous != c1_hidden) ++ambiguity_wrong;
-          if (c1_hidden) continue;
-          // The seen side's corners are measured; the hidden side's follow
-          // from how far the hole reaches behind the cover, which the
-          // neighbouring edges' cells fix only where they change colour
-          // (measured here: up to 0.8 of a cell off; not asserted).
-          const auto s_index = static_cast<std::size_t>(side);
-          const std::size_t seen_a = (s_index + 2) % 4, seen_b = (s_index + 3) % 4;
-          const double seen_error =
-              std::max(distance(f.corners[seen_a], truth[seen_a]), distance(f.corners[seen_b], truth[seen_b]));
-          if (f.quarter_turns != 0 || seen_error > 1.0) {
-            ++corners_off;
-            ADD_FAILURE() << "side " << static_cast<int>(side) << " at " << d << " m, yaw " << yaw << ": turns "
-                          << f.quarter_turns << ", seen corners off by " << seen_error << " px";
-          }
-        }
-        detected += found;
-      }
-    }
-  }
+  const CoveredSideReads r = read_covered_sides(true, 0);
   // Measured: 34 of 36. Before the reads with a side hidden, the same
   // covers in bench_accuracy (--cover each) were found in 15 to 20% of frames.
-  EXPECT_GE(detected, 31) << "of " << frames;
-  EXPECT_EQ(wrong, 0);
-  EXPECT_EQ(ambiguity_wrong, 0);
-  EXPECT_EQ(corners_off, 0);
+  EXPECT_GE(r.detected, 31) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
+  EXPECT_EQ(r.ambiguity_wrong, 0);
+  EXPECT_EQ(r.corners_off, 0);
+}
+
+// The same without a camera model, and the marker in each of its other
+// orientations (rolled a quarter turn at a time).
+TEST(Frame8, MarkerWithOneSideCoveredWithoutACameraInEveryOrientation) {
+  for (const double roll : {90.0, 180.0, 270.0}) {
+    const CoveredSideReads r = read_covered_sides(false, roll);
+    // Measured: 34, 34 and 35 of 36.
+    EXPECT_GE(r.detected, 31) << "of " << r.frames << ", roll " << roll;
+    EXPECT_EQ(r.wrong, 0) << "roll " << roll;
+    EXPECT_EQ(r.ambiguity_wrong, 0) << "roll " << roll;
+    EXPECT_EQ(r.corners_off, 0) << "roll " << roll;
+  }
 }
 
 // The benchmark's covered sides far off and turned (bench_accuracy --cover
