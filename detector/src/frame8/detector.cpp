@@ -198,7 +198,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     if (!read && worth_it) read = read_by_profile_fit(step_only, cell_px, cell_size, det, rotation, H, inner);
     if (!read) read = by_model = read_by_model(H, cell_size, worth_it, det, rotation);
     HiddenSide hidden;
-    if (!read && worth_it && read_with_side_hidden(inner, cell_size, det, rotation, hidden, H)) {
+    if (!read && worth_it && read_with_side_hidden(inner, det, rotation, hidden, H)) {
       return finish_from_hole(H, hidden, rotation, cell_px, det);
     }
     if (!read && worth_it && read_inset(inner, cell_size, det, rotation, H)) {
@@ -223,7 +223,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     int again_rotation = 0;
     HiddenSide hidden;
     Homography again_H;
-    if (read_with_side_hidden(inner, cell_size, again, again_rotation, hidden, again_H)) {
+    if (read_with_side_hidden(inner, again, again_rotation, hidden, again_H)) {
       if (again.id != det.id) return Rejection::hidden_side_disagrees;
       if (config_.camera && hidden.depth > kInnerLo) {
         det = again;

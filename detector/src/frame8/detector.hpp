@@ -112,8 +112,8 @@ class Frame8Detector final : public MarkerDetector {
     return false;
   }
   [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
-  bool read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
-                             HiddenSide& hidden, Homography& H);
+  bool read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation, HiddenSide& hidden,
+                             Homography& H);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);

@@ -79,12 +79,15 @@ double Frame8Detector::square_misfit(const std::array<Point2, 4>& hole) const {
   return pose ? pose->best.reprojection_error_px : std::numeric_limits<double>::infinity();
 }
 
-bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det,
-                                           int& rotation, HiddenSide& hidden, Homography& H) {
+bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation,
+                                           HiddenSide& hidden, Homography& H) {
   // Cells under three pixels are read by their blur with the neighbours,
   // which a cover's edge would mix into the read: each hole tried must have
-  // larger ones (the quad seen, cut short, may have narrower).
-  if (cell_size.mean < kResolvedCells) return false;
+  // larger ones. The quad seen is cut short across the hidden side; along
+  // it, its longest side still spans the whole hole.
+  double longest = 0;
+  for (std::size_t i = 0; i < 4; ++i) longest = std::max(longest, distance(inner[i], inner[(i + 1) % 4]));
+  if (longest / kInnerSide < kResolvedCells) return false;
   Homography seen;
   if (!Homography::from_unit_square(inner, seen)) return false;
   // The hole when `side` is hidden `depth` cells deep: the quad's unit
