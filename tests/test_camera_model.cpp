@@ -143,6 +143,18 @@ TEST(CameraModel, ParseErrorsNameTheFileAndTheLine) {
 
 // OpenCV 4.6's XML parser crashes (a null pointer) on some corrupt files,
 // so an XML file, good or corrupt, is refused before OpenCV sees it.
+// OpenCV 4.6's YAML parser never returns from a file whose "---" has more
+// on its line followed by another such line (fuzz_camera_model, 47 bytes):
+// such a file is refused before OpenCV sees it, naming the line.
+TEST(CameraModel, ADocumentStartWithMoreOnItsLineIsRefusedNotParsedForever) {
+  const TempDir dir;
+  expect_load_error(dir.write("loops.yaml", "%YAML:1.0\n---L:1.0\n-----\nx\n"),
+                    "line 2: '---' (a YAML document start) must stand alone");
+  // A document start with spaces or a comment after it is one.
+  const std::string spaced = "%YAML:1.0\n---   # the camera\nimage_width: 640\nimage_height: 480\n";
+  EXPECT_EQ(CameraModel::load(dir.write("spaced.yaml", spaced + kGoodMatrix + kGoodDistortion)).width, 640);
+}
+
 TEST(CameraModel, XmlAndJsonFilesAreRefusedByName) {
   const TempDir dir;
   const std::string xml =

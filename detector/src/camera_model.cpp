@@ -72,10 +72,29 @@ std::string reader_failure_words(std::string_view text, const std::exception& e)
 // try/catch survives, so a file that is not YAML never reaches OpenCV.
 // JSON goes too: one parser to trust, the one OpenCV's and ROS's
 // calibration tools write.
+//
+// Its YAML parser loops forever on a "---" with more on its line followed by
+// another such line ("---L:1.0", "-----": found by fuzz_camera_model, OpenCV
+// 4.6), so "---", the document start, must stand alone on its line.
+void check_document_starts(const std::filesystem::path& path, std::string_view text) {
+  int number = 1;
+  for (std::size_t start = 0; start < text.size(); ++number) {
+    const std::size_t end = std::min(text.find('\n', start), text.size());
+    const std::string_view line = text.substr(start, end - start);
+    if (line.substr(0, 3) == "---" && line.size() > 3 && line[3] != ' ' && line[3] != '\t' && line[3] != '\r') {
+      fail(path, fmt::format("line {}: '---' (a YAML document start) must stand alone on its line", number));
+    }
+    start = end + 1;
+  }
+}
+
 void check_yaml(const std::filesystem::path& path, std::string_view text) {
   constexpr std::string_view bom = "\xEF\xBB\xBF";
   if (text.substr(0, bom.size()) == bom) text.remove_prefix(bom.size());
-  if (text.substr(0, 5) == "%YAML") return;
+  if (text.substr(0, 5) == "%YAML") {
+    check_document_starts(path, text);
+    return;
+  }
   const std::size_t first = text.find_first_not_of(" \t\r\n");
   const std::string_view start = first == std::string_view::npos ? std::string_view{} : text.substr(first);
   if (start.substr(0, 1) == "<") {
