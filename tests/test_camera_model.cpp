@@ -150,6 +150,8 @@ TEST(CameraModel, ADocumentStartWithMoreOnItsLineIsRefusedNotParsedForever) {
   const TempDir dir;
   expect_load_error(dir.write("loops.yaml", "%YAML:1.0\n---L:1.0\n-----\nx\n"),
                     "line 2: '---' (a YAML document start) must stand alone");
+  expect_load_error(dir.write("indented.yaml", "%YAML:1.0\n ---r: 1\n  \n :  -\nd\n"),
+                    "line 2: '---' (a YAML document start) must stand alone");
   // A document start with spaces or a comment after it is one.
   const std::string spaced = "%YAML:1.0\n---   # the camera\nimage_width: 640\nimage_height: 480\n";
   EXPECT_EQ(CameraModel::load(dir.write("spaced.yaml", spaced + kGoodMatrix + kGoodDistortion)).width, 640);
