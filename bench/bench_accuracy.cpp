@@ -7,6 +7,7 @@
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
 //                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
 //                  [--background clutter|GREY] [--cover top|right|bottom|left|each]
+//                  [--margin MM]
 
 #include <unistd.h>
 
@@ -214,6 +215,12 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"none", "socket", "rocker"}));
   std::string background = "clutter";
   app.add_option("--background", background, "clutter, or a plain grey level 0..255")->capture_default_str();
+  double margin_mm = 0;
+  app.add_option("--margin", margin_mm,
+                 "white paper around the marker, mm (the print as markerctl marker makes it: 10; 0 for the bare "
+                 "marker on the background)")
+      ->check(CLI::Range(0.0, 1000.0))
+      ->capture_default_str();
   std::string cover;
   app.add_option("--cover", cover,
                  "an object over one side: top, right, bottom, left, or each (in turn, frame by frame)")
@@ -279,6 +286,7 @@ int main(int argc, char** argv) {
     settings.scene.frame = markerd::detector::switch_frame();
     settings.scene.insert = Insert::rocker;
   }
+  settings.scene.paper_margin_m = margin_mm / 1000;
   if (!insert_name.empty()) {
     settings.scene.insert = insert_name == "socket"   ? Insert::socket
                             : insert_name == "rocker" ? Insert::rocker
@@ -322,10 +330,11 @@ int main(int argc, char** argv) {
   fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, {}, lens distortion, supersampling {}\n", noise,
              blur, background == "clutter" ? std::string("clutter") : "plain grey " + background,
              settings.scene.supersample);
-  fmt::print("- mount: {}{}\n", mount,
+  fmt::print("- mount: {}{}{}\n", mount,
              settings.scene.insert == markerd::detector::Insert::socket   ? ", a socket outlet in the opening"
              : settings.scene.insert == markerd::detector::Insert::rocker ? ", a switch's rocker in the opening"
-                                                                          : "");
+                                                                          : "",
+             margin_mm > 0 ? fmt::format(", {:g} mm of white paper around the marker", margin_mm) : std::string());
   if (!cover.empty()) {
     fmt::print("- covered: {} side{}, {:.2f} of the size in from the outer edge, reflectance {:.2f}, 3 cm in front\n",
                cover, cover == "each" ? " in turn" : "", cover_depth, cover_grey);

@@ -15,6 +15,16 @@
 
 namespace markerd::detector::frame8 {
 
+bool Frame8Detector::convex(const Quad& q) {
+  int positive = 0, negative = 0;
+  for (std::size_t i = 0; i < 4; ++i) {
+    const double c = cross(q[i], q[(i + 1) % 4], q[(i + 2) % 4]);
+    positive += c > 0;
+    negative += c < 0;
+  }
+  return positive == 4 || negative == 4;
+}
+
 // Fills the corners from a map of grid coordinates to the image (without a
 // camera) or to undistorted normalized coordinates (with one), and the
 // pose with a camera. Corner j of the marker is quad corner
@@ -37,6 +47,10 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
     in[jj] = config_.camera ? config_.camera->normalized_to_pixel(inner) : inner;
     outq[jj] = config_.camera ? config_.camera->normalized_to_pixel(outer) : outer;
   }
+  // A printed square seen through a lens is a convex quad, turned the same
+  // way round at every corner. A map that folds it (fitted to clutter that
+  // read as some code) has found no marker.
+  if (!convex(in) || !convex(outq)) return Rejection::corners_not_convex;
   det.inner_corners = in;
   det.corners = outq;
   if (config_.camera) {

@@ -57,4 +57,24 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   return true;
 }
 
+// Cells too small to sample cleanly are read from grey levels that are as
+// much their neighbours' as their own: a lone cell beside two of the other
+// colour, the paper beyond the ring and a corner, read wrong on all four
+// edges alike, and the votes cannot see it. The ring model, fitted to every
+// pixel of the marker with its map aligned, undoes that mixing: a sampled
+// read stands only where it reads the same code the same way round. The
+// map must be aligned: the model's levels where the quad puts the cells (a
+// tenth of the cost) confirmed 4 of the 14 wrong reads.
+Rejection Frame8Detector::confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det,
+                                           int rotation) {
+  Eigen::Matrix3d M = grid_map(H);
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return Rejection::model_disagrees;
+  Detection read;
+  int read_rotation = 0;
+  const Rejection why = decode(Homography::from_grid_map(M), cell_size, read, read_rotation, &levels_);
+  note_attempt(Read::model_check, why);
+  if (why != Rejection::none || read.id != det.id || read_rotation != rotation) return Rejection::model_disagrees;
+  return Rejection::none;
+}
+
 }  // namespace markerd::detector::frame8

@@ -67,6 +67,7 @@ class Frame8Detector final : public MarkerDetector {
   Rejection decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
                    const frame8::RingModel::Levels* model, const HiddenSide& hidden = {}) const;
   bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
+  Rejection confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det, int rotation);
   // 4a: the cells (decode_cells.cpp).
   Rejection read_cells(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
                        RingRead& r) const;
@@ -121,6 +122,7 @@ class Frame8Detector final : public MarkerDetector {
                            int& rotation, Homography& H, std::array<Point2, 4>& inner);
   [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
   static bool inside(const Quad& q, Point2 p);
+  static bool convex(const Quad& q);
   static void remove_nested(std::vector<Detection>& out);
 
   // The debug output (debug.cpp), only with Frame8Options::debug_dir: per
@@ -133,7 +135,8 @@ class Frame8Detector final : public MarkerDetector {
     aligned_ring_model,
     second_pass,
     side_hidden,
-    inset
+    inset,
+    model_check
   };
   static const char* read_name(Read how);
   struct DebugCandidate {

@@ -45,7 +45,9 @@ Stage stage_of(Rejection r) {
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
     case Rejection::unconfirmed_remeasure: return Stage::structure;
+    case Rejection::model_disagrees: return Stage::structure;
     case Rejection::pattern_fit_failed: return Stage::pattern_fit;
+    case Rejection::corners_not_convex:
     case Rejection::no_pose: return Stage::corners_and_pose;
   }
   return Stage::corners_and_pose;
@@ -110,7 +112,9 @@ const char* rejection_name(Rejection r) {
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
     case Rejection::unconfirmed_remeasure: return "unconfirmed_remeasure";
+    case Rejection::model_disagrees: return "model_disagrees";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
+    case Rejection::corners_not_convex: return "corners_not_convex";
     case Rejection::no_pose: return "no_pose";
   }
   return "?";

@@ -71,8 +71,10 @@ enum class Rejection : std::uint8_t {
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
   unconfirmed_remeasure,      // small cells read only on a remeasured quad, the second pass disagrees
+  model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
   // 5. the whole pattern, 6. corners and pose
   pattern_fit_failed,
+  corners_not_convex,  // the outer or inner corners do not make a convex quad
   no_pose,
 };
 
