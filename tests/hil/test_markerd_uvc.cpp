@@ -455,8 +455,8 @@ class MarkerdUvc : public testing::Test {
       const std::size_t first = streams[k];
       const std::size_t end = k + 1 < streams.size() ? streams[k + 1] : lines.size();
       const std::int64_t offset = number_offset(std::span(lines).subspan(first, end - first), sent);
-      std::fill(offsets.begin() + static_cast<std::ptrdiff_t>(first), offsets.begin() + static_cast<std::ptrdiff_t>(end),
-                offset);
+      std::fill(offsets.begin() + static_cast<std::ptrdiff_t>(first),
+                offsets.begin() + static_cast<std::ptrdiff_t>(end), offset);
     }
     std::size_t off_sequence = 0;  // lines whose frame the sequence's offset did not name
     std::vector<std::int64_t> numbers;
@@ -527,8 +527,8 @@ class MarkerdUvc : public testing::Test {
               << " deg, " << id_changes << " id changes; from the server's send to the driver's timestamp p50 "
               << percentile(to_capture_ms, 0.5) << " ms, p99 " << percentile(to_capture_ms, 0.99)
               << " ms; to the log line p50 " << percentile(to_log_ms, 0.5) << " ms, p99 " << percentile(to_log_ms, 0.99)
-              << " ms; " << off_sequence << " lines matched by time where the sequence's offset failed; "
-              << restarts << " stream restarts\n";
+              << " ms; " << off_sequence << " lines matched by time where the sequence's offset failed; " << restarts
+              << " stream restarts\n";
     // Where that time goes, by markerd's own histograms: under TCG the
     // detector takes tens of milliseconds a frame, slower than the camera,
     // and the live pipeline detects the newest frame waiting.
