@@ -420,7 +420,7 @@ TEST(Frame8, MarkerOnASocketFrameFacing) {
   settings.scene.insert = Insert::socket;
   settings.frames_per_point = 10;
   int detected = 0, frames = 0, wrong = 0;
-  for (const double d : {0.4, 0.6, 0.8, 1.1, 1.4}) {
+  for (const double d : {0.4, 0.6, 0.8, 1.1, 1.4, 1.7, 1.75}) {
     settings.seed = 11;
     const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
     detected += r.detected;
@@ -430,9 +430,12 @@ TEST(Frame8, MarkerOnASocketFrameFacing) {
       EXPECT_LT(r.median_distance_error_rel, 0.02) << d << " m";
     }
   }
-  // Measured: 49 of 50 (none before the hole's quad allowed rounded
-  // corners and a dark recess inside it).
-  EXPECT_GE(detected, 45) << "of " << frames;
+  // Measured: 68 of 70 (none before the hole's quad allowed rounded
+  // corners and a dark recess inside it). From 1.7 m cells are under
+  // 2.5 px and the ring model confirms each read: bench_accuracy found 38%
+  // at 1.7 m (96% now) while the check also held the socket's shaded line
+  // to be as dark as ink.
+  EXPECT_GE(detected, 62) << "of " << frames;
   EXPECT_EQ(wrong, 0);
 }
 

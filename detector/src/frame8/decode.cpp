@@ -12,12 +12,7 @@ Rejection Frame8Detector::decode(const Homography& H, CellSize cell_size, Detect
                                  const frame8::RingModel::Levels* model, const HiddenSide& hidden) const {
   RingRead r;
   r.hidden = hidden;
-  if (const Rejection why = read_cells(H, cell_size, model, r); why != Rejection::none) return why;
-  if (const Rejection why = fit_grey_model(cell_size, r); why != Rejection::none) return why;
-  weigh_edges(H, r);
-  if (const Rejection why = read_corners(r); why != Rejection::none) return why;
-  if (const Rejection why = vote_bits(r); why != Rejection::none) return why;
-  if (const Rejection why = settle_orientation(H, r); why != Rejection::none) return why;
+  if (const Rejection why = read_code(H, cell_size, model, r); why != Rejection::none) return why;
   rotation = (r.white_corner + 3) % 4;
   if (const Rejection why = check_structure(H, cell_size, model, r); why != Rejection::none) return why;
   det.family = Family::frame8;
@@ -26,6 +21,16 @@ Rejection Frame8Detector::decode(const Homography& H, CellSize cell_size, Detect
   det.margin = r.margin;
   det.orientation_ambiguous = r.orientation_ambiguous;
   return Rejection::none;
+}
+
+Rejection Frame8Detector::read_code(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
+                                    RingRead& r) const {
+  if (const Rejection why = read_cells(H, cell_size, model, r); why != Rejection::none) return why;
+  if (const Rejection why = fit_grey_model(cell_size, r); why != Rejection::none) return why;
+  weigh_edges(H, r);
+  if (const Rejection why = read_corners(r); why != Rejection::none) return why;
+  if (const Rejection why = vote_bits(r); why != Rejection::none) return why;
+  return settle_orientation(H, r);
 }
 
 // Reads cells too small to sample from the blur model of the ring, when the
@@ -67,13 +72,18 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
 // tenth of the cost) confirmed 4 of the 14 wrong reads.
 Rejection Frame8Detector::confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det,
                                            int rotation) {
+  // Only the code and its orientation are compared: the structural checks
+  // are the sampled read's, and the model's own test of the line (as dark
+  // as the black cells) does not hold on a socket frame, whose line lies
+  // on the shaded inner roll.
   Eigen::Matrix3d M = grid_map(H);
   if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return Rejection::model_disagrees;
-  Detection read;
-  int read_rotation = 0;
-  const Rejection why = decode(Homography::from_grid_map(M), cell_size, read, read_rotation, &levels_);
+  RingRead r;
+  const Rejection why = read_code(Homography::from_grid_map(M), cell_size, &levels_, r);
   note_attempt(Read::model_check, why);
-  if (why != Rejection::none || read.id != det.id || read_rotation != rotation) return Rejection::model_disagrees;
+  if (why != Rejection::none || r.id != det.id || (r.white_corner + 3) % 4 != rotation) {
+    return Rejection::model_disagrees;
+  }
   return Rejection::none;
 }
 

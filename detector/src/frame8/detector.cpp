@@ -124,10 +124,11 @@ constexpr double kConfirmedCells = 2.0;
 // Below this many pixels per cell (the mean of both directions), a sampled
 // read must be confirmed by the ring model (confirm_by_model). Bench_accuracy
 // with the print's 10 mm paper margin, 500 frames a point, 2.0 to 3.0 m
-// (1.4 to 2.1 px a cell): 14 wrong ids, each the sampled read's, none left
-// with the check, for 0 to 1.2 points of rate. Not beyond: the model knows
-// a flat print only, and a socket frame's rolls at 1.4 m (2.9 px) do not
-// fit it.
+// (1.4 to 2.1 px a cell): 14 wrong ids, none left with the check (and with
+// the corners' convexity), for 0 to 1.2 points of rate. None was seen
+// from here up; a marker turned far, whose short edges' cells are a pixel
+// while the long ones' are four, is read by its short edges' profiles,
+// which the model does not know.
 constexpr double kModelCheckedCells = 2.5;
 // From this many pixels per cell, the corners come from the whole pattern
 // (stage 5): below it the pattern's edges blur into each other.

@@ -66,6 +66,9 @@ class Frame8Detector final : public MarkerDetector {
   // Stage 4: decoding (decode.cpp), through 4a to 4e.
   Rejection decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
                    const frame8::RingModel::Levels* model, const HiddenSide& hidden = {}) const;
+  // Stages 4a to 4d: the code and its orientation in `r`, before the structural checks.
+  Rejection read_code(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
+                      RingRead& r) const;
   bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
   Rejection confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det, int rotation);
   // 4a: the cells (decode_cells.cpp).
