@@ -7,7 +7,7 @@
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
 //                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
 //                  [--background clutter|GREY] [--cover top|right|bottom|left|each]
-//                  [--margin MM]
+//                  [--margin MM] [--false-positives N]
 
 #include <unistd.h>
 
@@ -26,6 +26,7 @@
 #include <utility>
 #include <vector>
 
+#include "markerd/base/proportion.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/evaluate.hpp"
@@ -74,6 +75,8 @@ std::vector<double> parse_list(const std::string& text, const char* what) {
 struct Sweeps {
   std::vector<markerd::detector::EvalResult> by_distance;
   std::vector<std::vector<markerd::detector::EvalResult>> by_yaw;  // one per --yaw-at distance
+  int false_positives = 0;        // detections in frames of the background alone
+  int false_positive_frames = 0;  // such frames with any detection
 };
 
 // The farthest value reached by an unbroken run of points at >= 90% from the
@@ -101,16 +104,23 @@ double median_of(std::vector<double> v) {
 }
 
 std::string percent(double rate) { return fmt::format("{:.1f}%", 100 * rate); }
+
+// The rate's 95% interval (Wilson), in percent.
+std::string interval(int successes, int trials) {
+  const markerd::base::ProportionInterval i = markerd::base::wilson_interval(successes, trials);
+  return fmt::format("{:.1f}-{:.1f}", 100 * i.low, 100 * i.high);
+}
 std::string or_dash(bool present, const std::string& s) { return present ? s : "-"; }
 
 void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, const std::vector<double>& yaw_at) {
   fmt::print("## {}\n\n", info.name);
   fmt::print("### Against distance (yaw 0 deg)\n\n");
-  fmt::print("| distance (m) | rate | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
-  fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: |\n");
+  fmt::print("| distance (m) | rate | 95% interval | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
+  fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
   for (const auto& r : s.by_distance) {
     const bool any = r.detected > 0;
-    fmt::print("| {:.2f} | {} | {} | {} | {} | {:.3f} |\n", r.point.distance_m, percent(r.rate()), r.wrong_id,
+    fmt::print("| {:.2f} | {} | {} | {} | {} | {} | {:.3f} |\n", r.point.distance_m, percent(r.rate()),
+               interval(r.detected, r.frames), r.wrong_id,
                or_dash(any, fmt::format("{:.3f}", r.median_corner_error_px)),
                or_dash(any, fmt::format("{:.2f}", 100 * r.median_distance_error_rel)), r.median_time_ms);
   }
@@ -133,7 +143,10 @@ void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, co
     fmt::print("\n");
   }
   // A wrong id anywhere matters more than a rate: the yaw points' too.
-  fmt::print("\nWrong ids in the yaw sweeps: {}\n\n", wrong);
+  fmt::print("\nWrong ids in the yaw sweeps: {}\n", wrong);
+  const int n = s.by_yaw.front().front().frames;
+  fmt::print("\nAt {} frames a point, 100% is {}% and 90% is {}% at 95% confidence (Wilson).\n\n", n,
+             interval(n, n), interval((9 * n + 5) / 10, n));
 }
 
 std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps& s) {
@@ -237,6 +250,11 @@ int main(int argc, char** argv) {
   app.add_option("--dump-wrong", dump_wrong,
                  "write each frame with a wrong id into this directory, as PGM named by distance, yaw, ids and seed")
       ->check(CLI::ExistingDirectory);
+  int false_positive_frames = 0;
+  app.add_option("--false-positives", false_positive_frames,
+                 "also detect in this many frames of the background alone (no marker), and count what is found")
+      ->check(CLI::Range(0, 10000000))
+      ->capture_default_str();
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
@@ -385,6 +403,24 @@ int main(int argc, char** argv) {
         auto& sweep = s.by_yaw.emplace_back();
         for (double yaw : yaws) sweep.push_back(run(d, yaw));
       }
+      for (int k = 0; k < false_positive_frames; ++k) {
+        if (progress && k % 100 == 0) {
+          std::fprintf(stderr, "\r%s: background %d of %d   ", std::string(info.name).c_str(), k, false_positive_frames);
+        }
+        markerd::detector::Scene scene = settings.scene;
+        scene.seed = seed * 1000003ULL + static_cast<std::uint64_t>(k);
+        const markerd::detector::GreyImage image = markerd::detector::render_background(camera, scene);
+        std::vector<markerd::detector::Detection> found;
+        detector->detect(image.view(), found);
+        s.false_positives += static_cast<int>(found.size());
+        s.false_positive_frames += found.empty() ? 0 : 1;
+        if (!found.empty() && !dump_wrong.empty()) {
+          const std::string path = fmt::format("{}/{}-background-read{}-seed{}.pgm", dump_wrong, info.name,
+                                               found.front().id, scene.seed);
+          write_pgm(path, image);
+          std::fprintf(stderr, "bench_accuracy: false detection, frame written to %s\n", path.c_str());
+        }
+      }
       if (progress) std::fprintf(stderr, "\r%60s\r", "");
     } catch (const std::exception& e) {
       if (progress) std::fprintf(stderr, "\n");
@@ -393,6 +429,15 @@ int main(int argc, char** argv) {
       continue;
     }
     print_family(info, s, yaw_at);
+    if (false_positive_frames > 0) {
+      const markerd::base::ProportionInterval i =
+          markerd::base::wilson_interval(s.false_positive_frames, false_positive_frames);
+      fmt::print(
+          "### The background alone\n\n{} detections in {} of {} frames without a marker: {:.2f} per 10,000 "
+          "frames (95% interval {:.2f}-{:.2f})\n\n",
+          s.false_positives, s.false_positive_frames, false_positive_frames,
+          1e4 * s.false_positive_frames / false_positive_frames, 1e4 * i.low, 1e4 * i.high);
+    }
     summary.push_back(summary_row(info, s));
     std::fflush(stdout);
   }
