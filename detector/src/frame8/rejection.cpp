@@ -45,6 +45,8 @@ Stage stage_of(Rejection r) {
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
     case Rejection::unconfirmed_remeasure: return Stage::structure;
+    case Rejection::second_pass_disagrees: return Stage::structure;
+    case Rejection::unconfirmed_correction: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
     case Rejection::pattern_fit_failed: return Stage::pattern_fit;
     case Rejection::corners_not_convex:
@@ -112,6 +114,8 @@ const char* rejection_name(Rejection r) {
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
     case Rejection::unconfirmed_remeasure: return "unconfirmed_remeasure";
+    case Rejection::second_pass_disagrees: return "second_pass_disagrees";
+    case Rejection::unconfirmed_correction: return "unconfirmed_correction";
     case Rejection::model_disagrees: return "model_disagrees";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
     case Rejection::corners_not_convex: return "corners_not_convex";
