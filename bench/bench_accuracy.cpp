@@ -75,8 +75,8 @@ std::vector<double> parse_list(const std::string& text, const char* what) {
 struct Sweeps {
   std::vector<markerd::detector::EvalResult> by_distance;
   std::vector<std::vector<markerd::detector::EvalResult>> by_yaw;  // one per --yaw-at distance
-  int false_positives = 0;        // detections in frames of the background alone
-  int false_positive_frames = 0;  // such frames with any detection
+  int false_positives = 0;                                         // detections in frames of the background alone
+  int false_positive_frames = 0;                                   // such frames with any detection
 };
 
 // The farthest value reached by an unbroken run of points at >= 90% from the
@@ -115,7 +115,8 @@ std::string or_dash(bool present, const std::string& s) { return present ? s : "
 void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, const std::vector<double>& yaw_at) {
   fmt::print("## {}\n\n", info.name);
   fmt::print("### Against distance (yaw 0 deg)\n\n");
-  fmt::print("| distance (m) | rate | 95% interval | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
+  fmt::print(
+      "| distance (m) | rate | 95% interval | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
   fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
   for (const auto& r : s.by_distance) {
     const bool any = r.detected > 0;
@@ -145,8 +146,8 @@ void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, co
   // A wrong id anywhere matters more than a rate: the yaw points' too.
   fmt::print("\nWrong ids in the yaw sweeps: {}\n", wrong);
   const int n = s.by_yaw.front().front().frames;
-  fmt::print("\nAt {} frames a point, 100% is {}% and 90% is {}% at 95% confidence (Wilson).\n\n", n,
-             interval(n, n), interval((9 * n + 5) / 10, n));
+  fmt::print("\nAt {} frames a point, 100% is {}% and 90% is {}% at 95% confidence (Wilson).\n\n", n, interval(n, n),
+             interval((9 * n + 5) / 10, n));
 }
 
 std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps& s) {
@@ -405,7 +406,8 @@ int main(int argc, char** argv) {
       }
       for (int k = 0; k < false_positive_frames; ++k) {
         if (progress && k % 100 == 0) {
-          std::fprintf(stderr, "\r%s: background %d of %d   ", std::string(info.name).c_str(), k, false_positive_frames);
+          std::fprintf(stderr, "\r%s: background %d of %d   ", std::string(info.name).c_str(), k,
+                       false_positive_frames);
         }
         markerd::detector::Scene scene = settings.scene;
         scene.seed = seed * 1000003ULL + static_cast<std::uint64_t>(k);
@@ -415,8 +417,8 @@ int main(int argc, char** argv) {
         s.false_positives += static_cast<int>(found.size());
         s.false_positive_frames += found.empty() ? 0 : 1;
         if (!found.empty() && !dump_wrong.empty()) {
-          const std::string path = fmt::format("{}/{}-background-read{}-seed{}.pgm", dump_wrong, info.name,
-                                               found.front().id, scene.seed);
+          const std::string path =
+              fmt::format("{}/{}-background-read{}-seed{}.pgm", dump_wrong, info.name, found.front().id, scene.seed);
           write_pgm(path, image);
           std::fprintf(stderr, "bench_accuracy: false detection, frame written to %s\n", path.c_str());
         }
