@@ -7,7 +7,8 @@
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
 //                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
 //                  [--background clutter|GREY] [--cover top|right|bottom|left|each]
-//                  [--margin MM] [--false-positives N]
+//                  [--margin MM] [--false-positives N] [--blur-model gaussian|disc]
+//                  [--noise-model gaussian|shot] [--jpeg Q] [--supersample N] [--no-distort]
 
 #include <unistd.h>
 
@@ -212,6 +213,25 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   app.add_option("--blur", blur, "blur sigma, pixels")->check(CLI::NonNegativeNumber)->capture_default_str();
+  std::string blur_model = "gaussian";
+  app.add_option("--blur-model", blur_model, "gaussian, or disc (a lens out of focus: a disc of radius 2 sigma)")
+      ->check(CLI::IsMember({"gaussian", "disc"}))
+      ->capture_default_str();
+  std::string noise_model = "gaussian";
+  app.add_option("--noise-model", noise_model,
+                 "gaussian (the same sigma at every grey), or shot (shot noise on read noise, sigma at mid-grey)")
+      ->check(CLI::IsMember({"gaussian", "shot"}))
+      ->capture_default_str();
+  int jpeg_quality = 0;
+  app.add_option("--jpeg", jpeg_quality, "pass each frame through JPEG at this quality, 1..100 (0: not)")
+      ->check(CLI::Range(0, 100))
+      ->capture_default_str();
+  int supersample = 4;
+  app.add_option("--supersample", supersample, "the renderer's samples per pixel along each axis")
+      ->check(CLI::Range(1, 16))
+      ->capture_default_str();
+  bool no_distort = false;
+  app.add_flag("--no-distort", no_distort, "a lens without distortion: the camera's distortion set to zero");
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
   bool model_small_cells = false;
   bool cut_hole = false;
@@ -256,6 +276,10 @@ int main(int argc, char** argv) {
                  "also detect in this many frames of the background alone (no marker), and count what is found")
       ->check(CLI::Range(0, 10000000))
       ->capture_default_str();
+  std::string dump_missed;
+  app.add_option("--dump-missed", dump_missed,
+                 "write each frame whose marker was not found into this directory, as PGM named as for --dump-wrong")
+      ->check(CLI::ExistingDirectory);
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
 
@@ -281,6 +305,7 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  if (no_distort) camera.dist = {};
 
   std::vector<markerd::detector::FamilyInfo> families;
   for (const auto& info : markerd::detector::all_families()) {
@@ -293,6 +318,12 @@ int main(int argc, char** argv) {
   settings.scene.marker_size_m = size_m;
   settings.scene.noise_sigma = noise;
   settings.scene.blur_sigma_px = blur;
+  settings.scene.blur_model =
+      blur_model == "disc" ? markerd::detector::BlurModel::disc : markerd::detector::BlurModel::gaussian;
+  settings.scene.noise_model =
+      noise_model == "shot" ? markerd::detector::NoiseModel::shot : markerd::detector::NoiseModel::gaussian;
+  settings.scene.jpeg_quality = jpeg_quality;
+  settings.scene.supersample = supersample;
   settings.scene.clutter = true;
   if (cut_hole) mount = "cut-hole";
   using markerd::detector::Insert;
@@ -346,9 +377,10 @@ int main(int argc, char** argv) {
              camera.dist[2], camera.dist[3], camera.dist[4], camera_path.empty() ? " (the thesis camera)" : "");
   fmt::print("- marker: {:.1f} cm (frame8: the outer edge; aruco4x4_50, tag36h11: the outer black border)\n",
              100 * size_m);
-  fmt::print("- imaging: noise sigma {:.1f}, blur sigma {:.2f} px, {}, lens distortion, supersampling {}\n", noise,
-             blur, background == "clutter" ? std::string("clutter") : "plain grey " + background,
-             settings.scene.supersample);
+  fmt::print("- imaging: {} noise sigma {:.1f}, {} blur sigma {:.2f} px{}, {}, {}, supersampling {}\n", noise_model,
+             noise, blur_model, blur, jpeg_quality > 0 ? fmt::format(", JPEG quality {}", jpeg_quality) : "",
+             background == "clutter" ? std::string("clutter") : "plain grey " + background,
+             no_distort ? "no lens distortion" : "lens distortion", settings.scene.supersample);
   fmt::print("- mount: {}{}{}\n", mount,
              settings.scene.insert == markerd::detector::Insert::socket   ? ", a socket outlet in the opening"
              : settings.scene.insert == markerd::detector::Insert::rocker ? ", a switch's rocker in the opening"
@@ -393,6 +425,13 @@ int main(int argc, char** argv) {
                                                scene.id, wrong, scene.seed);
           write_pgm(path, image);
           std::fprintf(stderr, "bench_accuracy: wrong id, frame written to %s\n", path.c_str());
+        };
+      }
+      if (!dump_missed.empty()) {
+        settings.on_miss = [&](const markerd::detector::GreyImage& image, const markerd::detector::Scene& scene) {
+          const std::string path = fmt::format("{}/{}-{:.2f}m-id{}-missed-seed{}.pgm", dump_missed, info.name,
+                                               scene.pose.translation.norm(), scene.id, scene.seed);
+          write_pgm(path, image);
         };
       }
       const auto run = [&](double d, double yaw) {

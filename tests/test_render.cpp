@@ -342,6 +342,98 @@ TEST(RenderScene, NoiseHasTheRequestedSigma) {
   EXPECT_NEAR(sd, std::sqrt(16 + 1.0 / 12), 0.05);
 }
 
+// Shot noise: read noise of half the sigma, and in all the sigma at mid-grey;
+// darker pixels are cleaner, lighter ones noisier, by the square root of
+// the grey.
+TEST(RenderScene, ShotNoiseGrowsWithTheGrey) {
+  const auto sd_at = [](double grey) {
+    Scene s;
+    s.clutter = false;
+    s.background_grey = grey;
+    s.pose = facing_pose(-1, 0);
+    s.noise_sigma = 4;
+    s.noise_model = NoiseModel::shot;
+    const GreyImage img = render_scene(pinhole_camera(), s);
+    double sum = 0, sum2 = 0;
+    const int n = img.width() * img.height();
+    for (int i = 0; i < n; ++i) {
+      sum += img.data()[i];
+      sum2 += static_cast<double>(img.data()[i]) * img.data()[i];
+    }
+    const double mean = sum / n;
+    return std::sqrt(sum2 / n - mean * mean);
+  };
+  const auto expected = [](double grey) { return std::sqrt(4.0 + 12.0 * grey / 128 + 1.0 / 12); };
+  EXPECT_NEAR(sd_at(128), expected(128), 0.05);
+  EXPECT_NEAR(sd_at(32), expected(32), 0.05);
+  EXPECT_NEAR(sd_at(224), expected(224), 0.05);
+}
+
+// A lens out of focus: a disc of radius twice the sigma, which keeps the
+// light and spreads a step over the disc's diameter, with edges of its own
+// shape (linear-ish, not the Gaussian's S).
+TEST(RenderScene, DiscBlurSpreadsAStepOverItsDiameter) {
+  const auto row_of = [](BlurModel model) {
+    Scene s;
+    s.clutter = false;
+    s.cut_hole = false;
+    s.noise_sigma = 0;
+    s.blur_sigma_px = 1.0;
+    s.blur_model = model;
+    s.pose = facing_pose(0.5, 0);
+    const GreyImage img = render_scene(pinhole_camera(), s);
+    std::vector<int> row;
+    const int y = img.height() / 2;
+    for (int x = 0; x < img.width(); ++x) row.push_back(img.row(y)[x]);
+    return row;
+  };
+  const std::vector<int> disc = row_of(BlurModel::disc), gaussian = row_of(BlurModel::gaussian);
+  // The marker's left outer edge: background (128) to the black corner
+  // cell's ink, then back up. Count the pixels strictly between the two
+  // plateaus around the first fall.
+  const auto transition = [](const std::vector<int>& row) {
+    std::size_t x = 0;
+    while (x < row.size() && row[x] >= 126) ++x;
+    std::size_t end = x;
+    while (end < row.size() && row[end] > row[end + 1] + 1) ++end;
+    return end - x;
+  };
+  EXPECT_LE(transition(disc), 5U) << "radius 2 px: a step spreads over 4 px, 5 with the edge's own pixel";
+  long sum_disc = 0, sum_gaussian = 0;
+  int differ = 0;
+  for (std::size_t x = 0; x < disc.size(); ++x) {
+    sum_disc += disc[x];
+    sum_gaussian += gaussian[x];
+    differ += std::abs(disc[x] - gaussian[x]) > 2;
+  }
+  EXPECT_GE(differ, 4) << "the disc's edges are not the Gaussian's";
+  EXPECT_NEAR(static_cast<double>(sum_disc) / sum_gaussian, 1.0, 0.002) << "both keep the light";
+}
+
+// Through JPEG at quality 75 the frame keeps its shape and its greys to a
+// few levels, and is not the same frame.
+TEST(RenderScene, JpegQualityPassesTheFrameThroughTheCodec) {
+  Scene s;
+  s.pose = facing_pose(0.5, 0);
+  s.noise_sigma = 2;
+  const GreyImage raw = render_scene(pinhole_camera(), s);
+  s.jpeg_quality = 75;
+  const GreyImage jpeg = render_scene(pinhole_camera(), s);
+  ASSERT_EQ(jpeg.width(), raw.width());
+  ASSERT_EQ(jpeg.height(), raw.height());
+  double changed = 0, abs_sum = 0;
+  const int n = raw.width() * raw.height();
+  for (int i = 0; i < n; ++i) {
+    const int d = std::abs(static_cast<int>(jpeg.data()[i]) - raw.data()[i]);
+    changed += d > 0;
+    abs_sum += d;
+  }
+  EXPECT_GT(changed / n, 0.3);
+  EXPECT_LT(abs_sum / n, 4.0);
+  s.jpeg_quality = 101;
+  EXPECT_THROW((void)render_scene(pinhole_camera(), s), std::invalid_argument);
+}
+
 // ------------------------------------------------------------------ peers
 
 TEST(RenderScene, AprilTagDetectorReadsRenderedTag36h11) {

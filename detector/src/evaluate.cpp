@@ -116,7 +116,10 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
         best_error = e;
       }
     }
-    if (!best) continue;
+    if (!best) {
+      if (settings.on_miss) settings.on_miss(image, scene);
+      continue;
+    }
     ++result.detected;
     corner_errors.push_back(best_error);
     if (best->pose) {

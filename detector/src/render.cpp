@@ -10,10 +10,12 @@
 #include <numbers>
 #include <opencv2/aruco.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <fmt/format.h>
 
@@ -233,6 +235,44 @@ cv::Mat make_background(int width, int height, const Scene& scene) {
   return img;
 }
 
+// A uniform disc of `radius` pixels, its rim pixels weighted by the share of
+// them inside (16 x 16 samples each), normalised to sum 1.
+cv::Mat disc_kernel(double radius) {
+  const int half = static_cast<int>(std::ceil(radius));
+  cv::Mat kernel(2 * half + 1, 2 * half + 1, CV_32F);
+  constexpr int kSamples = 16;
+  double sum = 0;
+  for (int y = -half; y <= half; ++y) {
+    for (int x = -half; x <= half; ++x) {
+      int inside = 0;
+      for (int sy = 0; sy < kSamples; ++sy) {
+        for (int sx = 0; sx < kSamples; ++sx) {
+          const double px = x - 0.5 + (sx + 0.5) / kSamples, py = y - 0.5 + (sy + 0.5) / kSamples;
+          inside += px * px + py * py <= radius * radius ? 1 : 0;
+        }
+      }
+      const double w = static_cast<double>(inside) / (kSamples * kSamples);
+      kernel.at<float>(y + half, x + half) = static_cast<float>(w);
+      sum += w;
+    }
+  }
+  kernel /= sum;
+  return kernel;
+}
+
+// Encodes and decodes the frame as JPEG (baseline, 4:2:0 does not apply to
+// grey), in place.
+void through_jpeg(GreyImage& image, int quality) {
+  const cv::Mat view(image.height(), image.width(), CV_8U, image.data());
+  std::vector<std::uint8_t> encoded;
+  if (!cv::imencode(".jpg", view, encoded, {cv::IMWRITE_JPEG_QUALITY, quality})) {
+    throw std::runtime_error("render: JPEG encoding failed");
+  }
+  const cv::Mat decoded = cv::imdecode(encoded, cv::IMREAD_GRAYSCALE);
+  if (decoded.size() != view.size()) throw std::runtime_error("render: JPEG decoding gave another size");
+  decoded.copyTo(view);
+}
+
 void check_inputs(const CameraModel& camera, const Scene& scene) {
   if (camera.width <= 0 || camera.height <= 0) throw std::invalid_argument("render: camera has no image size");
   if (!(camera.fx > 0) || !(camera.fy > 0)) throw std::invalid_argument("render: camera needs positive focal lengths");
@@ -240,6 +280,9 @@ void check_inputs(const CameraModel& camera, const Scene& scene) {
   if (!std::isfinite(scene.exposure) || scene.exposure < 0) throw std::invalid_argument("render: bad exposure");
   if (!std::isfinite(scene.blur_sigma_px) || !std::isfinite(scene.noise_sigma)) {
     throw std::invalid_argument("render: blur and noise must be finite");
+  }
+  if (scene.jpeg_quality < 0 || scene.jpeg_quality > 100) {
+    throw std::invalid_argument("render: jpeg_quality must be 0 (none) to 100");
   }
   check_id(scene.family, scene.id);
   surface::check_surface_inputs(scene);
@@ -445,12 +488,21 @@ GreyImage render_impl(const CameraModel& camera, const Scene& scene, bool with_m
   make_background(camera.width, camera.height, scene).convertTo(image, CV_32F, scene.exposure);
   if (with_marker) draw_marker(image, camera, scene);
   if (scene.blur_sigma_px > 0) {
-    cv::GaussianBlur(image, image, cv::Size(0, 0), scene.blur_sigma_px, scene.blur_sigma_px, cv::BORDER_REPLICATE);
+    if (scene.blur_model == BlurModel::disc) {
+      cv::filter2D(image, image, -1, disc_kernel(2 * scene.blur_sigma_px), cv::Point(-1, -1), 0, cv::BORDER_REPLICATE);
+    } else {
+      cv::GaussianBlur(image, image, cv::Size(0, 0), scene.blur_sigma_px, scene.blur_sigma_px, cv::BORDER_REPLICATE);
+    }
   }
   GreyImage out(camera.width, camera.height);
   Random noise(scene.seed ^ kNoiseSeedMix);
   const NormalQuantiles* normal = scene.noise_sigma > 0 ? &normal_quantiles() : nullptr;
   const auto sigma = static_cast<float>(scene.noise_sigma);
+  // Shot noise: variance read^2 + v / gain, read = sigma / 2, and sigma^2
+  // in all at v = 128.
+  const bool shot = scene.noise_model == NoiseModel::shot;
+  const float read_variance = 0.25F * sigma * sigma;
+  const float per_grey = 0.75F * sigma * sigma / 128.0F;
   std::uint64_t bits = 0;
   int left = 0;  // unused 16-bit fields in `bits`
   for (int y = 0; y < camera.height; ++y) {
@@ -463,13 +515,15 @@ GreyImage render_impl(const CameraModel& camera, const Scene& scene, bool with_m
           bits = noise.bits();
           left = 4;
         }
-        v += sigma * (*normal)[bits];
+        const float s = shot ? std::sqrt(read_variance + per_grey * std::max(v, 0.0F)) : sigma;
+        v += s * (*normal)[bits];
         bits >>= NormalQuantiles::kBits;
         --left;
       }
       dst[x] = static_cast<std::uint8_t>(std::clamp(std::floor(v + 0.5F), 0.0F, 255.0F));
     }
   }
+  if (scene.jpeg_quality > 0) through_jpeg(out, scene.jpeg_quality);
   return out;
 }
 

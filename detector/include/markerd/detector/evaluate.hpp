@@ -34,6 +34,8 @@ struct EvalSettings {
   // Called for each frame with a detection of another id than the scene's:
   // the image, its scene and what was found, to look at afterwards.
   std::function<void(const GreyImage&, const Scene&, const std::vector<Detection>&)> on_wrong_id;
+  // Called for each frame in which the scene's marker was not found.
+  std::function<void(const GreyImage&, const Scene&)> on_miss;
 };
 
 struct EvalResult {

@@ -83,6 +83,17 @@ std::optional<FrameProblem> cover_frame_problem(const CoverFrame& frame);
 // a few mm proud of the frame's inner edge, in a dark gap.
 enum class Insert { none, socket, rocker };
 
+// How the lens blurs. gaussian: a Gaussian of blur_sigma_px. disc: a lens
+// out of focus, a uniform disc of the same second moment (radius twice the
+// sigma), whose edges ring where a Gaussian's fade.
+enum class BlurModel { gaussian, disc };
+
+// The sensor's noise. gaussian: the same noise_sigma at every grey. shot:
+// photon shot noise (its variance grows with the signal) on read noise of
+// half noise_sigma, together noise_sigma at mid-grey (128): darker pixels
+// are cleaner, lighter ones noisier, as on a real sensor.
+enum class NoiseModel { gaussian, shot };
+
 // An object in front of the marker: an opaque flat polygon parallel to the
 // marker's plane.
 struct Occluder {
@@ -109,10 +120,13 @@ struct Scene {
   // Imaging: grey levels of ink and paper under the exposure.
   double exposure = 1.0;  // scales the whole image (1 = paper at ~225)
   double blur_sigma_px = 0.0;
-  double noise_sigma = 0.0;  // grey levels, Gaussian
-  int supersample = 4;       // samples per pixel along each axis
-  bool clutter = true;       // random shapes in the background
-  bool distort = true;       // apply the camera's lens distortion
+  BlurModel blur_model = BlurModel::gaussian;
+  double noise_sigma = 0.0;  // grey levels (noise_model says how it varies with the grey)
+  NoiseModel noise_model = NoiseModel::gaussian;
+  int jpeg_quality = 0;  // 1..100: the frame goes through JPEG at this quality, as an MJPEG camera sends it; 0: not
+  int supersample = 4;   // samples per pixel along each axis
+  bool clutter = true;   // random shapes in the background
+  bool distort = true;   // apply the camera's lens distortion
   std::uint64_t seed = 1;
 
   // What the print is glued onto and what stands in front of it. With all of
