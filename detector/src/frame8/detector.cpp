@@ -259,19 +259,31 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     }
     if (second_read == Rejection::none) second_read = decode(H2, cell_size, det2, rotation2, nullptr);
     note_attempt(Read::second_pass, second_read);
-    // Two measurements of one marker that read two ids: neither is trusted.
-    if (second_read == Rejection::none && det2.id != det.id) return Rejection::second_pass_disagrees;
-    const bool unconfirmed = second_read != Rejection::none;
-    if (unconfirmed && remeasured && cell_size.mean < kConfirmedCells) return Rejection::unconfirmed_remeasure;
-    if (unconfirmed && det.bits_corrected >= kUnconfirmedCorrections) return Rejection::unconfirmed_correction;
-    if (second_read == Rejection::none) {
+    Rejection unconfirmed = Rejection::none;
+    if (second_read == Rejection::none && det2.id != det.id) {
+      unconfirmed = Rejection::second_pass_disagrees;  // two measurements, two ids: neither is trusted
+    } else if (second_read != Rejection::none && remeasured && cell_size.mean < kConfirmedCells) {
+      unconfirmed = Rejection::unconfirmed_remeasure;
+    } else if (second_read != Rejection::none && det.bits_corrected >= kUnconfirmedCorrections) {
+      unconfirmed = Rejection::unconfirmed_correction;
+    }
+    if (second_read == Rejection::none && unconfirmed == Rejection::none) {
       inner = second;
       H = H2;
       det = det2;
       rotation = rotation2;
-    } else if (const Rejection why = refine_sides(coarse, EdgeMode::step, std::nullopt, cell_px, inner);
-               why != Rejection::none) {
-      return why;  // (restores the first pass's edge points for the camera refit)
+    } else {
+      // (restores the first pass's edge points for the camera refit)
+      if (const Rejection why = refine_sides(coarse, EdgeMode::step, std::nullopt, cell_px, inner);
+          why != Rejection::none) {
+        return why;
+      }
+      // What the sampled reads could not confirm, the ring model (where it
+      // is on) may still read from every pixel.
+      if (unconfirmed != Rejection::none) {
+        if (!read_by_model(H, cell_size, true, det, rotation)) return unconfirmed;
+        by_model = true;
+      }
     }
   }
 
