@@ -686,6 +686,50 @@ TEST(Frame8, CellsOfThreeToFourPixelsUnderADefocusDiscAreRead) {
   EXPECT_GE(detected, 194) << "of " << frames;
 }
 
+// Issue 19's phase invariance: a marker moved across a whole pixel in
+// steps of 0.05 px, in x and in y, is found at every phase, for ids of
+// each bit pattern: top bit set and clear, runs of white and of black
+// cells, alternating. At 1.25 m a cell is 3.3 px (the band where a blur of
+// a pixel reaches the samples), printed with its paper margin, under the
+// Gaussian blur and a defocus disc; and at 1.9 m, 2.2 px.
+TEST(Frame8, EverySubPixelPhaseIsReadForEveryBitPattern) {
+  auto det = make_detector(posed_config());
+  struct Case {
+    double distance_m;
+    BlurModel blur;
+  };
+  int frames = 0, found = 0, wrong = 0;
+  std::string missed;
+  for (const Case c : {Case{1.25, BlurModel::gaussian}, Case{1.25, BlurModel::disc}, Case{1.9, BlurModel::gaussian}}) {
+    for (const int id : {0b10000001, 0b01111110, 0b11110000, 0b00001111, 0b10101010, 0b01010101}) {
+      for (int axis = 0; axis < 2; ++axis) {
+        for (int step = 0; step < 20; ++step) {
+          const double shift_m = 0.05 * step * c.distance_m / kCamera.fx;
+          Scene s = scene(id, c.distance_m, 0, 0, 1000 + static_cast<std::uint64_t>(frames));
+          s.pose = facing_pose(c.distance_m, 0, 0, 0, axis == 0 ? shift_m : 0, axis == 1 ? shift_m : 0);
+          s.paper_margin_m = 0.010;
+          s.blur_model = c.blur;
+          ++frames;
+          bool right = false;
+          for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
+            right = right || d.id == id;
+            wrong += d.id != id;
+          }
+          found += right;
+          if (!right) {
+            missed += " " + std::to_string(c.distance_m) + " m id " + std::to_string(id) + (axis ? " y+" : " x+") +
+                      std::to_string(0.05 * step) + " px;";
+          }
+        }
+      }
+    }
+  }
+  EXPECT_EQ(wrong, 0);
+  // 99% at every phase: at most 7 misses in the 720 frames. Measured: 717
+  // (694 with the confident share of resolved cells from 3 px).
+  EXPECT_GE(found, frames - frames / 100) << "of " << frames << ", missed:" << missed;
+}
+
 // The print with its hole cut out (issue 18), the ground showing through:
 // over a light ground it is the printed hole, and found as on paper; over
 // a dark one or clutter the hole is no light region and is mostly missed
