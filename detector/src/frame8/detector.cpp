@@ -115,12 +115,6 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
 // its turn: 0.12 at 80 degrees, seen from 0.5 m; and a hole's short side
 // of a few pixels is measured up to a pixel short.
 constexpr double kMinSideRatio = 0.08;
-// Below this many pixels per cell, a read from a quad measured again after
-// the first read failed (the step-only quad, the profile fit) must be
-// confirmed by the second pass, which measures the sides knowing the code:
-// at 2.6 to 3.0 m such reads gave about one wrong id in a hundred frames
-// (bench_accuracy, seeds 1 to 4), all four edges agreeing on the wrong code.
-constexpr double kConfirmedCells = 2.0;
 // A read that needed this many of its bits corrected (an edge outvoted on
 // each) has spent most of the code's redundancy, and clutter's reads mostly
 // look so: the second pass must confirm it at any size. Bench_accuracy
@@ -191,7 +185,6 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
   if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
   int rotation = 0;
   bool by_model = false;
-  bool remeasured = false;  // read from a quad measured again after the first read failed
   const Rejection sampled = decode(H, cell_size, det, rotation, nullptr);
   note_attempt(Read::sampled, sampled);
   if (sampled != Rejection::none) {
@@ -221,7 +214,6 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
       return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
     if (!read) return sampled;
-    remeasured = !by_model;
   }
   // A quad that ends at something dark in front of the marker may have
   // read the code with its cells a cell or more off: the hole goes on
@@ -262,8 +254,6 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     Rejection unconfirmed = Rejection::none;
     if (second_read == Rejection::none && det2.id != det.id) {
       unconfirmed = Rejection::second_pass_disagrees;  // two measurements, two ids: neither is trusted
-    } else if (second_read != Rejection::none && remeasured && cell_size.mean < kConfirmedCells) {
-      unconfirmed = Rejection::unconfirmed_remeasure;
     } else if (second_read != Rejection::none && det.bits_corrected >= kUnconfirmedCorrections) {
       unconfirmed = Rejection::unconfirmed_correction;
     }

@@ -44,7 +44,6 @@ Stage stage_of(Rejection r) {
     case Rejection::line_not_ink: return Stage::structure;
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
-    case Rejection::unconfirmed_remeasure: return Stage::structure;
     case Rejection::second_pass_disagrees: return Stage::structure;
     case Rejection::unconfirmed_correction: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
@@ -113,7 +112,6 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_not_ink: return "line_not_ink";
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
-    case Rejection::unconfirmed_remeasure: return "unconfirmed_remeasure";
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";
     case Rejection::unconfirmed_correction: return "unconfirmed_correction";
     case Rejection::model_disagrees: return "model_disagrees";

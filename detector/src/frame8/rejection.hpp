@@ -70,7 +70,6 @@ enum class Rejection : std::uint8_t {
   line_not_ink,               // the line is not the black cells' ink
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
-  unconfirmed_remeasure,      // small cells read only on a remeasured quad, the second pass fails
   second_pass_disagrees,      // the sides measured again knowing the code read another id
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
   model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
