@@ -117,14 +117,16 @@ void print_family(const markerd::detector::FamilyInfo& info, const Sweeps& s, co
   fmt::print("## {}\n\n", info.name);
   fmt::print("### Against distance (yaw 0 deg)\n\n");
   fmt::print(
-      "| distance (m) | rate | 95% interval | wrong ids | corner error (px) | distance error (%) | time (ms) |\n");
-  fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
+      "| distance (m) | rate | 95% interval | wrong ids | corner error (px) | distance error (%) | distance bias (%) "
+      "| time (ms) |\n");
+  fmt::print("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n");
   for (const auto& r : s.by_distance) {
     const bool any = r.detected > 0;
-    fmt::print("| {:.2f} | {} | {} | {} | {} | {} | {:.3f} |\n", r.point.distance_m, percent(r.rate()),
+    fmt::print("| {:.2f} | {} | {} | {} | {} | {} | {} | {:.3f} |\n", r.point.distance_m, percent(r.rate()),
                interval(r.detected, r.frames), r.wrong_id,
                or_dash(any, fmt::format("{:.3f}", r.median_corner_error_px)),
-               or_dash(any, fmt::format("{:.2f}", 100 * r.median_distance_error_rel)), r.median_time_ms);
+               or_dash(any, fmt::format("{:.2f}", 100 * r.median_distance_error_rel)),
+               or_dash(any, fmt::format("{:+.2f}", 100 * r.median_distance_bias_rel)), r.median_time_ms);
   }
   if (s.by_yaw.empty()) {
     fmt::print("\n");

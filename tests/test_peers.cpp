@@ -308,6 +308,8 @@ TEST_P(Peers, EvaluatePointCountsAndRepeats) {
   EXPECT_LT(a.median_corner_error_px, kArucoDefaultTolerance);
   EXPECT_GT(a.median_distance_error_rel, 0);
   EXPECT_LT(a.median_distance_error_rel, 0.03);
+  // The signed error's median lies within the absolute one's.
+  EXPECT_LE(std::abs(a.median_distance_bias_rel), a.median_distance_error_rel + 1e-12);
   EXPECT_GT(a.median_time_ms, 0);
   // The same seed renders the same frames; another seed other frames.
   const EvalResult b = evaluate_point(*det, cam, settings, {0.6, 20});

@@ -59,7 +59,7 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
 
   EvalResult result;
   result.point = point;
-  std::vector<double> corner_errors, distance_errors, times;
+  std::vector<double> corner_errors, distance_errors, distance_biases, times;
   const auto n = static_cast<std::size_t>(std::max(settings.frames_per_point, 0));
   corner_errors.reserve(n);
   distance_errors.reserve(n);
@@ -126,11 +126,13 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
       const double t_true = scene.pose.translation.norm();
       const double t_est = best->pose->best.translation.norm();
       distance_errors.push_back(std::abs(t_est - t_true) / t_true);
+      distance_biases.push_back((t_est - t_true) / t_true);
     }
   }
 
   result.median_corner_error_px = median(corner_errors);
   result.median_distance_error_rel = median(distance_errors);
+  result.median_distance_bias_rel = median(distance_biases);
   // Over every frame, not only the detected ones: a miss costs time too, and
   // at the far end there may be no detections to take a median over.
   result.median_time_ms = median(times);

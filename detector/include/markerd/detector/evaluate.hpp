@@ -45,6 +45,7 @@ struct EvalResult {
   int wrong_id = 0;                      // detections with another id (false positives)
   double median_corner_error_px = 0;     // over detected frames, all four corners
   double median_distance_error_rel = 0;  // |t| against truth, relative; with a camera
+  double median_distance_bias_rel = 0;   // the same signed (positive: farther than it is): a bias, not a spread
   double median_time_ms = 0;
   [[nodiscard]] double rate() const { return frames ? static_cast<double>(detected) / frames : 0; }
 };
