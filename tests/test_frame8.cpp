@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <initializer_list>
 #include <numbers>
 #include <random>
 #include <string>
@@ -49,6 +50,21 @@ EvalSettings benchmark_settings() {
   settings.scene.noise_sigma = 2;
   settings.scene.blur_sigma_px = 0.6;
   return settings;
+}
+
+// bench_accuracy's counts over points facing the camera at `distances`.
+struct Tally {
+  int frames = 0, detected = 0, wrong = 0;
+};
+Tally evaluate_facing(MarkerDetector& det, const EvalSettings& settings, std::initializer_list<double> distances) {
+  Tally t;
+  for (const double d : distances) {
+    const EvalResult r = evaluate_point(det, kCamera, settings, {d, 0});
+    t.frames += r.frames;
+    t.detected += r.detected;
+    t.wrong += r.wrong_id;
+  }
+  return t;
 }
 
 std::vector<Detection> detect(MarkerDetector& det, const GreyImage& img) {
@@ -450,16 +466,10 @@ TEST(Frame8, MarkerOnASwitchFrameNear) {
   settings.scene.insert = Insert::rocker;
   settings.frames_per_point = 10;
   settings.seed = 12;
-  int detected = 0, frames = 0, wrong = 0;
-  for (const double d : {0.3, 0.4, 0.5, 0.6}) {
-    const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
-    detected += r.detected;
-    frames += r.frames;
-    wrong += r.wrong_id;
-  }
+  const Tally t = evaluate_facing(*det, settings, {0.3, 0.4, 0.5, 0.6});
   // Measured: 38 of 40; 5 before the grown reads.
-  EXPECT_GE(detected, 34) << "of " << frames;
-  EXPECT_EQ(wrong, 0);
+  EXPECT_GE(t.detected, 34) << "of " << t.frames;
+  EXPECT_EQ(t.wrong, 0);
 }
 
 // The socket frame turned (issue 18), 10 and 20 deg either way: never
@@ -630,15 +640,10 @@ TEST(Frame8, FarReadsOfARemeasuredQuadGiveNoWrongId) {
   settings.scene.clutter = true;
   settings.frames_per_point = 50;
   settings.seed = 4;
-  int wrong = 0, detected = 0;
-  for (const double d : {2.3, 2.4, 2.5, 2.6, 2.7, 2.8, 2.9, 3.0}) {
-    const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
-    wrong += r.wrong_id;
-    detected += r.detected;
-  }
-  EXPECT_EQ(wrong, 0);
+  const Tally t = evaluate_facing(*det, settings, {2.3, 2.4, 2.5, 2.6, 2.7, 2.8, 2.9, 3.0});
+  EXPECT_EQ(t.wrong, 0);
   // Measured: 367 of 400.
-  EXPECT_GE(detected, 340);
+  EXPECT_GE(t.detected, 340);
 }
 
 // The print as `markerctl marker` makes it, 10 mm of white paper around the
@@ -654,16 +659,10 @@ TEST(Frame8, FarMarkersPrintedWithAPaperMarginGiveNoWrongId) {
   EvalSettings settings = benchmark_settings();
   settings.scene.paper_margin_m = 0.010;
   settings.frames_per_point = 300;
-  int wrong = 0, detected = 0, frames = 0;
-  for (const double d : {2.2, 2.6, 2.7}) {
-    const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
-    wrong += r.wrong_id;
-    detected += r.detected;
-    frames += r.frames;
-  }
-  EXPECT_EQ(wrong, 0);
+  const Tally t = evaluate_facing(*det, settings, {2.2, 2.6, 2.7});
+  EXPECT_EQ(t.wrong, 0);
   // Measured: 703 of 900 (706 and 5 wrong ids without the checks).
-  EXPECT_GE(detected, 660) << "of " << frames;
+  EXPECT_GE(t.detected, 660) << "of " << t.frames;
 }
 
 // Cells of 3.1 to 3.4 px (1.20 to 1.35 m) under a lens out of focus (a disc
@@ -676,16 +675,10 @@ TEST(Frame8, CellsOfThreeToFourPixelsUnderADefocusDiscAreRead) {
   EvalSettings settings = benchmark_settings();
   settings.scene.paper_margin_m = 0.010;
   settings.scene.blur_model = BlurModel::disc;
-  int detected = 0, frames = 0, wrong = 0;
-  for (const double d : {1.20, 1.25, 1.30, 1.35}) {
-    const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
-    detected += r.detected;
-    frames += r.frames;
-    wrong += r.wrong_id;
-  }
-  EXPECT_EQ(wrong, 0);
+  const Tally t = evaluate_facing(*det, settings, {1.20, 1.25, 1.30, 1.35});
+  EXPECT_EQ(t.wrong, 0);
   // Measured: 200 of 200 (173 with the confident share of resolved cells).
-  EXPECT_GE(detected, 194) << "of " << frames;
+  EXPECT_GE(t.detected, 194) << "of " << t.frames;
 }
 
 // Issue 19's phase invariance: a marker moved across a whole pixel in
@@ -749,17 +742,11 @@ TEST(Frame8, CutHoleOverLightDarkAndClutteredGrounds) {
   for (const Ground ground : {Ground{false, 200}, Ground{false, 30}, Ground{true, 128}}) {
     settings.scene.clutter = ground.clutter;
     settings.scene.background_grey = ground.grey;
-    int detected = 0, frames = 0, wrong = 0;
-    for (const double d : {0.4, 0.8, 1.2, 1.6}) {
-      const EvalResult r = evaluate_point(*det, kCamera, settings, {d, 0});
-      detected += r.detected;
-      frames += r.frames;
-      wrong += r.wrong_id;
-    }
+    const Tally t = evaluate_facing(*det, settings, {0.4, 0.8, 1.2, 1.6});
     const std::string name = ground.clutter ? "clutter" : "grey " + std::to_string(static_cast<int>(ground.grey));
-    EXPECT_EQ(wrong, 0) << name;
+    EXPECT_EQ(t.wrong, 0) << name;
     if (!ground.clutter && ground.grey > 128) {
-      EXPECT_GE(detected, frames - 2) << name;
+      EXPECT_GE(t.detected, t.frames - 2) << name;
     }
   }
 }

@@ -324,19 +324,27 @@ TEST(RenderScene, CutHoleShowsTheBackground) {
   }
 }
 
-TEST(RenderScene, NoiseHasTheRequestedSigma) {
-  Scene s;
-  s.clutter = false;
-  s.pose = facing_pose(-1, 0);  // behind the camera: nothing drawn
-  s.noise_sigma = 4;
-  const GreyImage img = render_scene(pinhole_camera(), s);
+// The mean and standard deviation of an image's grey levels.
+struct GreyStats {
+  double mean, sd;
+};
+GreyStats grey_stats(const GreyImage& img) {
   double sum = 0, sum2 = 0;
   const int n = img.width() * img.height();
   for (int i = 0; i < n; ++i) {
     sum += img.data()[i];
     sum2 += static_cast<double>(img.data()[i]) * img.data()[i];
   }
-  const double mean = sum / n, sd = std::sqrt(sum2 / n - mean * mean);
+  const double mean = sum / n;
+  return {mean, std::sqrt(sum2 / n - mean * mean)};
+}
+
+TEST(RenderScene, NoiseHasTheRequestedSigma) {
+  Scene s;
+  s.clutter = false;
+  s.pose = facing_pose(-1, 0);  // behind the camera: nothing drawn
+  s.noise_sigma = 4;
+  const auto [mean, sd] = grey_stats(render_scene(pinhole_camera(), s));
   EXPECT_NEAR(mean, 128, 0.05);
   // Rounding adds 1/12 of a level's variance.
   EXPECT_NEAR(sd, std::sqrt(16 + 1.0 / 12), 0.05);
@@ -353,15 +361,7 @@ TEST(RenderScene, ShotNoiseGrowsWithTheGrey) {
     s.pose = facing_pose(-1, 0);
     s.noise_sigma = 4;
     s.noise_model = NoiseModel::shot;
-    const GreyImage img = render_scene(pinhole_camera(), s);
-    double sum = 0, sum2 = 0;
-    const int n = img.width() * img.height();
-    for (int i = 0; i < n; ++i) {
-      sum += img.data()[i];
-      sum2 += static_cast<double>(img.data()[i]) * img.data()[i];
-    }
-    const double mean = sum / n;
-    return std::sqrt(sum2 / n - mean * mean);
+    return grey_stats(render_scene(pinhole_camera(), s)).sd;
   };
   const auto expected = [](double grey) { return std::sqrt(4.0 + 12.0 * grey / 128 + 1.0 / 12); };
   EXPECT_NEAR(sd_at(128), expected(128), 0.05);
