@@ -1,4 +1,4 @@
-// A camera model file (OpenCV YAML; XML and JSON are refused before OpenCV parses them).
+// A camera model file (YAML: OpenCV's calibration, ROS's camera_info, JSON; XML is refused unparsed),
 // as a markerd config's camera.model names them. CameraModel reads only
 // from a path, so each input is written to a file in memory (/dev/shm)
 // first. CameraModelError is the one error it may raise. A model it

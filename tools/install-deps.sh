@@ -16,6 +16,9 @@ packages=(
   libpng-dev
   # command line, config, JSON
   libcli11-dev libtomlplusplus-dev nlohmann-json3-dev
+  # camera files (OpenCV's calibration YAML and ROS's camera_info):
+  # detector/src/camera_model.cpp
+  libyaml-cpp-dev
   # tests and benchmarks
   libgtest-dev libgmock-dev libbenchmark-dev
   # peers for the rig's tests: a serial line pair for Modbus RTU, a Modbus

@@ -1,15 +1,18 @@
 #include "markerd/detector/camera_model.hpp"
 
+#include <yaml-cpp/yaml.h>
 #include <opencv2/core.hpp>
 #include <opencv2/core/persistence.hpp>
 
 #include <fmt/format.h>
 #include <algorithm>
+#include <charconv>
 #include <cmath>
-#include <exception>
-#include <stdexcept>
+#include <limits>
 #include <string_view>
 #include <tuple>
+#include <unordered_set>
+#include <vector>
 
 #include "markerd/base/read_file.hpp"
 
@@ -19,130 +22,149 @@ namespace {
 // A calibration is a few kilobytes; a larger file is not one.
 constexpr std::size_t kMaxCameraFileBytes = std::size_t{1} << 20;
 
-// OpenCV's parse errors read "<source>(<line>): <what>", the source empty
-// for text parsed from memory: "line 5: Missing ':' between key and value".
-// OpenCV 4.6 passes that text as the exception's function and the parser
-// function's name as its message (FileStorage::Impl::parseError swaps them),
-// so both are looked at.
-std::string parse_error_words(const cv::Exception& e) {
-  for (const std::string* text : {&e.err, &e.func}) {
-    std::string_view line(*text);
-    if (!line.empty() && line.back() == '\n') line.remove_suffix(1);
-    if (line.find('\n') != std::string_view::npos) continue;
-    const auto close = line.find("): ");
-    const auto open = line.substr(0, close).rfind('(');
-    if (close == std::string_view::npos || open == std::string_view::npos) continue;
-    const std::string_view number = line.substr(open + 1, close - open - 1);
-    const bool digits = !number.empty() && number.find_first_not_of("0123456789") == std::string_view::npos;
-    if (digits) return fmt::format("line {}: {}", number, line.substr(close + 3));
-  }
-  return e.err;
-}
-
 [[noreturn]] void fail(const std::filesystem::path& path, const std::string& what) {
   throw CameraModelError(fmt::format("{}: {}", path.string(), what));
 }
 
-// OpenCV's reader can fail with exceptions of the standard library's own,
-// not cv::Exception. The one known (OpenCV 4.6's YAMLParser::parseKey, and
-// upstream since): an indented line with nothing before its ':' makes the
-// key's end step back over the indentation, past the key's start, and the
-// negative length reaches std::string as std::length_error. At the top
-// level the same key is OpenCV's "An empty key", so that line is named.
-std::string reader_failure_words(std::string_view text, const std::exception& e) {
-  if (dynamic_cast<const std::length_error*>(&e) != nullptr) {
-    std::size_t number = 1;
-    for (std::size_t start = 0; start < text.size(); ++number) {
-      const std::size_t end = std::min(text.find('\n', start), text.size());
-      const std::string_view line = text.substr(start, end - start);
-      const std::size_t first = line.find_first_not_of(' ');
-      if (first != std::string_view::npos && first > 0 && line[first] == ':') {
-        return fmt::format("line {}: an empty key (a ':' with no name before it)", number);
-      }
-      start = end + 1;
-    }
-  }
-  return fmt::format("OpenCV's reader failed: {}", e.what());
-}
-
-// The only format read is OpenCV's YAML. OpenCV picks its parser from the
-// first bytes alone (after a UTF-8 byte order mark): "%YAML", "{" for JSON,
-// "<?xml". Its XML parser dereferences a null pointer on some corrupt files
-// (a segmentation fault in FileStorage::open, OpenCV 4.6), which no
-// try/catch survives, so a file that is not YAML never reaches OpenCV.
-// JSON goes too: one parser to trust, the one OpenCV's and ROS's
-// calibration tools write.
-//
-// Its YAML parser loops forever on a "---" with more on its line followed by
-// another such line ("---L:1.0", "-----": found by fuzz_camera_model, OpenCV
-// 4.6), so "---", the document start, must stand alone on its line.
-void check_document_starts(const std::filesystem::path& path, std::string_view text) {
-  int number = 1;
-  for (std::size_t start = 0; start < text.size(); ++number) {
-    const std::size_t end = std::min(text.find('\n', start), text.size());
-    std::string_view line = text.substr(start, end - start);
-    // Indented too (" ---r:", the second such file the fuzzer found).
-    line.remove_prefix(std::min(line.size(), line.find_first_not_of(" \t")));
-    if (line.substr(0, 3) == "---" && line.size() > 3 && line[3] != ' ' && line[3] != '\t' && line[3] != '\r') {
-      fail(path, fmt::format("line {}: '---' (a YAML document start) must stand alone on its line", number));
-    }
-    start = end + 1;
-  }
-}
-
-void check_yaml(const std::filesystem::path& path, std::string_view text) {
+// Camera files are read with yaml-cpp, not with OpenCV's cv::FileStorage:
+// OpenCV 4.6's YAML parser never returns on some malformed files (four
+// shapes found by fuzz_camera_model, docs/fuzzing.md) and its XML parser
+// dereferences a null pointer on others. OpenCV's calibration writes YAML
+// 1.0 under a directive of its own spelling, "%YAML:1.0", which is no YAML
+// directive: it is blanked (the line numbers stay those of the file).
+// What is left is plain YAML, so ROS's camera_info files (the same keys,
+// without the !!opencv-matrix tags) and JSON read the same way.
+std::string as_plain_yaml(std::string text) {
   constexpr std::string_view bom = "\xEF\xBB\xBF";
-  if (text.substr(0, bom.size()) == bom) text.remove_prefix(bom.size());
-  if (text.substr(0, 5) == "%YAML") {
-    check_document_starts(path, text);
-    return;
-  }
-  const std::size_t first = text.find_first_not_of(" \t\r\n");
-  const std::string_view start = first == std::string_view::npos ? std::string_view{} : text.substr(first);
-  if (start.substr(0, 1) == "<") {
-    fail(path, "XML camera files are not read: convert it to OpenCV's YAML (a file that begins with %YAML:1.0)");
-  }
-  if (start.substr(0, 1) == "{") {
-    fail(path, "JSON camera files are not read: convert it to OpenCV's YAML (a file that begins with %YAML:1.0)");
-  }
-  fail(path, "the camera file is not OpenCV's YAML: it must begin with %YAML:1.0");
+  if (std::string_view(text).substr(0, bom.size()) == bom) text.erase(0, bom.size());
+  if (std::string_view(text).substr(0, 6) == "%YAML:") text.erase(0, std::min(text.find('\n'), text.size()));
+  return text;
 }
 
-// The declared size of a matrix, checked before OpenCV reads it: OpenCV
-// allocates rows x cols first and compares the data with it afterwards, so
-// "rows: 100000000" in a small file would reserve gigabytes.
-void check_matrix_header(const cv::FileNode& node, const std::filesystem::path& path, const char* key,
-                         bool (*size_ok)(int rows, int cols), const char* expected) {
-  if (!node.isMap()) fail(path, fmt::format("key '{}' is not a matrix", key));
-  const cv::FileNode rows = node["rows"];
-  const cv::FileNode cols = node["cols"];
-  const cv::FileNode data = node["data"];
-  if (!rows.isInt() || !cols.isInt() || !data.isSeq()) {
-    fail(path, fmt::format("key '{}' is not a matrix (rows, cols and data)", key));
-  }
-  const int r = static_cast<int>(rows);
-  const int c = static_cast<int>(cols);
-  if (!size_ok(r, c)) fail(path, fmt::format("key '{}' must be {}, got {}x{}", key, expected, r, c));
-  if (data.size() != static_cast<std::size_t>(r) * static_cast<std::size_t>(c)) {
-    fail(path, fmt::format("key '{}' declares {}x{} but holds {} values", key, r, c, data.size()));
+std::string where(const YAML::Node& node) { return fmt::format("line {}", node.Mark().line + 1); }
+
+// The keys a camera file gives, each once: YAML leaves a repeated key to the
+// reader, and a file that says fx twice says nothing certain.
+void check_keys_unique(const YAML::Node& map, const std::filesystem::path& path, const std::string& in) {
+  std::unordered_set<std::string> seen;
+  for (const auto& entry : map) {
+    if (!entry.first.IsScalar()) fail(path, fmt::format("{}: a key {}that is not a name", where(entry.first), in));
+    if (!seen.insert(entry.first.Scalar()).second) {
+      fail(path, fmt::format("{}: key '{}' {}given twice", where(entry.first), entry.first.Scalar(), in));
+    }
   }
 }
 
-cv::Mat read_matrix(const cv::FileNode& root, const std::filesystem::path& path, const char* key,
-                    bool (*size_ok)(int rows, int cols), const char* expected) {
-  const cv::FileNode node = root[key];
-  if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
-  check_matrix_header(node, path, key, size_ok, expected);
-  cv::Mat m;
-  try {
-    node >> m;
-  } catch (const cv::Exception&) {
-    fail(path, fmt::format("key '{}' is not a matrix", key));
+// A YAML number: decimal (as std::from_chars reads it, with an optional
+// '+'), or .inf / .nan in YAML's spellings. A decimal beyond double's range
+// is infinite, as a parser that rounds would make it; the range checks that
+// follow refuse it by name.
+bool parse_number(std::string_view s, double& value) {
+  bool negative = false;
+  std::string_view body = s;
+  if (!body.empty() && (body[0] == '+' || body[0] == '-')) {
+    negative = body[0] == '-';
+    body.remove_prefix(1);
   }
-  if (m.empty() || m.channels() != 1) fail(path, fmt::format("key '{}' is not a matrix of numbers", key));
-  m.convertTo(m, CV_64F);
-  for (auto it = m.begin<double>(); it != m.end<double>(); ++it) {
-    if (!std::isfinite(*it)) fail(path, fmt::format("key '{}' holds a value that is not finite", key));
+  for (const std::string_view inf : {".inf", ".Inf", ".INF"}) {
+    if (body == inf) {
+      value = negative ? -std::numeric_limits<double>::infinity() : std::numeric_limits<double>::infinity();
+      return true;
+    }
+  }
+  for (const std::string_view nan : {".nan", ".NaN", ".NAN", ".Nan"}) {
+    if (s == nan) {
+      value = std::numeric_limits<double>::quiet_NaN();
+      return true;
+    }
+  }
+  if (body.empty() || !(std::isdigit(static_cast<unsigned char>(body[0])) || body[0] == '.')) return false;
+  double magnitude = 0;
+  const auto [end, ec] = std::from_chars(body.data(), body.data() + body.size(), magnitude);
+  if (end != body.data() + body.size()) return false;
+  if (ec == std::errc::result_out_of_range) {
+    // Too large or too small: which, from the exponent's sign.
+    const bool tiny = body.find("e-") != std::string_view::npos || body.find("E-") != std::string_view::npos;
+    magnitude = tiny ? 0.0 : std::numeric_limits<double>::infinity();
+  } else if (ec != std::errc{}) {
+    return false;
+  }
+  value = negative ? -magnitude : magnitude;
+  return true;
+}
+
+double read_number(const YAML::Node& node, const std::filesystem::path& path, const std::string& what) {
+  double value = 0;
+  if (!node.IsScalar() || !parse_number(node.Scalar(), value)) {
+    fail(path, fmt::format("{}: {} is not a number", where(node), what));
+  }
+  return value;
+}
+
+// Larger than any sensor's side, and small enough that width * height and
+// the detector's buffers fit their types.
+constexpr int kMaxImageSide = 65535;
+
+int read_image_side(const YAML::Node& root, const std::filesystem::path& path, const char* key) {
+  const YAML::Node node = root[key];
+  if (!node) fail(path, fmt::format("missing key '{}'", key));
+  const double value = read_number(node, path, fmt::format("key '{}'", key));
+  // Checked before the conversion: inf, NaN or 1e34 do not fit an int.
+  if (!(value >= 1 && value <= kMaxImageSide) || value != std::floor(value)) {
+    fail(path, fmt::format("{}: key '{}' must be a whole number of pixels from 1 to {}, got {}", where(node), key,
+                           kMaxImageSide, node.Scalar()));
+  }
+  return static_cast<int>(value);
+}
+
+struct Matrix {
+  int rows = 0;
+  int cols = 0;
+  std::vector<double> values;  // row by row
+  [[nodiscard]] double at(int r, int c) const { return values[static_cast<std::size_t>(r * cols + c)]; }
+};
+
+// OpenCV's element types of one channel; "3d" and the like are images, not
+// a camera's matrices, and their values would be read in the wrong places.
+bool single_channel_type(const std::string& dt) { return dt.size() == 1 && dt.find_first_of("ucwsifd") == 0; }
+
+// A matrix as OpenCV writes it (a !!opencv-matrix map: rows, cols, dt,
+// data) or as ROS's camera_info does (rows, cols, data). The declared size
+// is checked before the data is read.
+Matrix read_matrix(const YAML::Node& root, const std::filesystem::path& path, const char* key,
+                   bool (*size_ok)(int rows, int cols), const char* expected) {
+  const YAML::Node node = root[key];
+  if (!node) fail(path, fmt::format("missing key '{}'", key));
+  const std::string in = fmt::format("in '{}' ", key);
+  if (!node.IsMap()) fail(path, fmt::format("{}: key '{}' is not a matrix (rows, cols and data)", where(node), key));
+  check_keys_unique(node, path, in);
+  const YAML::Node rows = node["rows"];
+  const YAML::Node cols = node["cols"];
+  const YAML::Node data = node["data"];
+  if (!rows || !cols || !data || !data.IsSequence()) {
+    fail(path, fmt::format("{}: key '{}' is not a matrix (rows, cols and data)", where(node), key));
+  }
+  const double r = read_number(rows, path, fmt::format("'{}' rows", key));
+  const double c = read_number(cols, path, fmt::format("'{}' cols", key));
+  const auto whole = [](double v) { return v >= 0 && v <= std::numeric_limits<int>::max() && v == std::floor(v); };
+  if (!whole(r) || !whole(c) || !size_ok(static_cast<int>(r), static_cast<int>(c))) {
+    fail(path,
+         fmt::format("{}: key '{}' must be {}, got {}x{}", where(node), key, expected, rows.Scalar(), cols.Scalar()));
+  }
+  Matrix m{static_cast<int>(r), static_cast<int>(c), {}};
+  if (data.size() != static_cast<std::size_t>(m.rows) * static_cast<std::size_t>(m.cols)) {
+    fail(path,
+         fmt::format("{}: key '{}' declares {}x{} but holds {} values", where(data), key, m.rows, m.cols, data.size()));
+  }
+  if (const YAML::Node dt = node["dt"]; dt && !(dt.IsScalar() && single_channel_type(dt.Scalar()))) {
+    fail(path, fmt::format("{}: key '{}' has dt '{}': a matrix of one channel of numbers (such as d) is expected",
+                           where(dt), key, dt.IsScalar() ? dt.Scalar() : std::string("(not a name)")));
+  }
+  m.values.reserve(data.size());
+  for (const auto& value : data) {
+    const double v = read_number(value, path, fmt::format("a value of '{}'", key));
+    if (!std::isfinite(v)) fail(path, fmt::format("{}: key '{}' holds a value that is not finite", where(value), key));
+    m.values.push_back(v);
   }
   return m;
 }
@@ -154,21 +176,24 @@ bool is_distortion_size(int rows, int cols) {
   return n == 4 || n == 5 || n == 8 || n == 12 || n == 14;
 }
 
-// Larger than any sensor's side, and small enough that width * height and
-// the detector's buffers fit their types.
-constexpr int kMaxImageSide = 65535;
-
-int read_image_side(const cv::FileNode& root, const std::filesystem::path& path, const char* key) {
-  const cv::FileNode node = root[key];
-  if (node.empty()) fail(path, fmt::format("missing key '{}'", key));
-  if (!node.isInt() && !node.isReal()) fail(path, fmt::format("key '{}' is not a number", key));
-  const double value = node.real();
-  // Checked before the conversion: 1e309 (inf), NaN or 1e34 do not fit an int.
-  if (!(value >= 1 && value <= kMaxImageSide) || value != std::floor(value)) {
-    fail(path,
-         fmt::format("key '{}' must be a whole number of pixels from 1 to {}, got {}", key, kMaxImageSide, value));
+// ROS's camera_info names its lens model. Its plumb_bob and
+// rational_polynomial are OpenCV's model with 5 and 8 coefficients; its
+// equidistant model (OpenCV's fisheye) has 4 coefficients of another
+// model, which read as k1 k2 p1 p2 would be a wrong lens, not an error.
+void check_distortion_model(const YAML::Node& root, const std::filesystem::path& path, std::size_t coefficients) {
+  const YAML::Node node = root["distortion_model"];
+  if (!node) return;
+  const std::string name = node.IsScalar() ? node.Scalar() : std::string();
+  const std::size_t expected = name == "plumb_bob" ? 5 : (name == "rational_polynomial" ? 8 : 0);
+  if (expected == 0) {
+    fail(path, fmt::format("{}: distortion_model '{}' is not supported: plumb_bob or rational_polynomial (OpenCV's "
+                           "model; an equidistant or fisheye lens needs another model)",
+                           where(node), name));
   }
-  return static_cast<int>(value);
+  if (coefficients != expected) {
+    fail(path, fmt::format("{}: distortion_model '{}' has {} coefficients, the file gives {}", where(node), name,
+                           expected, coefficients));
+  }
 }
 
 // A focal length beyond this many image widths would be a lens of several
@@ -178,7 +203,7 @@ constexpr double kMaxFocalPerSide = 1000;
 // but not more than this many image sizes away.
 constexpr double kMaxPrincipalOffsetPerSide = 10;
 
-void check_intrinsics(const CameraModel& cam, const cv::Mat& k, const std::filesystem::path& path) {
+void check_intrinsics(const CameraModel& cam, const Matrix& k, const std::filesystem::path& path) {
   for (const auto& [f, side, name] : {std::tuple{cam.fx, cam.width, "fx"}, std::tuple{cam.fy, cam.height, "fy"}}) {
     if (!(f > 0 && f <= kMaxFocalPerSide * side)) {
       fail(path, fmt::format("key 'camera_matrix': {} must be positive and at most {} pixels (1000 image sizes), "
@@ -194,35 +219,33 @@ void check_intrinsics(const CameraModel& cam, const cv::Mat& k, const std::files
                              name, -reach, side + reach, c));
     }
   }
-  if (std::abs(k.at<double>(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
+  if (std::abs(k.at(0, 1)) > 1e-9) fail(path, "key 'camera_matrix': a skewed pixel grid is not supported");
   // The last row and the zeros are what any calibration writes; anything
   // else is not a pinhole camera's matrix and would be silently ignored.
-  const bool pinhole =
-      k.at<double>(1, 0) == 0 && k.at<double>(2, 0) == 0 && k.at<double>(2, 1) == 0 && k.at<double>(2, 2) == 1;
+  const bool pinhole = k.at(1, 0) == 0 && k.at(2, 0) == 0 && k.at(2, 1) == 0 && k.at(2, 2) == 1;
   if (!pinhole) fail(path, "key 'camera_matrix' must be fx, 0, cx / 0, fy, cy / 0, 0, 1");
 }
 
-CameraModel parse(const cv::FileStorage& fs, const std::filesystem::path& path) {
-  // fs[key] asserts a map at the top: a list there is a wrong file, not a crash.
-  const cv::FileNode root = fs.root();
-  if (!root.isMap()) fail(path, "the camera file is not a map of keys (image_width, camera_matrix, ...)");
+CameraModel parse(const YAML::Node& root, const std::filesystem::path& path) {
+  if (!root.IsMap()) fail(path, "the camera file is not a map of keys (image_width, camera_matrix, ...)");
+  check_keys_unique(root, path, "");
   CameraModel cam;
   cam.width = read_image_side(root, path, "image_width");
   cam.height = read_image_side(root, path, "image_height");
 
-  const cv::Mat k = read_matrix(root, path, "camera_matrix", is_3x3, "3x3");
-  cam.fx = k.at<double>(0, 0);
-  cam.fy = k.at<double>(1, 1);
-  cam.cx = k.at<double>(0, 2);
-  cam.cy = k.at<double>(1, 2);
+  const Matrix k = read_matrix(root, path, "camera_matrix", is_3x3, "3x3");
+  cam.fx = k.at(0, 0);
+  cam.fy = k.at(1, 1);
+  cam.cx = k.at(0, 2);
+  cam.cy = k.at(1, 2);
   check_intrinsics(cam, k, path);
 
-  const cv::Mat d = read_matrix(root, path, "distortion_coefficients", is_distortion_size,
-                                "1xN or Nx1 with N 4, 5, 8, 12 or 14 (OpenCV's model)");
-  const int n = static_cast<int>(d.total());
-  const auto* v = d.ptr<double>();
-  for (int i = 0; i < std::min(n, 12); ++i) cam.dist[static_cast<std::size_t>(i)] = v[i];
-  if (n == 14 && (v[12] != 0.0 || v[13] != 0.0)) {
+  const Matrix d = read_matrix(root, path, "distortion_coefficients", is_distortion_size,
+                               "1xN or Nx1 with N 4, 5, 8, 12 or 14 (OpenCV's model)");
+  check_distortion_model(root, path, d.values.size());
+  const std::vector<double>& v = d.values;
+  for (std::size_t i = 0; i < std::min<std::size_t>(v.size(), 12); ++i) cam.dist[i] = v[i];
+  if (v.size() == 14 && (v[12] != 0.0 || v[13] != 0.0)) {
     fail(path, "key 'distortion_coefficients': the tilted-sensor terms (tauX, tauY) are not supported");
   }
   return cam;
@@ -231,36 +254,31 @@ CameraModel parse(const cv::FileStorage& fs, const std::filesystem::path& path) 
 }  // namespace
 
 CameraModel CameraModel::load(const std::filesystem::path& path) {
-  // Read here, bounded, and parsed from memory: FileStorage would open a
-  // directory, a FIFO or /dev/zero and fail (or wait) without saying why.
+  // Read here, bounded: a directory, a FIFO or /dev/zero is refused by name.
   std::string text;
   try {
     text = read_regular_file(path, kMaxCameraFileBytes, "the camera file");
   } catch (const FileError& e) {
     throw CameraModelError(e.what());
   }
-  if (text.find_first_not_of(" \t\r\n") == std::string::npos) fail(path, "the camera file is empty");
-  check_yaml(path, text);
-  cv::FileStorage fs;
-  bool opened = false;
-  try {
-    opened = fs.open(text, cv::FileStorage::READ | cv::FileStorage::MEMORY);
-  } catch (const cv::Exception& e) {
-    fail(path, fmt::format("the camera file cannot be parsed: {}", parse_error_words(e)));
-  } catch (const std::exception& e) {
-    fail(path, fmt::format("the camera file cannot be parsed: {}", reader_failure_words(text, e)));
+  text = as_plain_yaml(std::move(text));
+  const std::size_t first = text.find_first_not_of(" \t\r\n");
+  if (first == std::string::npos) fail(path, "the camera file is empty");
+  if (text[first] == '<') {
+    fail(path, "XML camera files are not read: write it as YAML (OpenCV's cv::FileStorage with a .yaml name does)");
   }
-  if (!opened) fail(path, "the camera file is not OpenCV's YAML");
-  // OpenCV asserts on what it does not expect in a node it is asked about;
-  // any of those is a wrong camera file, never an escaping cv::Exception.
+  YAML::Node root;
   try {
-    return parse(fs, path);
-  } catch (const CameraModelError&) {
-    throw;
-  } catch (const cv::Exception& e) {
-    fail(path, fmt::format("the camera file is not a camera model: {}", e.err));
-  } catch (const std::exception& e) {
-    fail(path, fmt::format("the camera file is not a camera model: OpenCV's reader failed: {}", e.what()));
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    fail(path, fmt::format("the camera file cannot be parsed: line {}: {}", e.mark.line + 1, e.msg));
+  }
+  // yaml-cpp throws on questions its nodes cannot answer (a subscript of a
+  // sequence, say): each is a wrong camera file.
+  try {
+    return parse(root, path);
+  } catch (const YAML::Exception& e) {
+    fail(path, fmt::format("the camera file is not a camera model: line {}: {}", e.mark.line + 1, e.msg));
   }
 }
 

@@ -1,7 +1,7 @@
 #pragma once
 // Pinhole camera with OpenCV's distortion model, as OpenCV's calibration
-// writes it (camera_matrix, distortion_coefficients, image_width,
-// image_height). Distortion: 4, 5, 8 or 12 coefficients (k1 k2 p1 p2 [k3
+// and ROS's camera_info write it (camera_matrix, distortion_coefficients,
+// image_width, image_height). Distortion: 4, 5, 8 or 12 coefficients (k1 k2 p1 p2 [k3
 // [k4 k5 k6 [s1 s2 s3 s4]]]); 14 only with a zero sensor tilt.
 
 #include <array>
@@ -25,8 +25,10 @@ struct CameraModel {
   // k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4; unused ones are zero.
   std::array<double, 12> dist{};
 
-  // Reads OpenCV's calibration YAML (XML and JSON are refused); throws
-  // CameraModelError naming the file and the key that is missing or wrong.
+  // Reads a camera file in YAML: OpenCV's calibration output, ROS's
+  // camera_info, or the same keys in JSON (XML is refused). Throws
+  // CameraModelError naming the file, the line and the key that is
+  // missing or wrong. save() writes OpenCV's format.
   static CameraModel load(const std::filesystem::path& path);
   void save(const std::filesystem::path& path) const;
 
