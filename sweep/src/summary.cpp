@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <numeric>
 #include <set>
@@ -227,6 +228,7 @@ PointSummary summarize_point(const std::vector<const PointRecord*>& records, con
   s.reprojection_error_px = spread_of(reprojection_error);
   s.median_translation_error_mm = median_of(translation_error);
   s.median_distance_error_pct = median_of(abs_distance_error_pct);
+  s.median_rotation_error_deg = median_of(rotation_error);
   s.rate = s.frames > 0 ? static_cast<double>(s.detected) / s.frames : 0.0;
   s.reached = s.frames > 0 && s.rate >= start.plan.detection_threshold;
   return s;
@@ -333,6 +335,52 @@ std::string translation_error_cell(const std::optional<double>& value_mm) {
   return *value_mm < 10 ? fmt::format("{:.1f} mm", *value_mm) : fmt::format("{:.1f} cm", *value_mm / 10);
 }
 
+// A pose error per distance, not pooled: pooled over a sweep, the near
+// points' small errors hide the far ones' (a run's 0.1 % over all can be
+// 2 % at its reach). The median of the facing points' medians at each of
+// `distances` and at the run's maximum distance, then over all the run's
+// frames; the pooled figure alone when no facing point lies at any of them.
+std::string error_by_distance_cell(const RunSummary& run, const std::vector<double>& distances,
+                                   std::optional<double> PointSummary::*field, const std::optional<double>& pooled,
+                                   const std::function<std::string(const std::optional<double>&)>& text) {
+  std::vector<double> where = distances;
+  if (run.max_distance_m) where.push_back(*run.max_distance_m);
+  std::sort(where.begin(), where.end());
+  std::string cell;
+  double last = -1;
+  for (const double d : where) {
+    if (std::abs(d - last) <= kTableDistanceToleranceM) continue;
+    last = d;
+    std::vector<double> medians;
+    for (const auto& p : run.points) {
+      if (is_facing(p) && std::abs(p.distance_m - d) <= kTableDistanceToleranceM && (p.*field)) {
+        medians.push_back(*(p.*field));
+      }
+    }
+    if (medians.empty()) continue;
+    const bool reach = run.max_distance_m && std::abs(d - *run.max_distance_m) <= kTableDistanceToleranceM;
+    cell += fmt::format("{}{} at {} cm{}", cell.empty() ? "" : ", ", text(median_of(medians)),
+                        one_decimal_or_whole(d * 100), reach ? " (farthest)" : "");
+  }
+  if (cell.empty()) return text(pooled);
+  return fmt::format("{}; {} over all", cell, text(pooled));
+}
+
+std::string distance_error_text(const std::optional<double>& pct) { return optional_cell(pct, " %"); }
+std::string rotation_error_text(const std::optional<double>& deg) { return optional_cell(deg, "°"); }
+
+// The three error rows of Table 6.1 for one run.
+std::array<std::string, 3> error_cells(const RunSummary& run, const std::vector<double>& distances) {
+  return {
+      error_by_distance_cell(run, distances, &PointSummary::median_distance_error_pct, run.median_distance_error_pct,
+                             distance_error_text),
+      error_by_distance_cell(run, distances, &PointSummary::median_translation_error_mm,
+                             run.median_translation_error_mm, translation_error_cell),
+      error_by_distance_cell(run, distances, &PointSummary::median_rotation_error_deg, run.median_rotation_error_deg,
+                             rotation_error_text),
+  };
+}
+
 // A Markdown table: the header's cells, then the rows'.
 std::string markdown_table(const std::vector<std::string>& header, const std::vector<std::vector<std::string>>& rows) {
   std::string table = "|";
@@ -368,8 +416,10 @@ std::string runs_note(const std::vector<const RunSummary*>& runs, std::string_vi
   return fmt::format(
       "Runs: a point counts as detected when {} of its frames found the marker. The maximum distance is the "
       "farthest of an unbroken run of such facing points from the nearest outwards; the maximum angle likewise "
-      "from facing outwards, per side (+/− turntable direction). Median errors: over every frame with a pose, "
-      "distance error as |error| of the true distance. {}; {}: the first point already failed; {}: the "
+      "from facing outwards, per side (+/− turntable direction). Median errors: at each distance named, over "
+      "the frames of the facing point there (of several runs' points there, the median of theirs; \"farthest\": "
+      "at the maximum distance), then over every frame with a pose in the runs; the distance error as |error| of "
+      "the true distance. {}; {}: the first point already failed; {}: the "
       "sweep's last point was still detected, the limit lies beyond it.\n",
       threshold, missing, kNotReached, kAtSweepEnd);
 }
@@ -385,19 +435,27 @@ struct ThesisColumn {
   std::vector<std::pair<double, std::string_view>> max_angle;  // by distance in m
   std::string_view tvec_difference;
   std::string_view distance_error;
+  // Where Table 6.1 quotes the pose errors: the thesis's distance error's
+  // distance and its maximum distance (the run's own reach is added).
+  std::vector<double> error_distances_m;
 };
+
+// The paper marker's, also for a table without a thesis column.
+const std::vector<double> kPaperErrorDistancesM = {0.95, 1.20};
 
 const ThesisColumn* thesis_column(Mounting mounting) {
   static const ThesisColumn paper{"paper marker",
                                   "120 cm",
                                   {{0.50, "60°"}, {0.95, "45° (stable to 30°)"}},
                                   "about 2 cm (appendix C: 1.7 cm)",
-                                  "9.2 cm at 95 cm (~9.7%)"};
+                                  "9.2 cm at 95 cm (~9.7%)",
+                                  kPaperErrorDistancesM};
   static const ThesisColumn socket{"socket marker",
                                    "81 cm",
                                    {{0.50, "45°"}, {0.72, "30°"}, {0.95, "not detected"}},
                                    "about 2 cm (appendix C: 1.9 cm)",
-                                   "7.7 cm at 72 cm (~10.7%)"};
+                                   "7.7 cm at 72 cm (~10.7%)",
+                                   {0.72, 0.81}};
   switch (mounting) {
     case Mounting::paper: return &paper;
     case Mounting::socket: return &socket;
@@ -597,9 +655,8 @@ std::string table_6_1(const std::vector<RunSummary>& runs) {
     rows[0].push_back(max_distance_cell(run, kNotSwept));
     rows[1].push_back(max_angle_cell(run, 0.50, kNotSwept));
     rows[2].push_back(max_angle_cell(run, 0.95, kNotSwept));
-    rows[3].push_back(optional_cell(run.median_distance_error_pct, " %"));
-    rows[4].push_back(translation_error_cell(run.median_translation_error_mm));
-    rows[5].push_back(optional_cell(run.median_rotation_error_deg, "°"));
+    auto errors = error_cells(run, kPaperErrorDistancesM);
+    for (std::size_t i = 0; i < errors.size(); ++i) rows[3 + i].push_back(std::move(errors[i]));
   }
   std::string table = markdown_table(header, rows);
   table +=
@@ -656,9 +713,10 @@ std::string table_6_1_by_marker(const std::vector<MarkerColumn>& markers) {
     add(thesis != nullptr ? thesis->tvec_difference : kNotMeasured,
         translation_error_cell(run.max_tvec_difference_m ? std::optional(*run.max_tvec_difference_m * 1000)
                                                          : std::nullopt));
-    add(thesis != nullptr ? thesis->distance_error : kNotMeasured, optional_cell(run.median_distance_error_pct, " %"));
-    add(kNotMeasured, translation_error_cell(run.median_translation_error_mm));
-    add(kNotMeasured, optional_cell(run.median_rotation_error_deg, "°"));
+    auto errors = error_cells(run, thesis != nullptr ? thesis->error_distances_m : kPaperErrorDistancesM);
+    add(thesis != nullptr ? thesis->distance_error : kNotMeasured, std::move(errors[0]));
+    add(kNotMeasured, std::move(errors[1]));
+    add(kNotMeasured, std::move(errors[2]));
   }
   std::string table = markdown_table(header, rows);
   table +=

@@ -59,6 +59,7 @@ struct PointSummary {
   // since one wrong pose among a few dozen would drag a mean.
   std::optional<double> median_translation_error_mm;
   std::optional<double> median_distance_error_pct;  // of |error|
+  std::optional<double> median_rotation_error_deg;
   std::vector<MeasurementSummary> measurements;
 };
 
