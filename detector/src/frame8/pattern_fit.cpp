@@ -33,11 +33,11 @@ bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, 
   const double ds = 2 * half / (kSamples - 1);
   double sum = 0, moment = 0, peak = 0;
   if (dip) {
-    const double ref = std::min(v.front(), v.back());
-    for (int i = 0; i < kSamples; ++i) peak = std::max(peak, ref - v[static_cast<std::size_t>(i)]);
+    const auto ref = [&](int i) { return v.front() + (v.back() - v.front()) * i / (kSamples - 1.0); };
+    for (int i = 0; i < kSamples; ++i) peak = std::max(peak, ref(i) - v[static_cast<std::size_t>(i)]);
     const double floor = 0.1 * peak;
     for (int i = 0; i < kSamples; ++i) {
-      const double depth = ref - v[static_cast<std::size_t>(i)] - floor;
+      const double depth = ref(i) - v[static_cast<std::size_t>(i)] - floor;
       if (depth <= 0) continue;
       sum += depth;
       moment += depth * (-half + i * ds);
@@ -78,6 +78,15 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotat
     return cells[static_cast<std::size_t>(row * frame8::grid + col)] == 1;
   };
   static constexpr std::array<Point2, 4> kOutward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
+  // The line beside a white cell is half a cell wide. Narrower than the
+  // blurred edge (two profile sigmas: 1.5 px with the default blur), its dip
+  // is shaped as much by the cells beside it as by the line: a black cell
+  // beside the white one darkens one flank, and the centre comes out up to
+  // a fiftieth of a cell outwards (2 px cells: 0.02), which grew the hole
+  // and put a far marker up to 0.3 % too near. There the hole's edge is
+  // left to the steps beside black cells and to the boundaries.
+  const double min_dip_line_px = 2 * profile_sigma_;
+  const double line_px = (kInnerLo - frame8::line_outer) * cell_px;
   // Points per cell along an edge: about one per 1.5 px.
   const int per_cell = std::clamp(static_cast<int>(cell_px / 1.5), 1, 4);
   pattern_count_ = 0;
@@ -101,6 +110,7 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotat
         const double frac = along - k;
         if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
         if (white_at(side_point(side, along, 0.5))) {
+          if (line_px < min_dip_line_px) continue;
           add(side_point(side, along, 1.25), outward, 0.65, true, axis);
         } else {
           add(side_point(side, along, kInnerLo), outward, 0.45, false, axis);
