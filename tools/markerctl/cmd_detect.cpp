@@ -171,7 +171,8 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
       "and DIR/NNNN-candidates.json (per candidate: corners, and the stage and reason that rejected it);\n"
       "stderr names each image's NNNN. For when a marker is not found; it slows detection down.");
   app->add_option("--family", o->family, "Marker family: " + family_names())->type_name("NAME")->capture_default_str();
-  app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON), for the pose")->type_name("FILE");
+  app->add_option("--camera", o->camera, "Camera calibration (OpenCV's YAML or ROS camera_info), for the pose")
+      ->type_name("FILE");
   app->add_option("--size", o->size, "Marker size for the pose (0.08, 8cm; frame8: outer edge)")->type_name("LENGTH");
   app->add_option("--decimate", o->decimate, "frame8: segmentation decimation (0: from the image size)")
       ->capture_default_str()

@@ -242,7 +242,8 @@ void add_evaluate_command(CLI::App& parent, Commands& commands) {
   app->add_option("--supersample", o->supersample, "Render samples per pixel along each axis")
       ->capture_default_str()
       ->check(CLI::Range(1, 16));
-  app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON); default: the thesis camera")
+  app->add_option("--camera", o->camera,
+                  "Camera calibration (OpenCV's YAML or ROS camera_info); default: the thesis camera")
       ->type_name("FILE");
   app->add_option("--size", o->size, "Marker size (frame8: outer edge; others: black border)")
       ->type_name("LENGTH")

@@ -179,7 +179,8 @@ void add_render_command(CLI::App& parent, Commands& commands) {
   app->add_option("--size", o->size, "Marker size (frame8: outer edge; others: black border)")
       ->type_name("LENGTH")
       ->capture_default_str();
-  app->add_option("--camera", o->camera, "Camera calibration (OpenCV YAML/XML/JSON); default: the thesis camera")
+  app->add_option("--camera", o->camera,
+                  "Camera calibration (OpenCV's YAML or ROS camera_info); default: the thesis camera")
       ->type_name("FILE");
   app->add_option("--noise", o->noise, "Gaussian noise, grey levels (sigma)")
       ->capture_default_str()
