@@ -6,9 +6,15 @@
 //   bench_accuracy --family all --frames 50 --dist 0.3:3.0:0.1
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
 //                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
-//                  [--background clutter|GREY] [--cover top|right|bottom|left|each]
+//                  [--background KIND|all|GREY] [--cover top|right|bottom|left|each]
 //                  [--margin MM] [--false-positives N] [--blur-model gaussian|disc]
 //                  [--noise-model gaussian|shot] [--jpeg Q] [--supersample N] [--no-distort]
+//
+// --background is the clutter's kind (shapes, the default, also called
+// clutter; tiles, keyboard, checkerboard, windows, text, outlets: textures
+// that look like markers), all of them in turn frame by frame, or a plain
+// grey level. It applies to the marker scenes and the --false-positives
+// frames alike; with all, the false positives are also counted per kind.
 
 #include <unistd.h>
 
@@ -22,8 +28,10 @@
 #include <exception>
 #include <opencv2/core/utility.hpp>
 #include <optional>
+#include <span>
 #include <sstream>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -73,11 +81,19 @@ std::vector<double> parse_list(const std::string& text, const char* what) {
   return values;
 }
 
+// Frames of the background alone and what was found in them.
+struct BackgroundTally {
+  int frames = 0;
+  int frames_with_detections = 0;
+  int detections = 0;
+};
+
 struct Sweeps {
   std::vector<markerd::detector::EvalResult> by_distance;
   std::vector<std::vector<markerd::detector::EvalResult>> by_yaw;  // one per --yaw-at distance
   int false_positives = 0;                                         // detections in frames of the background alone
   int false_positive_frames = 0;                                   // such frames with any detection
+  std::vector<BackgroundTally> by_background;  // the same per kind, in the order of all_backgrounds()
 };
 
 // The farthest value reached by an unbroken run of points at >= 90% from the
@@ -249,8 +265,12 @@ int main(int argc, char** argv) {
   app.add_option("--insert", insert_name,
                  "what the opening shows: none (the background), socket, rocker (default: the mount's)")
       ->check(CLI::IsMember({"none", "socket", "rocker"}));
-  std::string background = "clutter";
-  app.add_option("--background", background, "clutter, or a plain grey level 0..255")->capture_default_str();
+  std::string background = "shapes";
+  app.add_option("--background", background,
+                 "the clutter: shapes (random shapes; also: clutter), or a texture that looks like markers: tiles, "
+                 "keyboard, checkerboard, windows, text, outlets; all (each in turn, frame by frame); or a plain "
+                 "grey level 0..255")
+      ->capture_default_str();
   double margin_mm = 0;
   app.add_option("--margin", margin_mm,
                  "white paper around the marker, mm (the print as markerctl marker makes it: 10; 0 for the bare "
@@ -344,7 +364,15 @@ int main(int argc, char** argv) {
                             : insert_name == "rocker" ? Insert::rocker
                                                       : Insert::none;
   }
-  if (background != "clutter") {
+  using markerd::detector::Background;
+  const std::span<const Background> kinds = markerd::detector::all_backgrounds();
+  const bool every_kind = background == "all";
+  if (every_kind) {
+    settings.background_turns.assign(kinds.begin(), kinds.end());
+  } else if (const auto kind =
+                 markerd::detector::background_from_string(background == "clutter" ? "shapes" : background)) {
+    settings.scene.background = *kind;
+  } else {
     try {
       std::size_t used = 0;
       settings.scene.background_grey = std::stod(background, &used);
@@ -353,7 +381,9 @@ int main(int argc, char** argv) {
         throw std::invalid_argument(background);
       }
     } catch (const std::exception&) {
-      std::fprintf(stderr, "bench_accuracy: --background: expected clutter or a grey level 0..255, got '%s'\n",
+      std::fprintf(stderr,
+                   "bench_accuracy: --background: expected shapes, tiles, keyboard, checkerboard, windows, text, "
+                   "outlets, all or a grey level 0..255, got '%s'\n",
                    background.c_str());
       return 2;
     }
@@ -379,9 +409,21 @@ int main(int argc, char** argv) {
              camera.dist[2], camera.dist[3], camera.dist[4], camera_path.empty() ? " (the thesis camera)" : "");
   fmt::print("- marker: {:.1f} cm (frame8: the outer edge; aruco4x4_50, tag36h11: the outer black border)\n",
              100 * size_m);
+  // The shapes are "clutter", as this line always said.
+  std::string ground = "plain grey " + background;
+  if (every_kind) {
+    ground = "clutter of each kind in turn (";
+    for (const Background kind : kinds) {
+      ground += fmt::format("{}{}", kind == kinds.front() ? "" : ", ", markerd::detector::to_string(kind));
+    }
+    ground += ")";
+  } else if (settings.scene.clutter) {
+    ground = settings.scene.background == Background::shapes
+                 ? std::string("clutter")
+                 : fmt::format("clutter: {}", markerd::detector::to_string(settings.scene.background));
+  }
   fmt::print("- imaging: {} noise sigma {:.1f}, {} blur sigma {:.2f} px{}, {}, {}, supersampling {}\n", noise_model,
-             noise, blur_model, blur, jpeg_quality > 0 ? fmt::format(", JPEG quality {}", jpeg_quality) : "",
-             background == "clutter" ? std::string("clutter") : "plain grey " + background,
+             noise, blur_model, blur, jpeg_quality > 0 ? fmt::format(", JPEG quality {}", jpeg_quality) : "", ground,
              no_distort ? "no lens distortion" : "lens distortion", settings.scene.supersample);
   fmt::print("- mount: {}{}{}\n", mount,
              settings.scene.insert == markerd::detector::Insert::socket   ? ", a socket outlet in the opening"
@@ -445,6 +487,7 @@ int main(int argc, char** argv) {
         auto& sweep = s.by_yaw.emplace_back();
         for (double yaw : yaws) sweep.push_back(run(d, yaw));
       }
+      s.by_background.assign(kinds.size(), {});
       for (int k = 0; k < false_positive_frames; ++k) {
         if (progress && k % 100 == 0) {
           std::fprintf(stderr, "\r%s: background %d of %d   ", std::string(info.name).c_str(), k,
@@ -452,14 +495,23 @@ int main(int argc, char** argv) {
         }
         markerd::detector::Scene scene = settings.scene;
         scene.seed = seed * 1000003ULL + static_cast<std::uint64_t>(k);
+        if (!settings.background_turns.empty()) {
+          scene.background = settings.background_turns[static_cast<std::size_t>(k) % settings.background_turns.size()];
+        }
         const markerd::detector::GreyImage image = markerd::detector::render_background(camera, scene);
         std::vector<markerd::detector::Detection> found;
         detector->detect(image.view(), found);
         s.false_positives += static_cast<int>(found.size());
         s.false_positive_frames += found.empty() ? 0 : 1;
+        const auto kind_index = std::find(kinds.begin(), kinds.end(), scene.background) - kinds.begin();
+        BackgroundTally& tally = s.by_background[static_cast<std::size_t>(kind_index)];
+        ++tally.frames;
+        tally.detections += static_cast<int>(found.size());
+        tally.frames_with_detections += found.empty() ? 0 : 1;
         if (!found.empty() && !dump_wrong.empty()) {
           const std::string path =
-              fmt::format("{}/{}-background-read{}-seed{}.pgm", dump_wrong, info.name, found.front().id, scene.seed);
+              fmt::format("{}/{}-background-{}-read{}-seed{}.pgm", dump_wrong, info.name,
+                          markerd::detector::to_string(scene.background), found.front().id, scene.seed);
           write_pgm(path, image);
           std::fprintf(stderr, "bench_accuracy: false detection, frame written to %s\n", path.c_str());
         }
@@ -480,6 +532,15 @@ int main(int argc, char** argv) {
           "frames (95% interval {:.2f}-{:.2f})\n\n",
           s.false_positives, s.false_positive_frames, false_positive_frames,
           1e4 * s.false_positive_frames / false_positive_frames, 1e4 * i.low, 1e4 * i.high);
+      if (every_kind) {
+        fmt::print("| background | frames | frames with a detection | detections |\n| --- | ---: | ---: | ---: |\n");
+        for (std::size_t k = 0; k < kinds.size(); ++k) {
+          const BackgroundTally& t = s.by_background[k];
+          fmt::print("| {} | {} | {} | {} |\n", markerd::detector::to_string(kinds[k]), t.frames,
+                     t.frames_with_detections, t.detections);
+        }
+        fmt::print("\n");
+      }
     }
     summary.push_back(summary_row(info, s));
     std::fflush(stdout);

@@ -784,6 +784,51 @@ TEST(Frame8, NoDetectionOnClutter) {
   EXPECT_EQ(false_positives, 0);
 }
 
+// Textures that look like markers, without one (issue 19: none in 10,000
+// frames): 40 frames of each kind in bench_accuracy's imaging, through
+// markerd's detector. Tiles and keyboards are not among them yet: the
+// detector reads markers in them (mostly id 126: in 3 of these 40 tile
+// frames, and in 2 of 72 keyboard frames of bench_accuracy --background
+// all --false-positives 500).
+class Frame8OnBackground : public ::testing::TestWithParam<Background> {};
+
+TEST_P(Frame8OnBackground, NoDetection) {
+  auto det = make_detector(posed_config());
+  Scene s = benchmark_settings().scene;
+  s.background = GetParam();
+  int false_positives = 0;
+  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+    s.seed = seed;
+    for (const Detection& d : detect(*det, render_background(kCamera, s))) {
+      ++false_positives;
+      ADD_FAILURE() << "seed " << seed << ": id " << d.id << " at " << d.corners[0].x << "," << d.corners[0].y << " "
+                    << d.corners[1].x << "," << d.corners[1].y << " " << d.corners[2].x << "," << d.corners[2].y << " "
+                    << d.corners[3].x << "," << d.corners[3].y;
+    }
+  }
+  EXPECT_EQ(false_positives, 0);
+}
+
+INSTANTIATE_TEST_SUITE_P(Kinds, Frame8OnBackground,
+                         ::testing::Values(Background::shapes, Background::checkerboard, Background::windows,
+                                           Background::text, Background::outlets),
+                         [](const auto& p) { return std::string(to_string(p.param)); });
+
+// bench_accuracy --background all: frame i of a point shows kind i % n.
+// The marker is out of reach, so that every frame is a miss and seen.
+TEST(Frame8, EvaluationBackgroundsTakeTurnsFrameByFrame) {
+  auto det = make_detector(posed_config());
+  EvalSettings settings = benchmark_settings();
+  settings.frames_per_point = 5;
+  settings.background_turns = {Background::tiles, Background::text, Background::outlets};
+  std::vector<Background> seen;
+  settings.on_miss = [&](const GreyImage&, const Scene& scene) { seen.push_back(scene.background); };
+  const EvalResult r = evaluate_point(*det, kCamera, settings, {40, 0});
+  EXPECT_EQ(r.detected, 0);
+  EXPECT_EQ(seen, (std::vector<Background>{Background::tiles, Background::text, Background::outlets, Background::tiles,
+                                           Background::text}));
+}
+
 TEST(Frame8, BadImagesGiveErrorsNotCrashes) {
   auto det = make_detector(DetectorConfig{});
   std::vector<Detection> out;

@@ -156,6 +156,72 @@ TEST(RenderScene, ClutterSpreadsGreyLevels) {
   EXPECT_EQ(*std::max_element(flat.data(), flat.data() + 640 * 480), 128);
 }
 
+TEST(RenderBackground, NamesRoundTrip) {
+  ASSERT_EQ(all_backgrounds().size(), 7U);
+  EXPECT_EQ(all_backgrounds().front(), Background::shapes);
+  EXPECT_EQ(Scene{}.background, Background::shapes);
+  for (const Background kind : all_backgrounds()) {
+    EXPECT_EQ(background_from_string(to_string(kind)), kind) << to_string(kind);
+  }
+  EXPECT_EQ(background_from_string("clutter"), std::nullopt);
+  EXPECT_EQ(background_from_string("Tiles"), std::nullopt);
+  EXPECT_EQ(background_from_string(""), std::nullopt);
+}
+
+// Each texture is the same again for its seed and another for the next
+// seed, and not the shapes of its seed (which share only the gradient under
+// them); without clutter the background stays the flat grey.
+TEST(RenderBackground, TexturesAreDeterministicPerSeedAndTheirOwn) {
+  const CameraModel cam = CameraModel::thesis_640x480();
+  constexpr int kPixels = 640 * 480;
+  for (const Background kind : all_backgrounds()) {
+    if (kind == Background::shapes) continue;
+    const std::string name(to_string(kind));
+    for (const std::uint64_t seed : {3U, 11U}) {
+      Scene s;
+      s.seed = seed;
+      s.background = kind;
+      s.noise_sigma = 2;
+      const GreyImage a = render_background(cam, s);
+      EXPECT_TRUE(same_bytes(a, render_background(cam, s))) << name << " seed " << seed;
+      Scene next = s;
+      next.seed = seed + 1;
+      EXPECT_GT(count_different(a, render_background(cam, next)), kPixels / 2) << name << " seed " << seed;
+      Scene shapes = s;
+      shapes.background = Background::shapes;
+      EXPECT_GT(count_different(a, render_background(cam, shapes)), kPixels / 10) << name << " seed " << seed;
+      maybe_dump(a, "background_" + name + "_seed" + std::to_string(seed));
+    }
+    Scene flat;
+    flat.clutter = false;
+    flat.background = kind;
+    const GreyImage plain = render_background(cam, flat);
+    EXPECT_EQ(*std::min_element(plain.data(), plain.data() + kPixels), 128) << name;
+    EXPECT_EQ(*std::max_element(plain.data(), plain.data() + kPixels), 128) << name;
+  }
+}
+
+// The marker over a texture: drawn the same as over the shapes, only the
+// background around it differs.
+TEST(RenderBackground, MarkerIsDrawnOverTheTexture) {
+  const CameraModel cam = CameraModel::thesis_640x480();
+  Scene s;
+  s.pose = facing_pose(0.5, 0);
+  s.distort = false;
+  s.seed = 5;
+  s.background = Background::tiles;
+  const GreyImage textured = render_scene(cam, s);
+  s.background = Background::shapes;
+  const GreyImage shapes = render_scene(cam, s);
+  const Quad q = project_marker_corners(cam, s);
+  for (int y = static_cast<int>(q[0].y) + 2; y < static_cast<int>(q[2].y) - 2; ++y) {
+    for (int x = static_cast<int>(q[0].x) + 2; x < static_cast<int>(q[2].x) - 2; ++x) {
+      ASSERT_EQ(textured.at(x, y), shapes.at(x, y)) << x << "," << y;
+    }
+  }
+  EXPECT_GT(count_different(textured, shapes), 640 * 480 / 2);
+}
+
 struct CellCase {
   int id;
   MarkerPose pose;

@@ -89,6 +89,9 @@ EvalResult evaluate_point(MarkerDetector& detector, const CameraModel& camera, c
       const auto& turn = settings.occluder_turns[static_cast<std::size_t>(frame) % settings.occluder_turns.size()];
       scene.occluders.insert(scene.occluders.end(), turn.begin(), turn.end());
     }
+    if (!settings.background_turns.empty()) {
+      scene.background = settings.background_turns[static_cast<std::size_t>(frame) % settings.background_turns.size()];
+    }
 
     const GreyImage image = render_scene(camera, scene);
     const auto t0 = std::chrono::steady_clock::now();

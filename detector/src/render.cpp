@@ -12,7 +12,6 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <random>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -20,31 +19,19 @@
 #include <fmt/format.h>
 
 #include "markerd/detector/frame8.hpp"
+#include "render_background.hpp"
+#include "render_random.hpp"
 #include "render_surface.hpp"
 
 namespace markerd::detector {
 namespace {
 
+using render::Random;
 using surface::kInk;
 using surface::kPaper;
 // The noise stream is independent of the clutter stream, so that changing the
 // noise level does not move the clutter.
 constexpr std::uint64_t kNoiseSeedMix = 0x9E3779B97F4A7C15ULL;
-
-// Variates from mt19937_64 by our own formulas: the standard distributions
-// are implementation-defined, and the rendered bytes must not change with
-// the standard library.
-class Random {
- public:
-  explicit Random(std::uint64_t seed) : engine_(seed) {}
-  std::uint64_t bits() { return engine_(); }
-  double uniform() { return static_cast<double>(engine_() >> 11) * 0x1.0p-53; }
-  double uniform(double lo, double hi) { return lo + (hi - lo) * uniform(); }
-  int integer(int lo, int hi_inclusive) { return lo + static_cast<int>(uniform() * (hi_inclusive - lo + 1)); }
-
- private:
-  std::mt19937_64 engine_;
-};
 
 // Sensor noise: a frame needs 300k normal variates, which from the polar
 // method cost as much as the whole marker. Instead each 16 bits of the
@@ -95,144 +82,6 @@ void check_id(Family family, int id) {
   if (id < 0 || id >= info.id_count) {
     throw std::out_of_range(fmt::format("{}: id {} is out of range (0..{})", info.name, id, info.id_count - 1));
   }
-}
-
-// ---------------------------------------------------------------- background
-
-struct Drawer {
-  cv::Mat& img;
-  Random& rng;
-  double scale;  // min(width, height)
-
-  static constexpr int kShift = 4;  // sub-pixel bits for cv's polygon drawing
-  static cv::Point fixed(double x, double y) {
-    return {static_cast<int>(std::lround(x * (1 << kShift))), static_cast<int>(std::lround(y * (1 << kShift)))};
-  }
-
-  double grey() { return rng.uniform(8, 248); }
-  cv::Point2d centre() { return {rng.uniform(-0.1, 1.1) * img.cols, rng.uniform(-0.1, 1.1) * img.rows}; }
-
-  // A rectangle (lu0..lu1, lv0..lv1) of a frame centred at c, rotated by `angle`.
-  std::array<cv::Point, 4> quad(cv::Point2d c, double angle, double lu0, double lv0, double lu1, double lv1) const {
-    const double ca = std::cos(angle), sa = std::sin(angle);
-    auto at = [&](double u, double v) { return fixed(c.x + ca * u - sa * v, c.y + sa * u + ca * v); };
-    return {at(lu0, lv0), at(lu1, lv0), at(lu1, lv1), at(lu0, lv1)};
-  }
-  void fill(const std::array<cv::Point, 4>& q, double g) const {
-    cv::fillConvexPoly(img, q.data(), 4, cv::Scalar(g), cv::LINE_AA, kShift);
-  }
-
-  void filled_rect() {
-    const auto c = centre();
-    const double w = rng.uniform(0.03, 0.35) * scale, h = rng.uniform(0.03, 0.35) * scale;
-    fill(quad(c, rng.uniform(0, std::numbers::pi), -w / 2, -h / 2, w / 2, h / 2), grey());
-  }
-  void outlined_rect() {
-    const auto c = centre();
-    const double w = rng.uniform(0.05, 0.4) * scale, h = rng.uniform(0.05, 0.4) * scale;
-    const auto q = quad(c, rng.uniform(0, std::numbers::pi), -w / 2, -h / 2, w / 2, h / 2);
-    cv::polylines(img, std::vector<cv::Point>(q.begin(), q.end()), true, cv::Scalar(grey()), rng.integer(1, 5),
-                  cv::LINE_AA, kShift);
-  }
-  void ellipse(bool filled) {
-    const auto c = centre();
-    const cv::Size axes(static_cast<int>(rng.uniform(0.02, 0.2) * scale) + 1,
-                        static_cast<int>(rng.uniform(0.02, 0.2) * scale) + 1);
-    cv::ellipse(img, cv::Point(static_cast<int>(c.x), static_cast<int>(c.y)), axes, rng.uniform(0, 180), 0, 360,
-                cv::Scalar(grey()), filled ? cv::FILLED : rng.integer(1, 4), cv::LINE_AA);
-  }
-  void line() {
-    const auto a = centre(), b = centre();
-    cv::line(img, fixed(a.x, a.y), fixed(b.x, b.y), cv::Scalar(grey()), rng.integer(1, 6), cv::LINE_AA, kShift);
-  }
-  void gradient_patch() {
-    const int w = static_cast<int>(rng.uniform(0.05, 0.4) * scale) + 2;
-    const int h = static_cast<int>(rng.uniform(0.05, 0.4) * scale) + 2;
-    const int x0 = rng.integer(-w / 2, img.cols - w / 2), y0 = rng.integer(-h / 2, img.rows - h / 2);
-    const double g0 = grey(), g1 = grey(), angle = rng.uniform(0, 2 * std::numbers::pi);
-    const double dx = std::cos(angle), dy = std::sin(angle);
-    const double span = std::abs(dx) * w + std::abs(dy) * h;
-    for (int y = std::max(0, y0); y < std::min(img.rows, y0 + h); ++y) {
-      auto* row = img.ptr<std::uint8_t>(y);
-      for (int x = std::max(0, x0); x < std::min(img.cols, x0 + w); ++x) {
-        const double s = ((x - x0 - w / 2.0) * dx + (y - y0 - h / 2.0) * dy) / span + 0.5;
-        row[x] = cv::saturate_cast<std::uint8_t>(g0 + (g1 - g0) * s);
-      }
-    }
-  }
-  // A dark square band around a lighter inside: the shape every square-marker
-  // detector starts from, to exercise its rejection.
-  void square_frame() {
-    const auto c = centre();
-    const double side = rng.uniform(0.05, 0.25) * scale;
-    const double band = side * rng.uniform(0.08, 0.25);
-    const double angle = rng.uniform(0, std::numbers::pi);
-    const double h = side / 2;
-    fill(quad(c, angle, -h, -h, h, h), rng.uniform(5, 60));
-    fill(quad(c, angle, -h + band, -h + band, h - band, h - band), rng.uniform(120, 245));
-  }
-  // A dark-bordered grid of random cells: looks like a coded marker but
-  // carries no valid code (except by rare chance).
-  void checker_patch() {
-    const auto c = centre();
-    const int n = rng.integer(4, 8);
-    const double cell = rng.uniform(0.008, 0.035) * scale;
-    const double angle = rng.uniform(0, std::numbers::pi);
-    const double h = n * cell / 2;
-    const double dark = rng.uniform(5, 60), light = rng.uniform(150, 245);
-    fill(quad(c, angle, -h - cell, -h - cell, h + cell, h + cell), dark);
-    for (int r = 0; r < n; ++r) {
-      for (int k = 0; k < n; ++k) {
-        if (rng.uniform() < 0.5) continue;
-        fill(quad(c, angle, -h + k * cell, -h + r * cell, -h + (k + 1) * cell, -h + (r + 1) * cell), light);
-      }
-    }
-  }
-  void text() {
-    static constexpr std::string_view chars = "ABCDEFGHKMNPRSTUVXYZ0123456789";
-    std::string s;
-    const int len = rng.integer(2, 8);
-    for (int i = 0; i < len; ++i)
-      s += chars[static_cast<std::size_t>(rng.integer(0, static_cast<int>(chars.size()) - 1))];
-    const auto c = centre();
-    cv::putText(img, s, cv::Point(static_cast<int>(c.x), static_cast<int>(c.y)), cv::FONT_HERSHEY_SIMPLEX,
-                rng.uniform(0.4, 2.0) * scale / 480.0, cv::Scalar(grey()), rng.integer(1, 3), cv::LINE_AA);
-  }
-};
-
-// The clutter, or the flat background_grey (by default mid grey, lighter
-// than the ink so that a cut hole still shows the frame8 line's inner edge).
-// Float, as the converted 8-bit image of a whole grey level always was.
-cv::Mat make_background(int width, int height, const Scene& scene) {
-  if (!scene.clutter) return cv::Mat(height, width, CV_32F, cv::Scalar(scene.background_grey));
-  cv::Mat img(height, width, CV_8U);
-  Random rng(scene.seed);
-  // A smooth illumination gradient under everything.
-  const double g0 = rng.uniform(70, 190), gx = rng.uniform(-60, 60), gy = rng.uniform(-60, 60);
-  for (int y = 0; y < height; ++y) {
-    auto* row = img.ptr<std::uint8_t>(y);
-    const double base = g0 + gy * (static_cast<double>(y) / height - 0.5);
-    for (int x = 0; x < width; ++x) {
-      row[x] = cv::saturate_cast<std::uint8_t>(base + gx * (static_cast<double>(x) / width - 0.5));
-    }
-  }
-  Drawer d{img, rng, static_cast<double>(std::min(width, height))};
-  const int shapes = rng.integer(30, 50);
-  for (int i = 0; i < shapes; ++i) {
-    switch (rng.integer(0, 9)) {
-      case 0:
-      case 1: d.filled_rect(); break;
-      case 2: d.outlined_rect(); break;
-      case 3: d.ellipse(true); break;
-      case 4: d.ellipse(false); break;
-      case 5: d.line(); break;
-      case 6: d.gradient_patch(); break;
-      case 7: d.square_frame(); break;
-      case 8: d.checker_patch(); break;
-      default: d.text(); break;
-    }
-  }
-  return img;
 }
 
 // A uniform disc of `radius` pixels, its rim pixels weighted by the share of
@@ -485,7 +334,7 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
 GreyImage render_impl(const CameraModel& camera, const Scene& scene, bool with_marker) {
   check_inputs(camera, scene);
   cv::Mat image;
-  make_background(camera.width, camera.height, scene).convertTo(image, CV_32F, scene.exposure);
+  render::make_background(camera.width, camera.height, scene).convertTo(image, CV_32F, scene.exposure);
   if (with_marker) draw_marker(image, camera, scene);
   if (scene.blur_sigma_px > 0) {
     if (scene.blur_model == BlurModel::disc) {

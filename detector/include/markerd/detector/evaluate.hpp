@@ -31,6 +31,9 @@ struct EvalSettings {
   // Occluders that take turns: frame i adds set i % size to the scene's
   // own (for example each side of the marker covered in turn).
   std::vector<std::vector<Occluder>> occluder_turns;
+  // Backgrounds that take turns the same way (frame i draws kind i % size,
+  // when the scene has clutter); empty: the scene's own.
+  std::vector<Background> background_turns;
   // Called for each frame with a detection of another id than the scene's:
   // the image, its scene and what was found, to look at afterwards.
   std::function<void(const GreyImage&, const Scene&, const std::vector<Detection>&)> on_wrong_id;

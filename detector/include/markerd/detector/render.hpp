@@ -8,7 +8,9 @@
 #include <Eigen/Geometry>
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "markerd/detector/camera_model.hpp"
@@ -94,6 +96,22 @@ enum class BlurModel { gaussian, disc };
 // are cleaner, lighter ones noisier, as on a real sensor.
 enum class NoiseModel { gaussian, shot };
 
+// What the clutter behind the marker is (when Scene::clutter). shapes:
+// random rectangles, ellipses, lines, grey ramps, dark square frames,
+// checkered patches and short strings over an illumination gradient. The
+// others are the things a camera in a house sees that look like a square
+// marker, under the same gradient: tiles (a wall of square or oblong tiles
+// in lighter or darker grout), keyboard (rows of rounded keys with letters
+// on them), checkerboard (a whole calibration board), windows (a facade's
+// grid of dark panes in light frames, with mullions), text (a printed page)
+// and outlets (socket and switch cover plates without a marker).
+enum class Background { shapes, tiles, keyboard, checkerboard, windows, text, outlets };
+
+// Every kind, shapes first; the names as on the command line.
+std::span<const Background> all_backgrounds();
+std::string_view to_string(Background background);
+std::optional<Background> background_from_string(std::string_view name);
+
 // An object in front of the marker: an opaque flat polygon parallel to the
 // marker's plane.
 struct Occluder {
@@ -125,8 +143,9 @@ struct Scene {
   NoiseModel noise_model = NoiseModel::gaussian;
   int jpeg_quality = 0;  // 1..100: the frame goes through JPEG at this quality, as an MJPEG camera sends it; 0: not
   int supersample = 4;   // samples per pixel along each axis
-  bool clutter = true;   // random shapes in the background
-  bool distort = true;   // apply the camera's lens distortion
+  bool clutter = true;   // a cluttered background (background says which), else the flat background_grey
+  Background background = Background::shapes;
+  bool distort = true;  // apply the camera's lens distortion
   std::uint64_t seed = 1;
 
   // What the print is glued onto and what stands in front of it. With all of
