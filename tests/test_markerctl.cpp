@@ -615,6 +615,23 @@ TEST_F(Markerctl, RenderGluesThePrintOntoAFrameAndCoversASide) {
   EXPECT_NE(unknown.err.find("--frame"), std::string::npos) << unknown.describe();
 }
 
+// The textures of issue 19 behind the marker: another image than the
+// shapes for the same seed, the same truth, and a name it does not know
+// refused naming the option.
+TEST_F(Markerctl, RenderDrawsTheBackgroundItIsAskedFor) {
+  const json shapes = render("shapes.png", {"--dist", "0.6"});
+  const json tiles = render("tiles.png", {"--dist", "0.6", "--background", "tiles"});
+  EXPECT_EQ(shapes["corners"], tiles["corners"]);
+  const cv::Mat a = cv::imread(path("shapes.png"), cv::IMREAD_GRAYSCALE);
+  const cv::Mat b = cv::imread(path("tiles.png"), cv::IMREAD_GRAYSCALE);
+  ASSERT_FALSE(a.empty());
+  ASSERT_FALSE(b.empty());
+  EXPECT_GT(cv::countNonZero(a != b), a.rows * a.cols / 4);
+  const Outcome unknown = run({"render", "--dist", "0.6", "--background", "carpet", "-o", path("x.png")});
+  EXPECT_NE(unknown.code, 0) << unknown.describe();
+  EXPECT_NE(unknown.err.find("--background"), std::string::npos) << unknown.describe();
+}
+
 // ---------------------------------------------------------------- evaluate
 
 TEST_F(Markerctl, EvaluateTinyGridPrintsATable) {

@@ -34,6 +34,7 @@ struct RenderOptions {
   double exposure = 1;
   int supersample = 4;
   bool no_clutter = false;
+  std::string background = "shapes";
   bool no_distort = false;
   bool cut_hole = false;
   std::string frame = "none";
@@ -89,6 +90,8 @@ int run_render(const RenderOptions& o) {
   scene.noise_sigma = o.noise;
   scene.supersample = o.supersample;
   scene.clutter = !o.no_clutter;
+  // CLI::IsMember has let only the kinds' names through.
+  scene.background = markerd::detector::background_from_string(o.background).value_or(scene.background);
   scene.distort = !o.no_distort;
   scene.seed = o.seed;
   if (o.frame != "none") {
@@ -195,6 +198,14 @@ void add_render_command(CLI::App& parent, Commands& commands) {
       ->capture_default_str()
       ->check(CLI::Range(1, 16));
   app->add_flag("--no-clutter", o->no_clutter, "Plain background instead of random shapes");
+  std::vector<std::string> kinds;
+  for (const auto kind : markerd::detector::all_backgrounds()) kinds.emplace_back(markerd::detector::to_string(kind));
+  app->add_option("--background", o->background,
+                  "The clutter: shapes (random shapes), or things that look like markers: tiles, keyboard, "
+                  "checkerboard, windows, text, outlets")
+      ->check(CLI::IsMember(kinds))
+      ->type_name("KIND")
+      ->capture_default_str();
   app->add_flag("--no-distort", o->no_distort, "Ignore the camera's lens distortion");
   app->add_flag("--cut-hole", o->cut_hole, "frame8: the hole is cut out (the background shows through)");
   app->add_option("--frame", o->frame,
