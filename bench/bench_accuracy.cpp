@@ -91,9 +91,18 @@ struct BackgroundTally {
 struct Sweeps {
   std::vector<markerd::detector::EvalResult> by_distance;
   std::vector<std::vector<markerd::detector::EvalResult>> by_yaw;  // one per --yaw-at distance
-  int false_positives = 0;                                         // detections in frames of the background alone
-  int false_positive_frames = 0;                                   // such frames with any detection
-  std::vector<BackgroundTally> by_background;  // the same per kind, in the order of all_backgrounds()
+  // Frames of the background alone, per kind in the order of all_backgrounds().
+  std::vector<BackgroundTally> by_background;
+
+  [[nodiscard]] BackgroundTally background_total() const {
+    BackgroundTally total;
+    for (const BackgroundTally& t : by_background) {
+      total.frames += t.frames;
+      total.frames_with_detections += t.frames_with_detections;
+      total.detections += t.detections;
+    }
+    return total;
+  }
 };
 
 // The farthest value reached by an unbroken run of points at >= 90% from the
@@ -501,8 +510,6 @@ int main(int argc, char** argv) {
         const markerd::detector::GreyImage image = markerd::detector::render_background(camera, scene);
         std::vector<markerd::detector::Detection> found;
         detector->detect(image.view(), found);
-        s.false_positives += static_cast<int>(found.size());
-        s.false_positive_frames += found.empty() ? 0 : 1;
         const auto kind_index = std::find(kinds.begin(), kinds.end(), scene.background) - kinds.begin();
         BackgroundTally& tally = s.by_background[static_cast<std::size_t>(kind_index)];
         ++tally.frames;
@@ -525,13 +532,14 @@ int main(int argc, char** argv) {
     }
     print_family(info, s, yaw_at);
     if (false_positive_frames > 0) {
+      const BackgroundTally total = s.background_total();
       const markerd::base::ProportionInterval i =
-          markerd::base::wilson_interval(s.false_positive_frames, false_positive_frames);
+          markerd::base::wilson_interval(total.frames_with_detections, total.frames);
       fmt::print(
           "### The background alone\n\n{} detections in {} of {} frames without a marker: {:.2f} per 10,000 "
           "frames (95% interval {:.2f}-{:.2f})\n\n",
-          s.false_positives, s.false_positive_frames, false_positive_frames,
-          1e4 * s.false_positive_frames / false_positive_frames, 1e4 * i.low, 1e4 * i.high);
+          total.detections, total.frames_with_detections, total.frames,
+          1e4 * total.frames_with_detections / total.frames, 1e4 * i.low, 1e4 * i.high);
       if (every_kind) {
         fmt::print("| background | frames | frames with a detection | detections |\n| --- | ---: | ---: | ---: |\n");
         for (std::size_t k = 0; k < kinds.size(); ++k) {

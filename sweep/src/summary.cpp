@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <map>
 #include <numeric>
 #include <set>
@@ -342,7 +341,7 @@ std::string translation_error_cell(const std::optional<double>& value_mm) {
 // frames; the pooled figure alone when no facing point lies at any of them.
 std::string error_by_distance_cell(const RunSummary& run, const std::vector<double>& distances,
                                    std::optional<double> PointSummary::*field, const std::optional<double>& pooled,
-                                   const std::function<std::string(const std::optional<double>&)>& text) {
+                                   std::string (*text)(const std::optional<double>&)) {
   std::vector<double> where = distances;
   if (run.max_distance_m) where.push_back(*run.max_distance_m);
   std::sort(where.begin(), where.end());
