@@ -24,6 +24,7 @@ Stage stage_of(Rejection r) {
     case Rejection::sides_unequal: return Stage::cells;
     case Rejection::one_grey_level: return Stage::grey_model;
     case Rejection::no_contrast: return Stage::grey_model;
+    case Rejection::grey_ink: return Stage::grey_model;
     case Rejection::white_corner_count: return Stage::orientation;
     case Rejection::white_corner_unclear: return Stage::orientation;
     case Rejection::short_edges_unexplained: return Stage::orientation;
@@ -92,6 +93,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::sides_unequal: return "sides_unequal";
     case Rejection::one_grey_level: return "one_grey_level";
     case Rejection::no_contrast: return "no_contrast";
+    case Rejection::grey_ink: return "grey_ink";
     case Rejection::white_corner_count: return "white_corner_count";
     case Rejection::white_corner_unclear: return "white_corner_unclear";
     case Rejection::short_edges_unexplained: return "short_edges_unexplained";

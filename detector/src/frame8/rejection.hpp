@@ -47,6 +47,7 @@ enum class Rejection : std::uint8_t {
   // 4b. the grey model
   one_grey_level,  // the ring's levels do not split into black and white
   no_contrast,     // black and white too close
+  grey_ink,        // the black cells too light for ink beside the white ones
   // 4c. orientation
   white_corner_count,  // no white corner, or more than two
   white_corner_unclear,
