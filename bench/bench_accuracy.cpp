@@ -260,6 +260,11 @@ int main(int argc, char** argv) {
   bool no_distort = false;
   app.add_flag("--no-distort", no_distort, "a lens without distortion: the camera's distortion set to zero");
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
+  int fixed_id = -1;
+  app.add_option("--id", fixed_id,
+                 "every frame shows this id (one family only) instead of random ones: to measure one id class, "
+                 "such as the near-uniform rings (1, 126, 127, 128, 129, 254)")
+      ->check(CLI::NonNegativeNumber);
   bool model_small_cells = false;
   bool cut_hole = false;
   app.add_flag("--cut-hole", cut_hole,
@@ -343,8 +348,22 @@ int main(int argc, char** argv) {
     if (family_name == "all" || info.name == family_name) families.push_back(info);
   }
 
+  if (fixed_id >= 0) {
+    if (families.size() != 1) {
+      fmt::print(stderr, "bench_accuracy: --id needs one --family\n");
+      return 2;
+    }
+    if (fixed_id >= families.front().id_count) {
+      fmt::print(stderr, "bench_accuracy: --id {}: {} has ids 0 to {}\n", fixed_id, families.front().name,
+                 families.front().id_count - 1);
+      return 2;
+    }
+  }
+
   markerd::detector::EvalSettings settings;
   settings.frames_per_point = frames;
+  settings.random_ids = fixed_id < 0;
+  if (fixed_id >= 0) settings.scene.id = fixed_id;
   settings.seed = seed;
   settings.scene.marker_size_m = size_m;
   settings.scene.noise_sigma = noise;
@@ -448,8 +467,9 @@ int main(int argc, char** argv) {
   }
   fmt::print(
       "- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
-      "random ids, seed {}\n",
-      frames, settings.position_jitter_px, settings.roll_jitter_deg, seed);
+      "{}, seed {}\n",
+      frames, settings.position_jitter_px, settings.roll_jitter_deg,
+      fixed_id < 0 ? std::string("random ids") : fmt::format("id {}", fixed_id), seed);
   fmt::print(
       "- rate: frames with the right id found; wrong ids: detections with another id, summed; errors and "
       "time: medians (errors over detected frames, time of detect() alone over all frames)\n\n");

@@ -808,6 +808,29 @@ TEST(Frame8, APrintWhoseBlackIsGreyIsNoMarker) {
   EXPECT_EQ(found_grey, 0);
 }
 
+// A keyboard's keys, parted by dark gaps, each show a near-uniform ring
+// (near_uniform): id 126, the gaps' crossings for its end cells. The 19
+// keyboard frames of bench_accuracy --background all --false-positives
+// 10000 in which it was read (cells of 1.6 to 2.7 px), but seed 1009210,
+// whose second pass agrees and which is read still: where cells are
+// unresolved, such an id is reported only when the second pass confirms it.
+TEST(Frame8, KeysOfAKeyboardAreNoNearUniformMarkers) {
+  auto det = make_detector(posed_config());
+  Scene s = benchmark_settings().scene;
+  s.background = Background::keyboard;
+  int false_positives = 0;
+  for (const std::uint64_t seed :
+       {1000376U, 1000656U, 1000922U, 1000936U, 1001160U, 1001195U, 1001573U, 1001720U, 1001776U, 1002007U, 1002014U,
+        1002413U, 1003435U, 1005283U, 1007558U, 1009196U, 1009455U, 1009952U}) {
+    s.seed = seed;
+    for (const Detection& d : detect(*det, render_background(kCamera, s))) {
+      ++false_positives;
+      ADD_FAILURE() << "seed " << seed << ": id " << d.id << " at " << d.corners[0].x << "," << d.corners[0].y;
+    }
+  }
+  EXPECT_EQ(false_positives, 0);
+}
+
 // Clutter with dark frames, checkered patches and text: nothing.
 TEST(Frame8, NoDetectionOnClutter) {
   auto det = make_detector(DetectorConfig{});
@@ -849,8 +872,8 @@ TEST_P(Frame8OnBackground, NoDetection) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Kinds, Frame8OnBackground,
-                         ::testing::Values(Background::shapes, Background::checkerboard, Background::windows,
-                                           Background::text, Background::outlets),
+                         ::testing::Values(Background::shapes, Background::keyboard, Background::checkerboard,
+                                           Background::windows, Background::text, Background::outlets),
                          [](const auto& p) { return std::string(to_string(p.param)); });
 
 // bench_accuracy --background all: frame i of a point shows kind i % n.

@@ -226,4 +226,14 @@ TEST(Frame8Rejection, EveryRejectionHasAStageAndADistinctName) {
   EXPECT_FALSE(worth_remeasuring(Rejection::no_contrast));
 }
 
+// The rings a grid of light squares shows around one square: every edge one
+// colour but for a cell at either end.
+TEST(Frame8Rejection, NearUniformIdsAreTheRingsOfAGridsSquares) {
+  std::set<int> ids;
+  for (int id = 0; id < 256; ++id) {
+    if (near_uniform(id)) ids.insert(id);
+  }
+  EXPECT_EQ(ids, (std::set<int>{0, 1, 126, 127, 128, 129, 254, 255}));
+}
+
 }  // namespace markerd::detector::frame8

@@ -239,6 +239,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
       }
     }
   }
+  bool second_pass_agrees = false;
   if (cell_px < kThinLineCells && !by_model) {
     // Measure again knowing which cells are white, then read again.
     std::array<Point2, 4> second{};
@@ -258,6 +259,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
       unconfirmed = Rejection::unconfirmed_correction;
     }
     if (second_read == Rejection::none && unconfirmed == Rejection::none) {
+      second_pass_agrees = true;
       inner = second;
       H = H2;
       det = det2;
@@ -275,6 +277,10 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
         by_model = true;
       }
     }
+  }
+
+  if (near_uniform(det.id) && cell_size.narrow < kResolvedCells && !second_pass_agrees) {
+    return Rejection::near_uniform_unconfirmed;
   }
 
   if (cell_size.mean < kModelCheckedCells && !by_model) {

@@ -36,6 +36,7 @@ Stage stage_of(Rejection r) {
     case Rejection::covered_edge_unclear: return Stage::structure;
     case Rejection::tiny_cells_corrected: return Stage::structure;
     case Rejection::uniform_id: return Stage::structure;
+    case Rejection::near_uniform_unconfirmed: return Stage::structure;
     case Rejection::second_leniency: return Stage::structure;
     case Rejection::unclear_orientation_small: return Stage::structure;
     case Rejection::model_line_light: return Stage::structure;
@@ -105,6 +106,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::covered_edge_unclear: return "covered_edge_unclear";
     case Rejection::tiny_cells_corrected: return "tiny_cells_corrected";
     case Rejection::uniform_id: return "uniform_id";
+    case Rejection::near_uniform_unconfirmed: return "near_uniform_unconfirmed";
     case Rejection::second_leniency: return "second_leniency";
     case Rejection::unclear_orientation_small: return "unclear_orientation_small";
     case Rejection::model_line_light: return "model_line_light";

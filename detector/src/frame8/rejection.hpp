@@ -62,6 +62,7 @@ enum class Rejection : std::uint8_t {
   covered_edge_unclear,       // an edge outvoted, and the other three not read clearly
   tiny_cells_corrected,       // cells under kTinyCells with two bits outvoted
   uniform_id,                 // id 0 or 255 without uniform_ids, or unverifiable
+  near_uniform_unconfirmed,   // a near-uniform id (near_uniform) on unresolved cells, not confirmed by the second pass
   second_leniency,            // orientation unclear on top of a covered edge or a weak code
   unclear_orientation_small,  // orientation unclear and cells under kResolvedCells
   model_line_light,           // the ring model finds the line too light
