@@ -310,6 +310,21 @@ TEST_F(Markerctl, MarkerImagePxWritesTheIdealImage) {
   EXPECT_EQ(bad_ext.code, 2) << bad_ext.describe();
 }
 
+// A near-uniform id is what tiles and keys look like: the detector asks
+// more of it, so a print of one says so; other ids print silently.
+TEST_F(Markerctl, MarkerSaysWhenItsIdIsNearUniform) {
+  const Outcome near = run({"marker", "--id", "126", "--size", "80mm", "-o", path("near.svg")});
+  ASSERT_EQ(near.code, 0) << near.describe();
+  EXPECT_NE(near.err.find("id 126 is near-uniform"), std::string::npos) << near.describe();
+  EXPECT_EQ(near.err.find("uniform_ids"), std::string::npos) << near.describe();
+  const Outcome uniform = run({"marker", "--id", "255", "--size", "80mm", "-o", path("uniform.svg")});
+  ASSERT_EQ(uniform.code, 0) << uniform.describe();
+  EXPECT_NE(uniform.err.find("only with uniform_ids"), std::string::npos) << uniform.describe();
+  const Outcome plain = run({"marker", "--id", "165", "--size", "80mm", "-o", path("plain.svg")});
+  ASSERT_EQ(plain.code, 0) << plain.describe();
+  EXPECT_EQ(plain.err, "") << plain.describe();
+}
+
 // ---------------------------------------------------------------- render and detect
 
 struct RoundTripCase {

@@ -12,6 +12,7 @@
 
 #include "common.hpp"
 #include "markerd/base/ascii.hpp"
+#include "markerd/detector/frame8.hpp"
 #include "markerd/detector/print.hpp"
 
 namespace markerctl {
@@ -70,6 +71,12 @@ int write_image(const MarkerOptions& o, markerd::detector::Family family) {
 int run_marker(const MarkerOptions& o) {
   const markerd::detector::Family family = parse_family(o.family);
   check_id(family, o.id);
+  if (family == markerd::detector::Family::frame8 && markerd::detector::frame8::near_uniform(o.id)) {
+    std::cerr << fmt::format(
+        "markerctl: note: frame8 id {} is near-uniform (every edge one colour but its end cells), as tiles and "
+        "keyboard keys look: it is read less far than other ids{}\n",
+        o.id, o.id == 0 || o.id == 255 ? ", and only with uniform_ids" : "");
+  }
   if (o.image_px > 0) return write_image(o, family);
 
   if (o.size.empty()) throw usage_error("--size", "a print needs the marker size, e.g. --size 80mm (or --image-px N)");

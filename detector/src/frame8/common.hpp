@@ -216,16 +216,6 @@ constexpr double kResolvedCells = 3.0;
 // typical blur, and the edges are measured a second time.
 constexpr double kThinLineCells = 8.0;
 
-// A ring whose every edge is one colour but for a cell at either end: ids
-// 0 and 255, and 1, 128, 126, 127, 129 and 254. A grid of light squares
-// parted by dark lines (tiles, a keyboard's keys, windows) shows one as a
-// square's ring: the neighbouring squares for the cells, and at each end
-// the crossing line or its absence.
-constexpr bool near_uniform(int id) {
-  const int core = (id >> 1) & 0x3F;
-  return core == 0 || core == 0x3F;
-}
-
 // Keeps the levels' normal equations of the profile fits solvable where a
 // basis barely shows (the outside, at the end of a short profile).
 constexpr double kProfileRidge = 1e-3;
