@@ -847,11 +847,11 @@ TEST(Frame8, NoDetectionOnClutter) {
 
 // Textures that look like markers, without one (issue 19: none in 10,000
 // frames): 40 frames of each kind in bench_accuracy's imaging, through
-// markerd's detector. Tiles and keyboards are not among them yet: the
-// detector reads markers in them, mostly id 126 (bench_accuracy
-// --background all --false-positives 10000: 5 of 1,429 tile frames, where
-// the grout is dark, as in seed 10 here, and 19 of 1,429 keyboard frames;
-// 62 and 20 before grey ink was refused).
+// markerd's detector. Tiles are not among them yet: the detector reads
+// markers in them, mostly id 126 where the grout is dark, as in seed 10
+// here (bench_accuracy --background all --false-positives 10000: 4 of
+// 1,429 tile frames, 70 before grey ink and the near-uniform rule; 1 of
+// 1,429 keyboard frames, 20 before).
 class Frame8OnBackground : public ::testing::TestWithParam<Background> {};
 
 TEST_P(Frame8OnBackground, NoDetection) {
