@@ -520,8 +520,10 @@ struct CoveredSideReads {
 
 // Each side covered, six ids, 0.5 to 1.1 m, yaw -15 to 15 deg, the marker
 // rolled by `roll_deg` in its plane; with the thesis camera or without a
-// camera model (the image then without the lens's distortion).
-CoveredSideReads read_covered_sides(bool with_camera, double roll_deg) {
+// camera model (the image then without the lens's distortion). The object
+// has the given reflectance (paper's is 0.88), and the print a paper margin
+// of `margin_m` around the marker.
+CoveredSideReads read_covered_sides(bool with_camera, double roll_deg, float reflectance = 0.1F, double margin_m = 0) {
   DetectorConfig cfg;
   if (with_camera) {
     cfg.camera = kCamera;
@@ -539,20 +541,28 @@ CoveredSideReads read_covered_sides(bool with_camera, double roll_deg) {
         const int id = kIds[static_cast<std::size_t>(seed % kIds.size())];
         Scene s = scene(id, d, yaw, roll_deg, ++seed);
         s.distort = with_camera;
-        s.occluders.push_back(side_occluder(side, s.marker_size_m));
+        s.paper_margin_m = margin_m;
+        s.occluders.push_back(side_occluder(side, s.marker_size_m, 0.2, reflectance));
         const Quad truth = project_marker_corners(kCamera, s);
         ++out.frames;
         bool found = false;
         for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
           if (f.id != id) {
             ++out.wrong;
-            ADD_FAILURE() << "id " << f.id << " for " << id << " at " << d << " m, yaw " << yaw << ", roll "
-                          << roll_deg;
+            ADD_FAILURE() << "id " << f.id << " for " << id << " at " << d << " m, yaw " << yaw << ", roll " << roll_deg
+                          << ", side " << static_cast<int>(side) << ", reflectance " << reflectance;
             continue;
           }
           found = true;
-          if (f.orientation_ambiguous != c1_hidden) ++out.ambiguity_wrong;
-          if (c1_hidden) continue;
+          // Ambiguous only where the white corner is hidden. An object in
+          // front, seen turned, may leave the corner in view: an
+          // orientation stated then must be the marker's (the corners below).
+          if (f.orientation_ambiguous && !c1_hidden) {
+            ++out.ambiguity_wrong;
+            ADD_FAILURE() << "orientation ambiguous with C1 seen: side " << static_cast<int>(side) << " at " << d
+                          << " m, yaw " << yaw << ", roll " << roll_deg;
+          }
+          if (f.orientation_ambiguous) continue;
           // The seen side's corners are measured (in the marker's own
           // order: right only when the orientation is); the hidden side's
           // follow from how far the hole reaches behind the cover, which
@@ -602,6 +612,32 @@ TEST(Frame8, MarkerWithOneSideCoveredWithoutACameraInEveryOrientation) {
   for (const double roll : {90.0, 180.0, 270.0}) {
     const CoveredSideReads r = read_covered_sides(false, roll);
     // Measured: 34, 34 and 35 of 36.
+    EXPECT_GE(r.detected, 31) << "of " << r.frames << ", roll " << roll;
+    EXPECT_EQ(r.wrong, 0) << "roll " << roll;
+    EXPECT_EQ(r.ambiguity_wrong, 0) << "roll " << roll;
+    EXPECT_EQ(r.corners_off, 0) << "roll " << roll;
+  }
+}
+
+// One side hidden by an object as light as the paper (issue 18), over a
+// print with its paper margin: the hole's light pixels run on into the
+// object's and the margin's, so the hole has no component of its own and
+// no quad. It is found as the U of the line's three visible sides
+// (open_hole.cpp) and read with the open side hidden.
+TEST(Frame8, MarkerWithOneSideCoveredByALightObject) {
+  const CoveredSideReads r = read_covered_sides(true, 0, 0.8F, 0.01);
+  // Measured: 34 of 36 (before the open holes and the light ring taken
+  // for covered: 29, each found where parallax left the line in view).
+  EXPECT_GE(r.detected, 31) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
+  EXPECT_EQ(r.ambiguity_wrong, 0);
+  EXPECT_EQ(r.corners_off, 0);
+}
+
+TEST(Frame8, MarkerWithOneSideCoveredByALightObjectWithoutACameraInEveryOrientation) {
+  for (const double roll : {90.0, 180.0, 270.0}) {
+    const CoveredSideReads r = read_covered_sides(false, roll, 0.8F, 0.01);
+    // Measured: 33 of 36 at each roll.
     EXPECT_GE(r.detected, 31) << "of " << r.frames << ", roll " << roll;
     EXPECT_EQ(r.wrong, 0) << "roll " << roll;
     EXPECT_EQ(r.ambiguity_wrong, 0) << "roll " << roll;

@@ -64,6 +64,7 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   make_working_image();
   threshold_and_runs();
   label_components();
+  outline_traced_.assign(light_bits_.size(), 0);
   // Largest first: a marker's light cells and hole are components inside
   // it, and once the marker is read they need no look (a white ring cell of
   // a near marker is a light square with black neighbours, and with small
@@ -91,13 +92,17 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   std::array<Point2, 4> quad{
       {{c.x0 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y1 + 0.5}, {c.x0 - 0.5, c.y1 + 0.5}}};
   const Rejection shape = fit_quad(c, quad);
-  // Components that fail on their box alone are not candidates: the debug
-  // output would list every speck of clutter.
-  if (shape == Rejection::touches_border || shape == Rejection::box_size) return;
   const double d = decimate_;
   for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
-  if (debug_) debug_candidates_.push_back({quad, shape, -1, {}, {}});
-  if (shape != Rejection::none) return;
+  // Components that fail on their box alone are not candidates: the debug
+  // output would list every speck of clutter.
+  if (debug_ && shape != Rejection::touches_border && shape != Rejection::box_size) {
+    debug_candidates_.push_back({quad, shape, -1, {}, {}});
+  }
+  if (shape != Rejection::none) {
+    consider_open_holes(root, out);
+    return;
+  }
   Detection det;
   const Rejection why = refine_and_decode(quad, det);
   if (debug_) {

@@ -38,7 +38,7 @@ class Frame8Detector final : public MarkerDetector {
   void sum_tiles(int tw, int th);
   void threshold_and_runs();
   void local_max_row(int y);
-  void light_row_bits(const std::uint8_t* row, int w);
+  void light_row_bits(const std::uint8_t* row, int w, std::uint64_t* bits);
   void extract_runs(int y, int w, int words);
   std::int32_t find(std::int32_t r);
   void unite(std::int32_t a, std::int32_t b);
@@ -118,6 +118,24 @@ class Frame8Detector final : public MarkerDetector {
   [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
   bool read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation, HiddenSide& hidden,
                              Homography& H);
+  // Where the quad seen ends across its hidden side: at the cover's edge,
+  // which hides the line (a hole that reaches further must show the cover
+  // over the line); or open, the hole running on into a cover as light as
+  // it (open_hole.cpp).
+  enum class HoleEnd : std::uint8_t { at_cover, open };
+  bool read_hidden_side(const std::array<Point2, 4>& inner, int side, HoleEnd end, Detection& det, int& rotation,
+                        HiddenSide& hidden, Homography& H);
+  // Stage 2b, a hole open on one side (open_hole.cpp).
+  [[nodiscard]] bool light_at(int x, int y) const {
+    if (x < 0 || y < 0 || x >= work_.width || y >= work_.height) return false;
+    return (light_bits_[light_stride_ * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) &
+           1U;
+  }
+  void trace_outline(std::int32_t start);
+  void simplify_outline();
+  [[nodiscard]] bool ring_shows_both_colours(Point2 a, Point2 b) const;
+  void consider_open_holes(std::int32_t root, std::vector<Detection>& out);
+  Rejection read_open_hole(const std::array<Point2, 4>& coarse, Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);
@@ -178,7 +196,8 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::uint8_t> tile_threshold_;
   std::vector<std::uint8_t> pixel_threshold_;
   std::vector<std::uint8_t> column_max_, local_max_;
-  std::vector<std::uint64_t> light_bits_;
+  std::vector<std::uint64_t> light_bits_;  // a bit per pixel of the working image, light_stride_ words a row
+  std::size_t light_stride_ = 0;
   std::array<std::array<float, 64>, kProfileSegments> segment_profile_{};
   std::array<Point2, kProfileSegments> segment_base_{};
   std::array<int, kProfileSegments> segment_count_{};
@@ -188,6 +207,10 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::int32_t> roots_;
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_, hull_twice_;
+  std::vector<Point2> outline_;                // a component's outline, where it turns
+  int outline_extent_ = 0;                     // its box's longer side
+  std::vector<std::int32_t> outline_corners_;  // its straight pieces' ends
+  std::vector<std::uint64_t> outline_traced_;  // as light_bits_: a run's left end that an outline passed
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
   std::array<int, 4> edge_count_{};
   std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};

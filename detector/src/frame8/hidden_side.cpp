@@ -63,7 +63,20 @@ bool Frame8Detector::looks_covered(const Homography& H, int side, bool into_hole
   // The median: the hole may hold an insert's darker parts.
   std::nth_element(hole.begin(), hole.begin() + hole.size() / 2, hole.end());
   const float hole_level = hole[hole.size() / 2];
-  return hole_level - lo >= kMinContrast && hi - lo <= kUniform * (hole_level - lo);
+  if (hole_level - lo >= kMinContrast && hi - lo <= kUniform * (hole_level - lo)) return true;
+  if (into_hole) return false;
+  // A cover as light as the hole over the ring alone, the line still seen:
+  // a side's ring is never all white (its corners C0, C2 and C3 are black,
+  // and only id 255 has no black data cell), so a ring as light as the
+  // hole from corner to corner, beside a dark line, is hidden.
+  std::array<float, kMiddle.size()> line{};
+  for (std::size_t k = 0; k < kMiddle.size(); ++k) {
+    const Point2 p = grid_point(H, side_point(side, kMiddle[k], kInnerLo - 0.25));
+    if (!sample(full_, p.x, p.y, line[k])) return false;
+  }
+  std::nth_element(line.begin(), line.begin() + line.size() / 2, line.end());
+  const float line_level = line[line.size() / 2];
+  return hole_level - line_level >= kMinContrast && hole_level - lo <= kUniform * (hole_level - line_level);
 }
 
 // How far a hole's corners (pixels) are from any square's seen through the
@@ -81,6 +94,22 @@ double Frame8Detector::square_misfit(const std::array<Point2, 4>& hole) const {
 
 bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation,
                                            HiddenSide& hidden, Homography& H) {
+  Homography seen;
+  if (!Homography::from_unit_square(inner, seen)) return false;
+  // One side hidden, the other three showing their rings: a light patch
+  // on a dark ground looks covered all round, and is no marker to read so.
+  int side = -1;
+  for (int s = 0; s < 4; ++s) {
+    if (!looks_covered(seen, s, false)) continue;
+    if (side >= 0) return false;
+    side = s;
+  }
+  if (side < 0) return false;
+  return read_hidden_side(inner, side, HoleEnd::at_cover, det, rotation, hidden, H);
+}
+
+bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int side, HoleEnd end, Detection& det,
+                                      int& rotation, HiddenSide& hidden, Homography& H) {
   // Cells under three pixels are read by their blur with the neighbours,
   // which a cover's edge would mix into the read: each hole tried must have
   // larger ones. The quad seen is cut short across the hidden side; along
@@ -93,7 +122,7 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, D
   // The hole when `side` is hidden `depth` cells deep: the quad's unit
   // square is the part seen, kInnerSide - h cells deep, and the whole hole
   // reaches this far in its units.
-  auto hole_for = [&](int side, double depth, std::array<Point2, 4>& hole) {
+  auto hole_for = [&](double depth, std::array<Point2, 4>& hole) {
     const double reach = kInnerSide / (kInnerSide - std::max(depth - kInnerLo, 0.0));
     double u0 = 0, u1 = 1, v0 = 0, v1 = 1;
     switch (side) {
@@ -105,26 +134,19 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, D
     hole = {seen.map(u0, v0), seen.map(u1, v0), seen.map(u1, v1), seen.map(u0, v1)};
     return Homography::from_unit_square(hole, H);
   };
-  auto read_at = [&](int side, std::size_t k, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
+  Rejection last_why = Rejection::none;
+  auto read_at = [&](std::size_t k, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
     hidden = HiddenSide{side, kHiddenDepth[k]};
-    if (!hole_for(side, hidden.depth, hole)) return false;
+    if (!hole_for(hidden.depth, hole)) return false;
     const CellSize size = cell_size_of(hole);
     if (size.narrow < kResolvedCells) return false;
     const Rejection why = decode(H, size, read, read_rotation, nullptr, hidden);
     note_attempt(Read::side_hidden, why);
+    last_why = why;
     // Ids 0 and 255 are one colour all round: with a side hidden, any
     // dark frame around a light patch reads as one of them.
     return why == Rejection::none && read.id != 0 && read.id != 255;
   };
-  // One side hidden, the other three showing their rings: a light patch
-  // on a dark ground looks covered all round, and is no marker to read so.
-  int side = -1;
-  for (int s = 0; s < 4; ++s) {
-    if (!looks_covered(seen, s, false)) continue;
-    if (side >= 0) return false;
-    side = s;
-  }
-  if (side < 0) return false;
   // Where the neighbouring edges' cells change colour, only the right
   // depth reads; where they do not (id 254: all white), a run of depths
   // does. With a camera the hole most nearly a square seen in perspective
@@ -135,13 +157,19 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, D
   double best_misfit = std::numeric_limits<double>::infinity();
   for (std::size_t k = 0; k < kHiddenDepth.size(); ++k) {
     // A hole that reaches beyond what the quad saw needs the cover over the line too.
-    if (kHiddenDepth[k] > kInnerLo && k > 0 && kHiddenDepth[k - 1] <= kInnerLo && !looks_covered(seen, side, true)) {
+    if (end == HoleEnd::at_cover && kHiddenDepth[k] > kInnerLo && k > 0 && kHiddenDepth[k - 1] <= kInnerLo &&
+        !looks_covered(seen, side, true)) {
       break;
     }
     Detection read;
     int read_rotation = 0;
     std::array<Point2, 4> hole{};
-    if (!read_at(side, k, read, read_rotation, hole)) continue;
+    if (!read_at(k, read, read_rotation, hole)) {
+      // An open U of clutter: where the ring has no black and white at
+      // the first depth, the cover's depth will not give it any.
+      if (end == HoleEnd::open && id < 0 && k == 0 && !worth_remeasuring(last_why)) return false;
+      continue;
+    }
     // Two codes that fit the same quad, each with its own cover: neither is trusted.
     if (id >= 0 && read.id != id) return false;
     id = read.id;
@@ -159,7 +187,7 @@ bool Frame8Detector::read_with_side_hidden(const std::array<Point2, 4>& inner, D
     best_k = static_cast<std::size_t>(std::countr_zero(rest));
   }
   std::array<Point2, 4> hole{};
-  return read_at(side, best_k, det, rotation, hole);
+  return read_at(best_k, det, rotation, hole);
 }
 
 // The corners of a hole read beyond the quad seen (a side hidden, or grown

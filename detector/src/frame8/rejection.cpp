@@ -44,6 +44,7 @@ Stage stage_of(Rejection r) {
     case Rejection::line_corner_light: return Stage::structure;
     case Rejection::line_not_dark: return Stage::structure;
     case Rejection::line_not_ink: return Stage::structure;
+    case Rejection::open_hole_unread: return Stage::quad_fit;
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
     case Rejection::second_pass_disagrees: return Stage::structure;
@@ -114,6 +115,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_corner_light: return "line_corner_light";
     case Rejection::line_not_dark: return "line_not_dark";
     case Rejection::line_not_ink: return "line_not_ink";
+    case Rejection::open_hole_unread: return "open_hole_unread";
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";

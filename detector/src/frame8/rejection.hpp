@@ -31,6 +31,7 @@ enum class Rejection : std::uint8_t {
   not_a_quad,        // its hull is more than a quad
   short_quad_side,   // a side under half the least hole side
   sharp_corner,      // a corner sharper than 20 degrees or flatter than 160
+  open_hole_unread,  // 2b: a hole open on one side (open_hole.cpp) that no depth read
   // 3. edge refinement
   small_hole,       // the quad's mean side under min_hole_side_px
   few_edge_points,  // a side with under three edge points

@@ -146,7 +146,10 @@ void Frame8Detector::threshold_and_runs() {
   column_max_.resize(static_cast<std::size_t>(w) + 2);
   local_max_.resize(static_cast<std::size_t>(w));
   const int words = (w + 63) / 64;
-  light_bits_.resize(static_cast<std::size_t>(words) + 1);
+  // Every row's bits are kept: the outlines of components that are no
+  // quad are traced on them (open_hole.cpp).
+  light_stride_ = static_cast<std::size_t>(words) + 1;
+  light_bits_.resize(light_stride_ * static_cast<std::size_t>(h));
   for (int y = 0; y < h; ++y) {
     if (y % kTile == 0) {
       static_assert(kTile == 4);  // one tile's threshold fills one 32-bit word
@@ -158,7 +161,7 @@ void Frame8Detector::threshold_and_runs() {
     }
     row_first_[static_cast<std::size_t>(y)] = static_cast<std::int32_t>(runs_.size());
     local_max_row(y);
-    light_row_bits(work_.row(y), w);
+    light_row_bits(work_.row(y), w, light_bits_.data() + light_stride_ * static_cast<std::size_t>(y));
     extract_runs(y, w, words);
   }
   row_first_[static_cast<std::size_t>(h)] = static_cast<std::int32_t>(runs_.size());
@@ -207,8 +210,8 @@ void Frame8Detector::local_max_row(int y) {
 // Bit x of light_bits_ is set when pixel x is light: not below the mean of
 // its neighbourhood (minus the offset) and not under the local maximum
 // (minus the step).
-void Frame8Detector::light_row_bits(const std::uint8_t* row, int w) {
-  std::fill(light_bits_.begin(), light_bits_.end(), 0);
+void Frame8Detector::light_row_bits(const std::uint8_t* row, int w, std::uint64_t* bits) {
+  std::fill(bits, bits + light_stride_, 0);
   const std::uint8_t* thr = pixel_threshold_.data();
   const std::uint8_t* lmax = local_max_.data();
   int x = 0;
@@ -219,29 +222,29 @@ void Frame8Detector::light_row_bits(const std::uint8_t* row, int w) {
                                    _mm_loadu_si128(reinterpret_cast<const __m128i*>(lmax + x)));
     const __m128i light = _mm_cmpeq_epi8(_mm_max_epu8(p, t), p);  // p >= t
     const auto mask = static_cast<std::uint64_t>(static_cast<std::uint32_t>(_mm_movemask_epi8(light)));
-    light_bits_[static_cast<std::size_t>(x >> 6)] |= mask << (x & 63);
+    bits[x >> 6] |= mask << (x & 63);
   }
 #endif
   for (; x < w; ++x) {
-    if (row[x] >= std::max(thr[x], lmax[x]))
-      light_bits_[static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1} << (x & 63);
+    if (row[x] >= std::max(thr[x], lmax[x])) bits[x >> 6] |= std::uint64_t{1} << (x & 63);
   }
 }
 
 void Frame8Detector::extract_runs(int y, int w, int words) {
+  const std::uint64_t* bits = light_bits_.data() + light_stride_ * static_cast<std::size_t>(y);
   int x = 0;
   while (x < w) {
     // Find the next set bit at or after x.
     int wi = x >> 6;
-    std::uint64_t word = light_bits_[static_cast<std::size_t>(wi)] & (~std::uint64_t{0} << (x & 63));
-    while (word == 0 && ++wi < words) word = light_bits_[static_cast<std::size_t>(wi)];
+    std::uint64_t word = bits[wi] & (~std::uint64_t{0} << (x & 63));
+    while (word == 0 && ++wi < words) word = bits[wi];
     if (word == 0) break;
     const int start = (wi << 6) + __builtin_ctzll(word);
     if (start >= w) break;
     // Find the next clear bit after start.
     wi = start >> 6;
-    word = ~light_bits_[static_cast<std::size_t>(wi)] & (~std::uint64_t{0} << (start & 63));
-    while (word == 0 && ++wi < words) word = ~light_bits_[static_cast<std::size_t>(wi)];
+    word = ~bits[wi] & (~std::uint64_t{0} << (start & 63));
+    while (word == 0 && ++wi < words) word = ~bits[wi];
     int end = word == 0 ? w : (wi << 6) + __builtin_ctzll(word);
     end = std::min(end, w);
     const auto index = static_cast<std::int32_t>(runs_.size());
