@@ -233,6 +233,9 @@ struct Component {
   std::int32_t x0 = 0, x1 = 0, y0 = 0, y1 = 0;
   std::int32_t first = -1, last = -1;
   bool touches_border = false;
+  // A quad was fitted to it, or it lies within a detection: stage 2b
+  // leaves it alone.
+  bool settled = false;
 };
 
 // An edge of the printed pattern seen in the image: the point lies on the

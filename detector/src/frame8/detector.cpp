@@ -64,7 +64,6 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   make_working_image();
   threshold_and_runs();
   label_components();
-  outline_traced_.assign(light_bits_.size(), 0);
   // Largest first: a marker's light cells and hole are components inside
   // it, and once the marker is read they need no look (a white ring cell of
   // a near marker is a light square with black neighbours, and with small
@@ -79,15 +78,21 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   };
   std::sort(roots_.begin(), roots_.end(), [&](std::int32_t a, std::int32_t b) { return box_area(a) > box_area(b); });
   for (const std::int32_t r : roots_) {
-    if (!inside_detection(components_[static_cast<std::size_t>(r)], out)) consider_component(r, out);
+    Component& c = components_[static_cast<std::size_t>(r)];
+    if (inside_detection(c, out)) {
+      c.settled = true;
+    } else {
+      consider_component(r, out);
+    }
   }
+  find_open_holes(out);
   remove_nested(out);
   if (debug_) write_debug(out);
 }
 
 // One light component: its quad (stage 2), then refined and read.
 void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection>& out) {
-  const Component& c = components_[static_cast<std::size_t>(root)];
+  Component& c = components_[static_cast<std::size_t>(root)];
   // The component's box stands for its quad until fit_quad() finds one.
   std::array<Point2, 4> quad{
       {{c.x0 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y1 + 0.5}, {c.x0 - 0.5, c.y1 + 0.5}}};
@@ -99,10 +104,11 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   if (debug_ && shape != Rejection::touches_border && shape != Rejection::box_size) {
     debug_candidates_.push_back({quad, shape, -1, {}, {}});
   }
-  if (shape != Rejection::none) {
-    consider_open_holes(root, out);
-    return;
-  }
+  // Stage 2b looks for open holes in what is left, and a component too
+  // small to hold one (the outlines of its dark islands included) is left
+  // alone as well.
+  c.settled = shape == Rejection::none || std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_open_hole_side();
+  if (shape != Rejection::none) return;
   Detection det;
   const Rejection why = refine_and_decode(quad, det);
   if (debug_) {

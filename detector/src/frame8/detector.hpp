@@ -125,16 +125,28 @@ class Frame8Detector final : public MarkerDetector {
   enum class HoleEnd : std::uint8_t { at_cover, open };
   bool read_hidden_side(const std::array<Point2, 4>& inner, int side, HoleEnd end, Detection& det, int& rotation,
                         HiddenSide& hidden, Homography& H);
-  // Stage 2b, a hole open on one side (open_hole.cpp).
-  [[nodiscard]] bool light_at(int x, int y) const {
-    if (x < 0 || y < 0 || x >= work_.width || y >= work_.height) return false;
-    return (light_bits_[light_stride_ * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) &
+  // Stage 2b, a hole open on one side (open_hole.cpp), after every quad.
+  // The least side of an open hole worth reading, in working pixels: a
+  // read with a side hidden needs cells of kResolvedCells (it checks them at
+  // full resolution); the traced outline, halved, comes out up to a pixel
+  // short at either end, and its straight pieces stop a halved pixel short
+  // of the hole's blurred corners.
+  [[nodiscard]] double min_open_hole_side() const {
+    const double full_size = kResolvedCells * kInnerSide / decimate_;
+    return full_size >= 2 * kMinTracedSide ? full_size - 4 : full_size;
+  }
+  void make_traced_bits();
+  [[nodiscard]] bool traced_light(int x, int y) const {
+    if (x < 0 || y < 0 || x >= trace_w_ || y >= trace_h_) return false;
+    return (traced_bits_[trace_stride_ * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) &
            1U;
   }
-  void trace_outline(std::int32_t start);
+  [[nodiscard]] bool component_settled(int x, int y) const;
+  void trace_outline(int start_x, int start_y);
   void simplify_outline();
   [[nodiscard]] bool ring_shows_both_colours(Point2 a, Point2 b) const;
-  void consider_open_holes(std::int32_t root, std::vector<Detection>& out);
+  void find_open_holes(std::vector<Detection>& out);
+  void find_open_holes_on_outline(double min_side, std::vector<Detection>& out);
   Rejection read_open_hole(const std::array<Point2, 4>& coarse, Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
@@ -207,10 +219,16 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::int32_t> roots_;
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_, hull_twice_;
-  std::vector<Point2> outline_;                // a component's outline, where it turns
-  int outline_extent_ = 0;                     // its box's longer side
+  // Stage 2b: the pixels outlines are traced on (trace_scale_ working
+  // pixels each way), the runs' left ends an outline passed, and the
+  // outline being cut.
+  static constexpr int kMinTracedSide = 10;
+  int trace_scale_ = 1, trace_w_ = 0, trace_h_ = 0;
+  std::size_t trace_stride_ = 0;
+  std::vector<std::uint64_t> traced_bits_, traced_;
+  std::vector<Point2> outline_;                // where the outline turns
+  int outline_extent_ = 0;                     // its box's longer side, working pixels
   std::vector<std::int32_t> outline_corners_;  // its straight pieces' ends
-  std::vector<std::uint64_t> outline_traced_;  // as light_bits_: a run's left end that an outline passed
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
   std::array<int, 4> edge_count_{};
   std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};

@@ -135,8 +135,8 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
     return Homography::from_unit_square(hole, H);
   };
   Rejection last_why = Rejection::none;
-  auto read_at = [&](std::size_t k, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
-    hidden = HiddenSide{side, kHiddenDepth[k]};
+  auto read_at = [&](double depth, Detection& read, int& read_rotation, std::array<Point2, 4>& hole) {
+    hidden = HiddenSide{side, depth};
     if (!hole_for(hidden.depth, hole)) return false;
     const CellSize size = cell_size_of(hole);
     if (size.narrow < kResolvedCells) return false;
@@ -164,7 +164,7 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
     Detection read;
     int read_rotation = 0;
     std::array<Point2, 4> hole{};
-    if (!read_at(k, read, read_rotation, hole)) {
+    if (!read_at(kHiddenDepth[k], read, read_rotation, hole)) {
       // An open U of clutter: where the ring has no black and white at
       // the first depth, the cover's depth will not give it any.
       if (end == HoleEnd::open && id < 0 && k == 0 && !worth_remeasuring(last_why)) return false;
@@ -187,7 +187,42 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
     best_k = static_cast<std::size_t>(std::countr_zero(rest));
   }
   std::array<Point2, 4> hole{};
-  return read_at(best_k, det, rotation, hole);
+  double depth = kHiddenDepth[best_k];
+  if (config_.camera && depth > kInnerLo) {
+    // Between the quarter cells, the depth at which the hole is most
+    // nearly a square: a quarter cell off tilts the pose, and the seen
+    // side's outer corners with it, by up to a pixel at half a metre.
+    constexpr double kInvPhi = 0.6180339887498949;
+    constexpr int kSteps = 8;  // the interval down to a hundredth of a cell
+    double lo = std::max(kInnerLo, depth - 0.25), hi = depth + 0.25;
+    auto misfit_at = [&](double at) { return hole_for(at, hole) ? square_misfit(hole) : best_misfit + 1; };
+    double a = hi - kInvPhi * (hi - lo), b = lo + kInvPhi * (hi - lo);
+    double fa = misfit_at(a), fb = misfit_at(b);
+    for (int i = 0; i < kSteps; ++i) {
+      if (fa < fb) {
+        hi = b;
+        b = a;
+        fb = fa;
+        a = hi - kInvPhi * (hi - lo);
+        fa = misfit_at(a);
+      } else {
+        lo = a;
+        a = b;
+        fa = fb;
+        b = lo + kInvPhi * (hi - lo);
+        fb = misfit_at(b);
+      }
+    }
+    const double refined = fa < fb ? a : b;
+    Detection read;
+    int read_rotation = 0;
+    if (std::min(fa, fb) < best_misfit && read_at(refined, read, read_rotation, hole) && read.id == id) {
+      det = read;
+      rotation = read_rotation;
+      return true;
+    }
+  }
+  return read_at(depth, det, rotation, hole);
 }
 
 // The corners of a hole read beyond the quad seen (a side hidden, or grown

@@ -1,12 +1,17 @@
 // Stage 2b, a hole open on one side: candidates for markers whose hole has
 // no component of its own. An object in front of one side, as light as the
-// hole (a hand, a white cable cover, the paper of a neighbouring print),
+// hole (a hand, a white cable duct, the paper of a neighbouring print),
 // hides that side's ring and line: the hole's light pixels run on into the
 // object's, and no quad is fitted (quad_fit.cpp). What is left of the hole
-// is the line's three visible sides, a U of the component's outline whose
-// inside is light. The outline of every component that is not a quad is
-// traced, cut into straight pieces, and each such U handed to the read with
-// its open side hidden (hidden_side.cpp).
+// is the line's three visible sides, a U of an outline whose inside is
+// light. After the quads, the outlines of the components that were no quad
+// are traced, cut into straight pieces, and each such U handed to the read
+// with its open side hidden (hidden_side.cpp).
+//
+// The tracing runs on the threshold's bits halved in each direction where
+// the holes worth it are large enough (a pixel there is light when all four
+// of its pixels are: the line only grows), so that it costs half as much:
+// a cluttered frame's outlines run to some 20,000 pixel edges.
 
 #include <algorithm>
 #include <array>
@@ -54,15 +59,13 @@ Point2 project(const Line& l, Point2 p) {
 
 }  // namespace
 
-// The outline through the left end of run `start`, as the pixel corners
-// where it turns (pixel-centre coordinates of the working image), the
-// component on its right: clockwise on screen around the component,
-// anticlockwise around a dark island within it. The component is
-// 4-connected, so a pixel touching it only by a corner is outside it; and
-// every light pixel the walk looks at is a side neighbour of one of the
-// component's, so its light bit alone says whether it belongs. Marks the
-// left end of every run it passes, so that each outline is traced once.
-void Frame8Detector::trace_outline(std::int32_t start) {
+// The outline through the left end of the traced pixel (x, y), as the
+// pixel corners where it turns (working-image pixel-centre coordinates),
+// the light pixels on its right: clockwise on screen around a component,
+// anticlockwise around a dark island within it. Components are
+// 4-connected: a pixel touching one only by a corner is outside it. Marks
+// the left end of every run it passes, so that each outline is traced once.
+void Frame8Detector::trace_outline(int start_x, int start_y) {
   outline_.clear();
   // Directions: east, south, west, north (y down); a right turn adds one.
   // Per direction, the step, and the two pixels ahead of the corner
@@ -70,27 +73,27 @@ void Frame8Detector::trace_outline(std::int32_t start) {
   constexpr std::array<int, 4> kDx{1, 0, -1, 0}, kDy{0, 1, 0, -1};
   constexpr std::array<int, 4> kLeftX{0, 0, -1, -1}, kLeftY{-1, 0, 0, -1};
   constexpr std::array<int, 4> kRightX{0, -1, -1, 0}, kRightY{0, 0, -1, -1};
-  const Run& s = runs_[static_cast<std::size_t>(start)];
-  const int sx = s.x0, sy = s.y + 1, sd = 3;  // up the run's left end
+  const int sx = start_x, sy = start_y + 1, sd = 3;  // up the pixel's left side
+  const double scale = trace_scale_;
   int x = sx, y = sy, d = sd;
   int x0 = x, x1 = x, y0 = y, y1 = y;
   do {
     const auto du = static_cast<std::size_t>(d);
     if (d == 3) {
       // The crack from (x, y) up to (x, y - 1) is the left end of a run on row y - 1.
-      outline_traced_[light_stride_ * static_cast<std::size_t>(y - 1) + static_cast<std::size_t>(x >> 6)] |=
-          std::uint64_t{1} << (x & 63);
+      traced_[trace_stride_ * static_cast<std::size_t>(y - 1) + static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1}
+                                                                                                     << (x & 63);
     }
     x += kDx[du];
     y += kDy[du];
     int turn = 0;
-    if (!light_at(x + kRightX[du], y + kRightY[du])) {
+    if (!traced_light(x + kRightX[du], y + kRightY[du])) {
       turn = 1;
-    } else if (light_at(x + kLeftX[du], y + kLeftY[du])) {
+    } else if (traced_light(x + kLeftX[du], y + kLeftY[du])) {
       turn = 3;
     }
     if (turn != 0) {
-      outline_.push_back({x - 0.5, y - 0.5});
+      outline_.push_back({x * scale - 0.5, y * scale - 0.5});
       x0 = std::min(x0, x);
       x1 = std::max(x1, x);
       y0 = std::min(y0, y);
@@ -98,7 +101,7 @@ void Frame8Detector::trace_outline(std::int32_t start) {
       d = (d + turn) & 3;
     }
   } while (x != sx || y != sy || d != sd);
-  outline_extent_ = std::max(x1 - x0, y1 - y0);
+  outline_extent_ = std::max(x1 - x0, y1 - y0) * trace_scale_;
 }
 
 // The outline's corners (indices into outline_, in order): its straight
@@ -113,6 +116,7 @@ void Frame8Detector::simplify_outline() {
   const auto n = static_cast<std::int32_t>(outline_.size());
   if (n < 4) return;
   auto at = [&](std::int32_t i) { return outline_[static_cast<std::size_t>(i % n)]; };
+  const double tolerance = kStraightTolerance * trace_scale_;
   // The last index a straight piece from `from` reaches (at most from + n).
   auto piece_end = [&](std::int32_t from) {
     const Point2 o = at(from);
@@ -122,7 +126,7 @@ void Frame8Detector::simplify_outline() {
     for (std::int32_t i = from + 1; i <= from + n; ++i) {
       const Point2 v = at(i) - o;
       const double r2 = v.x * v.x + v.y * v.y;
-      constexpr double kTol2 = kStraightTolerance * kStraightTolerance;
+      const double kTol2 = tolerance * tolerance;
       if (r2 <= kTol2) {
         end = i;
         continue;
@@ -131,7 +135,7 @@ void Frame8Detector::simplify_outline() {
       end = i;
       // The directions within the tolerance of this point: v turned by
       // +-asin(tol / r).
-      const double s = kStraightTolerance / std::sqrt(r2), c = std::sqrt(1 - s * s);
+      const double s = tolerance / std::sqrt(r2), c = std::sqrt(1 - s * s);
       const Point2 vlo{c * v.x + s * v.y, -s * v.x + c * v.y}, vhi{c * v.x - s * v.y, s * v.x + c * v.y};
       if (!open) {
         lo = vlo;
@@ -155,51 +159,124 @@ void Frame8Detector::simplify_outline() {
 // Whether the ring beyond a full side of the hole, from corner `a` to `b`
 // (working image, clockwise), shows black and white cells: every id but 0
 // and 255 has both among each edge's eight data cells, one cell out from
-// the hole. Clutter's U shapes mostly have neither, and this costs nine
-// samples against up to a dozen reads. The samples are grey levels: the
+// the hole. Clutter's U shapes mostly have neither, and this costs a few
+// samples against up to a dozen reads. The samples are grey levels (the
 // threshold takes a small white cell's inner pixels, next to the line, for
-// dark. Half a pixel further out, as the outline lies a little inside the
-// hole's edge.
+// dark), four spread over each cell: the traced outline lies up to half a
+// traced pixel inside the hole's edge, which at 3 px a cell puts a single
+// sample on the line's blur, and a near-uniform id's one cell of the other
+// colour lies at the end of the edge, beside the corner.
 bool Frame8Detector::ring_shows_both_colours(Point2 a, Point2 b) const {
   const double d = decimate_;
   a = {a.x * d + (d - 1) / 2, a.y * d + (d - 1) / 2};
   b = {b.x * d + (d - 1) / 2, b.y * d + (d - 1) / 2};
   const Point2 along = b - a;
-  const double len = std::hypot(along.x, along.y);
-  const Point2 out = ((len / kInnerSide + 0.5) / len) * Point2{along.y, -along.x};
+  const double len = std::hypot(along.x, along.y), cell = len / kInnerSide;
+  const Point2 out{along.y / len, -along.x / len};  // a pixel outward
+  const double bias = 0.5 * trace_scale_ * d;
   float hole = 0;
-  if (!sample(full_, a.x + 0.5 * along.x - 0.5 * out.x, a.y + 0.5 * along.y - 0.5 * out.y, hole)) return false;
+  const Point2 middle = a + 0.5 * along + (-cell) * out;
+  if (!sample(full_, middle.x, middle.y, hole)) return false;
   float lo = 255, hi = 0;
   for (int k = 0; k < 8; ++k) {
-    const Point2 p = a + (static_cast<double>(k) / kInnerSide) * along + out;
-    float v = 0;
-    if (!sample(full_, p.x, p.y, v)) return false;
-    lo = std::min(lo, v);
-    hi = std::max(hi, v);
+    for (const double along_cell : {-0.2, 0.2}) {
+      for (const double across : {0.85, 1.15}) {
+        const Point2 p = a + ((k + along_cell) / kInnerSide) * along + (across * cell + bias) * out;
+        float v = 0;
+        if (!sample(full_, p.x, p.y, v)) return false;
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+      }
+    }
   }
   // White cells come up to the hole's level, black ones well below it.
   constexpr float kMinContrast = 30;
   return hole - lo >= kMinContrast && hi - lo >= 0.5F * (hole - lo);
 }
 
-void Frame8Detector::consider_open_holes(std::int32_t root, std::vector<Detection>& out) {
-  const Component& c = components_[static_cast<std::size_t>(root)];
-  const double d = decimate_;
-  // A hole read with a side hidden needs cells of kResolvedCells.
-  const double min_side = kResolvedCells * kInnerSide / d;
-  if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side) return;
-  for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
-    const Run& run = runs_[static_cast<std::size_t>(r)];
-    if ((outline_traced_[light_stride_ * static_cast<std::size_t>(run.y) + static_cast<std::size_t>(run.x0 >> 6)] >>
-         (run.x0 & 63)) &
-        1U) {
-      continue;
+// The pixels outlines are traced on: the working image's light bits, or
+// where a hole worth reading spans 2 * kMinTracedSide pixels or more, those
+// halved in each direction (a pixel light when its four are).
+void Frame8Detector::make_traced_bits() {
+  trace_scale_ = kResolvedCells * kInnerSide / decimate_ >= 2 * kMinTracedSide ? 2 : 1;
+  const int s = trace_scale_;
+  trace_w_ = work_.width / s;
+  trace_h_ = work_.height / s;
+  if (s == 1) {
+    trace_stride_ = light_stride_;
+    traced_bits_.assign(light_bits_.begin(), light_bits_.end());
+    traced_.assign(light_bits_.size(), 0);
+    return;
+  }
+  trace_stride_ = static_cast<std::size_t>((trace_w_ + 63) / 64) + 1;
+  traced_bits_.assign(trace_stride_ * static_cast<std::size_t>(trace_h_), 0);
+  traced_.assign(traced_bits_.size(), 0);
+  // Bits 2i and 2i + 1 of the two rows, ANDed, to bit i: the even bits of
+  // (a & a >> 1) gathered into the low half, a shift-and-mask step at a time.
+  auto gather_even = [](std::uint64_t v) {
+    v &= 0x5555555555555555ULL;
+    v = (v | (v >> 1)) & 0x3333333333333333ULL;
+    v = (v | (v >> 2)) & 0x0F0F0F0F0F0F0F0FULL;
+    v = (v | (v >> 4)) & 0x00FF00FF00FF00FFULL;
+    v = (v | (v >> 8)) & 0x0000FFFF0000FFFFULL;
+    v = (v | (v >> 16)) & 0x00000000FFFFFFFFULL;
+    return v;
+  };
+  const std::size_t words = (static_cast<std::size_t>(work_.width) + 63) / 64;
+  for (int y = 0; y < trace_h_; ++y) {
+    const std::uint64_t* a = light_bits_.data() + light_stride_ * static_cast<std::size_t>(2 * y);
+    const std::uint64_t* b = a + light_stride_;
+    std::uint64_t* out = traced_bits_.data() + trace_stride_ * static_cast<std::size_t>(y);
+    for (std::size_t i = 0; i < words; ++i) {
+      const std::uint64_t both = a[i] & b[i];
+      out[i / 2] |= gather_even(both & (both >> 1)) << (32 * (i % 2));
     }
-    trace_outline(r);
-    if (outline_extent_ < min_side) continue;
-    simplify_outline();
+    // An odd width leaves a last half pixel: not light.
+    if (trace_w_ % 64 != 0) out[trace_w_ / 64] &= (std::uint64_t{1} << (trace_w_ % 64)) - 1;
+  }
+}
+
+void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
+  make_traced_bits();
+  const int s = trace_scale_;
+  const double min_side = min_open_hole_side();
+  for (int y = 0; y < trace_h_; ++y) {
+    const std::uint64_t* row = traced_bits_.data() + trace_stride_ * static_cast<std::size_t>(y);
+    std::uint64_t carry = 0;
+    for (std::size_t i = 0; i < trace_stride_; ++i) {
+      // The left ends of the row's runs of light pixels.
+      std::uint64_t ends = row[i] & ~((row[i] << 1) | carry);
+      carry = row[i] >> 63;
+      for (; ends != 0; ends &= ends - 1) {
+        const int x = static_cast<int>(i * 64) + __builtin_ctzll(ends);
+        if ((traced_[trace_stride_ * static_cast<std::size_t>(y) + i] >> (x & 63)) & 1U) continue;
+        // Its component was a quad (read or refused already), or lies in a detection.
+        if (component_settled(x * s, y * s)) continue;
+        trace_outline(x, y);
+        if (outline_extent_ < min_side) continue;
+        simplify_outline();
+        find_open_holes_on_outline(min_side, out);
+      }
+    }
+  }
+}
+
+// Whether the working image's light pixel (x, y) belongs to a settled
+// component (Component::settled).
+bool Frame8Detector::component_settled(int x, int y) const {
+  const auto first = runs_.begin() + row_first_[static_cast<std::size_t>(y)];
+  const auto last = runs_.begin() + row_first_[static_cast<std::size_t>(y) + 1];
+  auto it = std::upper_bound(first, last, x, [](int value, const Run& r) { return value < r.x0; });
+  if (it == first) return false;
+  --it;
+  return x < it->x1 && components_[static_cast<std::size_t>(it->parent)].settled;
+}
+
+void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Detection>& out) {
+  const double d = decimate_;
+  {
     const auto m = static_cast<std::int32_t>(outline_corners_.size());
-    if (m < 3) continue;
+    if (m < 3) return;
     auto corner = [&](std::int32_t k) {
       return outline_[static_cast<std::size_t>(outline_corners_[static_cast<std::size_t>(((k % m) + m) % m)])];
     };
