@@ -231,11 +231,13 @@ bool RingModel::solve_levels(const GreyView& image) {
       const int n = coverage(px, py, false, gx, gy, w);
       if (n == 0) continue;
       const double b = row[px];
+      // The lower triangle only (touched_ ascends): LDLT reads no more,
+      // and this loop is most of the fit's time.
       for (int a = 0; a < n; ++a) {
         const int ra = touched_[static_cast<std::size_t>(a)];
         const double ca = cover_[static_cast<std::size_t>(ra)];
         atb(ra) += ca * b;
-        for (int c = 0; c < n; ++c) {
+        for (int c = 0; c <= a; ++c) {
           const int rc = touched_[static_cast<std::size_t>(c)];
           ata(ra, rc) += ca * cover_[static_cast<std::size_t>(rc)];
         }
@@ -254,7 +256,7 @@ bool RingModel::solve_levels(const GreyView& image) {
   const Eigen::LDLT<Matrix> solver(regularised);
   if (solver.info() != Eigen::Success) return false;
   level_ = solver.solve(rhs);
-  const double sse = btb - 2 * level_.dot(atb) + level_.dot(ata * level_);
+  const double sse = btb - 2 * level_.dot(atb) + level_.dot(ata.selfadjointView<Eigen::Lower>() * level_);
   rms_ = std::sqrt(std::max(0.0, sse) / used);
   return true;
 }
@@ -294,11 +296,12 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
         jrow[static_cast<std::size_t>(n + k)] = geometry[static_cast<std::size_t>(k)] / w;
       }
       const double e = row[px] - model;
+      // The lower triangle only (index ascends), as in solve_levels().
       for (int a = 0; a < n + 8; ++a) {
         const int ia = index[static_cast<std::size_t>(a)];
         const double ja = jrow[static_cast<std::size_t>(a)];
         jte(ia) += ja * e;
-        for (int c = 0; c < n + 8; ++c)
+        for (int c = 0; c <= a; ++c)
           jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
       }
     }
