@@ -93,12 +93,26 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // direction, enough to be checked.
   if (cell_size.mean >= kResolvedCells && cell_size.narrow >= kCheckedLineCells) {
     static constexpr std::array<Point2, 4> kLineCorners{{{1.25, 1.25}, {8.75, 1.25}, {8.75, 8.75}, {1.25, 8.75}}};
-    for (const Point2& g : kLineCorners) {
+    // On a cover frame turned away, the corner nearest the camera lies on
+    // the inner roll's bend, shaded or lit differently from the rest of the
+    // line: one light corner of four is allowed, but not the white corner's
+    // (the checkered pattern's diagonal neighbour), nor beside a hidden side,
+    // nor on a hole read grown beyond its component (inset_hole.cpp: the
+    // middle of a large dark square, light to the adaptive threshold, grown
+    // to the square's edge, read as 254 with one light corner).
+    int seen = 0, light = 0;
+    for (std::size_t j = 0; j < kLineCorners.size(); ++j) {
+      const Point2 g = kLineCorners[j];
       if (r.hidden.covers(g)) continue;
       float v = 0;
       const Point2 p = grid_point(H, g.x, g.y);
-      if (!sample(full_, p.x, p.y, v) || r.soft(v) > -r.confident) return Rejection::line_corner_light;
+      if (!sample(full_, p.x, p.y, v)) return Rejection::line_corner_light;
+      ++seen;
+      if (r.soft(v) <= -r.confident) continue;
+      if (static_cast<int>(j) == r.white_corner) return Rejection::line_corner_light;
+      ++light;
     }
+    if (light > (seen == 4 && !reading_grown_hole_ ? 1 : 0)) return Rejection::line_corner_light;
     int dark = 0, total = 0;
     double line_sum = 0;
     for (int k = 0; k < 7; ++k) {

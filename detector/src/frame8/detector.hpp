@@ -235,6 +235,9 @@ class Frame8Detector final : public MarkerDetector {
   int pattern_count_ = 0;
   frame8::RingModel ring_model_;
   frame8::RingModel::Levels levels_;
+  // Set while read_inset() decodes a hole grown beyond its component: the
+  // structural checks then allow no light corner of the line.
+  bool reading_grown_hole_ = false;
   bool debug_ = false;
   int debug_frame_ = 0;
   std::vector<DebugCandidate> debug_candidates_;

@@ -31,7 +31,9 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
     if (size.narrow < kResolvedCells) continue;
     Detection read;
     int read_rotation = 0;
+    reading_grown_hole_ = true;
     const Rejection why = decode(grown, size, read, read_rotation, nullptr);
+    reading_grown_hole_ = false;
     note_attempt(Read::inset, why);
     if (why != Rejection::none || read.bits_corrected > 0) continue;
     if (found && read.id != det.id) return false;
