@@ -27,7 +27,7 @@ namespace markerd::detector::frame8 {
 namespace {
 
 // How far a straight piece of an outline may stray from its chord, in
-// working pixels: the staircase of a traced slant and a little noise.
+// traced pixels: the staircase of a traced slant and a little noise.
 constexpr double kStraightTolerance = 1.5;
 // The U's arms: how much of the hole the cover leaves (a cover up to the
 // depth read_hidden_side tries leaves 4.5 of the 7 cells), as a share of
@@ -126,8 +126,7 @@ void Frame8Detector::simplify_outline() {
     for (std::int32_t i = from + 1; i <= from + n; ++i) {
       const Point2 v = at(i) - o;
       const double r2 = v.x * v.x + v.y * v.y;
-      const double kTol2 = tolerance * tolerance;
-      if (r2 <= kTol2) {
+      if (r2 <= tolerance * tolerance) {
         end = i;
         continue;
       }
