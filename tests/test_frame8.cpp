@@ -689,15 +689,16 @@ TEST(Frame8, MarkerWithOneSideCoveredByALightObjectWithoutACameraInEveryOrientat
 }
 
 // The same on a working image decimated by 2, as for frames of over 1.3
-// megapixels, where the outlines are traced on the working image itself
-// rather than on one halved again: near, where cells stay 3 px or more.
-// The seen corners were measured up to 1.08 px off at 0.5 m (a seventh of
-// a cell): the hole's far side behind the object is placed less well
-// from the coarser outline.
+// megapixels. Outlines are traced on it halved again, and an open hole must
+// span 40 px there (cells of 5.7 px: a 1920x1440 camera's marker to about
+// 2 m): of these frames, those at 0.5 m (58 px). The seen corners were
+// measured up to 1.08 px off at 0.5 m (a seventh of a cell): the hole's far
+// side behind the object is placed less well from the coarser outline.
 TEST(Frame8, MarkerWithOneSideCoveredByALightObjectOnADecimatedImage) {
   const CoveredSideReads r = read_covered_sides(true, 0, 0.8F, 0.01, 2, 1.5);
-  // Measured: 21 of 36 (34 at full resolution, above).
-  EXPECT_GE(r.detected, 20) << "of " << r.frames;
+  // Measured: 15 of 36 (34 at full resolution, above): the twelve at
+  // 0.5 m, and three further off whose line the object left in view.
+  EXPECT_GE(r.detected, 12) << "of " << r.frames;
   EXPECT_EQ(r.wrong, 0);
   EXPECT_EQ(r.ambiguity_wrong, 0);
   EXPECT_EQ(r.corners_off, 0);

@@ -126,14 +126,19 @@ class Frame8Detector final : public MarkerDetector {
   bool read_hidden_side(const std::array<Point2, 4>& inner, int side, HoleEnd end, Detection& det, int& rotation,
                         HiddenSide& hidden, Homography& H);
   // Stage 2b, a hole open on one side (open_hole.cpp), after every quad.
-  // The least side of an open hole worth reading, in working pixels: a
-  // read with a side hidden needs cells of kResolvedCells (it checks them at
-  // full resolution); the traced outline, halved, comes out up to a pixel
-  // short at either end, and its straight pieces stop a halved pixel short
+  // Outlines are traced on the working image's light bits halved each way
+  // (kTraceScale), where a hole must span kMinTracedSide pixels to be cut
+  // into straight pieces; a read with a side hidden needs cells of
+  // kResolvedCells besides (it checks them at full resolution). The least
+  // side of an open hole worth reading, in working pixels: 21 at 640x480,
+  // 20 (40 full-resolution pixels, cells of 5.7) on frames decimated by 2,
+  // of over 1.3 megapixels. The traced outline comes out up to a pixel
+  // short at either end, and its straight pieces stop a traced pixel short
   // of the hole's blurred corners.
+  static constexpr int kTraceScale = 2;
+  static constexpr int kMinTracedSide = 10;
   [[nodiscard]] double min_open_hole_side() const {
-    const double full_size = kResolvedCells * kInnerSide / decimate_;
-    return full_size >= 2 * kMinTracedSide ? full_size - 4 : full_size;
+    return std::max(kResolvedCells * kInnerSide / decimate_, double{kTraceScale * kMinTracedSide}) - 4;
   }
   void make_traced_bits();
   [[nodiscard]] bool traced_light(int x, int y) const {
@@ -219,11 +224,10 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::int32_t> roots_;
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_, hull_twice_;
-  // Stage 2b: the pixels outlines are traced on (trace_scale_ working
+  // Stage 2b: the pixels outlines are traced on (kTraceScale working
   // pixels each way), the runs' left ends an outline passed, and the
   // outline being cut.
-  static constexpr int kMinTracedSide = 10;
-  int trace_scale_ = 1, trace_w_ = 0, trace_h_ = 0;
+  int trace_w_ = 0, trace_h_ = 0;
   std::size_t trace_stride_ = 0;
   std::vector<std::uint64_t> traced_bits_, traced_;
   std::vector<Point2> outline_;                // where the outline turns

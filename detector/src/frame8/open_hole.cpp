@@ -8,10 +8,10 @@
 // are traced, cut into straight pieces, and each such U handed to the read
 // with its open side hidden (hidden_side.cpp).
 //
-// The tracing runs on the threshold's bits halved in each direction where
-// the holes worth it are large enough (a pixel there is light when all four
-// of its pixels are: the line only grows), so that it costs half as much:
-// a cluttered frame's outlines run to some 20,000 pixel edges.
+// The tracing runs on the threshold's bits halved in each direction (a
+// pixel there is light when all four of its pixels are: the line only
+// grows), so that it costs half as much: a cluttered frame's outlines run
+// to some 20,000 pixel edges.
 
 #include <algorithm>
 #include <array>
@@ -74,7 +74,7 @@ void Frame8Detector::trace_outline(int start_x, int start_y) {
   constexpr std::array<int, 4> kLeftX{0, 0, -1, -1}, kLeftY{-1, 0, 0, -1};
   constexpr std::array<int, 4> kRightX{0, -1, -1, 0}, kRightY{0, 0, -1, -1};
   const int sx = start_x, sy = start_y + 1, sd = 3;  // up the pixel's left side
-  const double scale = trace_scale_;
+  const double scale = kTraceScale;
   int x = sx, y = sy, d = sd;
   int x0 = x, x1 = x, y0 = y, y1 = y;
   do {
@@ -101,7 +101,7 @@ void Frame8Detector::trace_outline(int start_x, int start_y) {
       d = (d + turn) & 3;
     }
   } while (x != sx || y != sy || d != sd);
-  outline_extent_ = std::max(x1 - x0, y1 - y0) * trace_scale_;
+  outline_extent_ = std::max(x1 - x0, y1 - y0) * kTraceScale;
 }
 
 // The outline's corners (indices into outline_, in order): its straight
@@ -116,7 +116,7 @@ void Frame8Detector::simplify_outline() {
   const auto n = static_cast<std::int32_t>(outline_.size());
   if (n < 4) return;
   auto at = [&](std::int32_t i) { return outline_[static_cast<std::size_t>(i % n)]; };
-  const double tolerance = kStraightTolerance * trace_scale_;
+  const double tolerance = kStraightTolerance * kTraceScale;
   // The last index a straight piece from `from` reaches (at most from + n).
   auto piece_end = [&](std::int32_t from) {
     const Point2 o = at(from);
@@ -172,7 +172,7 @@ bool Frame8Detector::ring_shows_both_colours(Point2 a, Point2 b) const {
   const Point2 along = b - a;
   const double len = std::hypot(along.x, along.y), cell = len / kInnerSide;
   const Point2 out{along.y / len, -along.x / len};  // a pixel outward
-  const double bias = 0.5 * trace_scale_ * d;
+  const double bias = 0.5 * kTraceScale * d;
   float hole = 0;
   const Point2 middle = a + 0.5 * along + (-cell) * out;
   if (!sample(full_, middle.x, middle.y, hole)) return false;
@@ -193,20 +193,12 @@ bool Frame8Detector::ring_shows_both_colours(Point2 a, Point2 b) const {
   return hole - lo >= kMinContrast && hi - lo >= 0.5F * (hole - lo);
 }
 
-// The pixels outlines are traced on: the working image's light bits, or
-// where a hole worth reading spans 2 * kMinTracedSide pixels or more, those
-// halved in each direction (a pixel light when its four are).
+// The pixels outlines are traced on: the working image's light bits halved
+// in each direction (a pixel light when its four are).
 void Frame8Detector::make_traced_bits() {
-  trace_scale_ = kResolvedCells * kInnerSide / decimate_ >= 2 * kMinTracedSide ? 2 : 1;
-  const int s = trace_scale_;
-  trace_w_ = work_.width / s;
-  trace_h_ = work_.height / s;
-  if (s == 1) {
-    trace_stride_ = light_stride_;
-    traced_bits_.assign(light_bits_.begin(), light_bits_.end());
-    traced_.assign(light_bits_.size(), 0);
-    return;
-  }
+  static_assert(kTraceScale == 2);
+  trace_w_ = work_.width / 2;
+  trace_h_ = work_.height / 2;
   trace_stride_ = static_cast<std::size_t>((trace_w_ + 63) / 64) + 1;
   traced_bits_.assign(trace_stride_ * static_cast<std::size_t>(trace_h_), 0);
   traced_.assign(traced_bits_.size(), 0);
@@ -237,7 +229,7 @@ void Frame8Detector::make_traced_bits() {
 
 void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
   make_traced_bits();
-  const int s = trace_scale_;
+  const int s = kTraceScale;
   const double min_side = min_open_hole_side();
   for (int y = 0; y < trace_h_; ++y) {
     const std::uint64_t* row = traced_bits_.data() + trace_stride_ * static_cast<std::size_t>(y);
