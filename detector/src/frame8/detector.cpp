@@ -97,8 +97,7 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   std::array<Point2, 4> quad{
       {{c.x0 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y1 + 0.5}, {c.x0 - 0.5, c.y1 + 0.5}}};
   const Rejection shape = fit_quad(c, quad);
-  const double d = decimate_;
-  for (auto& p : quad) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+  for (auto& p : quad) p = to_full(p);
   // Components that fail on their box alone are not candidates: the debug
   // output would list every speck of clutter.
   if (debug_ && shape != Rejection::touches_border && shape != Rejection::box_size) {

@@ -59,8 +59,20 @@ class Frame8Detector final : public MarkerDetector {
   enum class EdgeMode : std::uint8_t { step, classify_by_profile, fit_profile };
   int collect_edge_points(const std::array<Point2, 4>& q, int side, EdgeMode mode, std::optional<int> id);
   bool fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px, double& e) const;
+  Rejection fit_side(const std::array<Point2, 4>& from, int side, EdgeMode mode, std::optional<int> id, double cell_px,
+                     Line& line);
   Rejection refine_sides(const std::array<Point2, 4>& from, EdgeMode mode, std::optional<int> id, double cell_px,
                          std::array<Point2, 4>& inner);
+  // A refined corner more than two cells from the coarse one has been
+  // fitted to something else.
+  [[nodiscard]] bool corner_moved(Point2 refined, Point2 coarse, double cell_px) const {
+    return distance(refined, coarse) > 2.0 * cell_px + 2 * decimate_;
+  }
+  // A working-image point in full-resolution pixels.
+  [[nodiscard]] Point2 to_full(Point2 p) const {
+    const double d = decimate_;
+    return {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
+  }
   Rejection refit_undistorted(int rotation, Detection& det);
 
   // Stage 4: decoding (decode.cpp), through 4a to 4e.

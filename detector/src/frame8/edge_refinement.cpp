@@ -274,17 +274,27 @@ bool Frame8Detector::fit_edge_profile(const float* profile, int n, double s0, do
   return std::isfinite(e) && std::abs(e) <= kProfileReach && -p[1] >= kMinLineContrast;
 }
 
+// The line of side `side` of quad `from`, through its edge points
+// (edge_points_[side], edge_count_[side]).
+Rejection Frame8Detector::fit_side(const std::array<Point2, 4>& from, int side, EdgeMode mode, std::optional<int> id,
+                                   double cell_px, Line& line) {
+  auto& n = edge_count_[static_cast<std::size_t>(side)];
+  n = collect_edge_points(from, side, mode, id);
+  if (n < 3) return Rejection::few_edge_points;
+  if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px), line)) {
+    return Rejection::no_edge_line;
+  }
+  return Rejection::none;
+}
+
 // Refines the four sides from a quad; the inner corners in `inner`.
 Rejection Frame8Detector::refine_sides(const std::array<Point2, 4>& from, EdgeMode mode, std::optional<int> id,
                                        double cell_px, std::array<Point2, 4>& inner) {
   std::array<Line, 4> lines{};
   for (int side = 0; side < 4; ++side) {
-    auto& n = edge_count_[static_cast<std::size_t>(side)];
-    n = collect_edge_points(from, side, mode, id);
-    if (n < 3) return Rejection::few_edge_points;
-    if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px),
-                  lines[static_cast<std::size_t>(side)])) {
-      return Rejection::no_edge_line;
+    if (const Rejection why = fit_side(from, side, mode, id, cell_px, lines[static_cast<std::size_t>(side)]);
+        why != Rejection::none) {
+      return why;
     }
   }
   for (int i = 0; i < 4; ++i) {
@@ -292,8 +302,7 @@ Rejection Frame8Detector::refine_sides(const std::array<Point2, 4>& from, EdgeMo
                    inner[static_cast<std::size_t>(i)])) {
       return Rejection::parallel_sides;
     }
-    if (distance(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)]) >
-        2.0 * cell_px + 2 * decimate_) {
+    if (corner_moved(inner[static_cast<std::size_t>(i)], from[static_cast<std::size_t>(i)], cell_px)) {
       return Rejection::corner_moved;
     }
   }

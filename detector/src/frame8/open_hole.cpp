@@ -57,6 +57,22 @@ Point2 project(const Line& l, Point2 p) {
   return {p.x - off * l.nx, p.y - off * l.ny};
 }
 
+// The part of a U's hole that is seen: from the full side v1-v2 down the
+// arms (lines through v1 and v2; end_a and end_b where each ends), closed
+// parallel to the full side where the shorter arm ends. False when the
+// closing line misses the other arm.
+bool close_at_shorter_arm(Point2 v1, Point2 v2, const Line& arm_a, const Line& arm_b, Point2 end_a, Point2 end_b,
+                          std::array<Point2, 4>& seen) {
+  const Point2 along = v2 - v1;
+  Point2 p0 = end_a, p3 = end_b;
+  if (distance(v1, end_a) <= distance(v2, end_b) ? !intersect(line_through(end_a, end_a + along), arm_b, p3)
+                                                 : !intersect(line_through(end_b, end_b + along), arm_a, p0)) {
+    return false;
+  }
+  seen = {p0, v1, v2, p3};
+  return true;
+}
+
 }  // namespace
 
 // The outline through the left end of the traced pixel (x, y), as the
@@ -167,8 +183,8 @@ void Frame8Detector::simplify_outline() {
 // colour lies at the end of the edge, beside the corner.
 bool Frame8Detector::ring_shows_both_colours(Point2 a, Point2 b) const {
   const double d = decimate_;
-  a = {a.x * d + (d - 1) / 2, a.y * d + (d - 1) / 2};
-  b = {b.x * d + (d - 1) / 2, b.y * d + (d - 1) / 2};
+  a = to_full(a);
+  b = to_full(b);
   const Point2 along = b - a;
   const double len = std::hypot(along.x, along.y), cell = len / kInnerSide;
   const Point2 out{along.y / len, -along.x / len};  // a pixel outward
@@ -264,65 +280,58 @@ bool Frame8Detector::component_settled(int x, int y) const {
 }
 
 void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Detection>& out) {
-  const double d = decimate_;
-  {
-    const auto m = static_cast<std::int32_t>(outline_corners_.size());
-    if (m < 3) return;
-    auto corner = [&](std::int32_t k) {
-      return outline_[static_cast<std::size_t>(outline_corners_[static_cast<std::size_t>(((k % m) + m) % m)])];
+  const auto m = static_cast<std::int32_t>(outline_corners_.size());
+  if (m < 3) return;
+  auto corner = [&](std::int32_t k) {
+    return outline_[static_cast<std::size_t>(outline_corners_[static_cast<std::size_t>(((k % m) + m) % m)])];
+  };
+  auto piece = [&](std::int32_t k) { return distance(corner(k), corner(k + 1)); };
+  for (std::int32_t j = 0; j < m; ++j) {
+    const double side = piece(j);
+    if (side < min_side) continue;
+    // The arms: the nearest pieces before and after that are not a corner's rounding.
+    std::int32_t a = j - 1, b = j + 1;
+    double rounding = 0;
+    while (a > j - m && piece(a) < kCornerPiece * side) rounding += piece(a--);
+    while (b < j + m && piece(b) < kCornerPiece * side) rounding += piece(b++);
+    if (rounding > kCornerPiece * side || a <= j - m || b >= j + m || (a + m) % m == (b % m)) continue;
+    const Point2 a0 = corner(a), a1 = corner(a + 1), s0 = corner(j), s1 = corner(j + 1), b0 = corner(b),
+                 b1 = corner(b + 1);
+    // Both turns to the right: the component is inside the U.
+    const Point2 da = a1 - a0, ds = s1 - s0, db = b1 - b0;
+    const double la = std::hypot(da.x, da.y), lb = std::hypot(db.x, db.y);
+    if ((da.x * ds.y - da.y * ds.x) / (la * side) < kMinTurnSine) continue;
+    if ((ds.x * db.y - ds.y * db.x) / (side * lb) < kMinTurnSine) continue;
+    if (-(da.x * db.x + da.y * db.y) / (la * lb) < kMinArmsCosine) continue;
+    const Line arm_a = line_through(a0, a1), full = line_through(s0, s1), arm_b = line_through(b0, b1);
+    Point2 v1, v2;
+    if (!intersect(arm_a, full, v1) || !intersect(full, arm_b, v2)) continue;
+    const Point2 end_a = project(arm_a, a0), end_b = project(arm_b, b1);
+    const double reach_a = distance(v1, end_a), reach_b = distance(v2, end_b), width = distance(v1, v2);
+    if (std::min(reach_a, reach_b) < kMinArm * width || std::max(reach_a, reach_b) > kMaxArm * width) continue;
+    if (!ring_shows_both_colours(v1, v2)) continue;
+    std::array<Point2, 4> seen{};
+    if (!close_at_shorter_arm(v1, v2, arm_a, arm_b, end_a, end_b, seen)) continue;
+    for (auto& p : seen) p = to_full(p);
+    // The ring lies 1.5 cells beyond the hole's corners: where that is
+    // off the image (the image's own border makes straight outlines and
+    // right angles), there is nothing to read.
+    const double ring = kInnerLo * distance(seen[1], seen[2]) / kInnerSide;
+    auto in_image = [&](Point2 p) {
+      return p.x >= ring && p.y >= ring && p.x <= full_.width - 1 - ring && p.y <= full_.height - 1 - ring;
     };
-    auto piece = [&](std::int32_t k) { return distance(corner(k), corner(k + 1)); };
-    for (std::int32_t j = 0; j < m; ++j) {
-      const double side = piece(j);
-      if (side < min_side) continue;
-      // The arms: the nearest pieces before and after that are not a corner's rounding.
-      std::int32_t a = j - 1, b = j + 1;
-      double rounding = 0;
-      while (a > j - m && piece(a) < kCornerPiece * side) rounding += piece(a--);
-      while (b < j + m && piece(b) < kCornerPiece * side) rounding += piece(b++);
-      if (rounding > kCornerPiece * side || a <= j - m || b >= j + m || (a + m) % m == (b % m)) continue;
-      const Point2 a0 = corner(a), a1 = corner(a + 1), s0 = corner(j), s1 = corner(j + 1), b0 = corner(b),
-                   b1 = corner(b + 1);
-      // Both turns to the right: the component is inside the U.
-      const Point2 da = a1 - a0, ds = s1 - s0, db = b1 - b0;
-      const double la = std::hypot(da.x, da.y), lb = std::hypot(db.x, db.y);
-      if ((da.x * ds.y - da.y * ds.x) / (la * side) < kMinTurnSine) continue;
-      if ((ds.x * db.y - ds.y * db.x) / (side * lb) < kMinTurnSine) continue;
-      if (-(da.x * db.x + da.y * db.y) / (la * lb) < kMinArmsCosine) continue;
-      const Line arm_a = line_through(a0, a1), full = line_through(s0, s1), arm_b = line_through(b0, b1);
-      Point2 v1, v2;
-      if (!intersect(arm_a, full, v1) || !intersect(full, arm_b, v2)) continue;
-      const Point2 end_a = project(arm_a, a0), end_b = project(arm_b, b1);
-      const double reach_a = distance(v1, end_a), reach_b = distance(v2, end_b), width = distance(v1, v2);
-      if (std::min(reach_a, reach_b) < kMinArm * width || std::max(reach_a, reach_b) > kMaxArm * width) continue;
-      if (!ring_shows_both_colours(v1, v2)) continue;
-      // The part of the hole seen: across the arms, parallel to the full
-      // side, where the shorter arm ends.
-      Point2 p0 = end_a, p3 = end_b;
-      const Line across_a = line_through(end_a, end_a + ds), across_b = line_through(end_b, end_b + ds);
-      if (reach_a <= reach_b ? !intersect(across_a, arm_b, p3) : !intersect(across_b, arm_a, p0)) continue;
-      std::array<Point2, 4> seen{p0, v1, v2, p3};
-      for (auto& p : seen) p = {p.x * d + (d - 1) / 2, p.y * d + (d - 1) / 2};
-      // The ring lies 1.5 cells beyond the hole's corners: where that is
-      // off the image (the image's own border makes straight outlines and
-      // right angles), there is nothing to read.
-      const double ring = kInnerLo * distance(seen[1], seen[2]) / kInnerSide;
-      auto in_image = [&](Point2 p) {
-        return p.x >= ring && p.y >= ring && p.x <= full_.width - 1 - ring && p.y <= full_.height - 1 - ring;
-      };
-      if (!in_image(seen[1]) || !in_image(seen[2])) continue;
-      const Point2 centre = 0.25 * (seen[0] + seen[1] + seen[2] + seen[3]);
-      if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) continue;
-      if (debug_) debug_candidates_.push_back({seen, Rejection::open_hole_unread, -1, {}, {}});
-      Detection det;
-      if (read_open_hole(seen, det) == Rejection::none) {
-        if (debug_) {
-          debug_candidates_.back().why = Rejection::none;
-          debug_candidates_.back().id = det.id;
-          debug_candidates_.back().first_corner = det.corners[0];
-        }
-        out.push_back(det);
+    if (!in_image(seen[1]) || !in_image(seen[2])) continue;
+    const Point2 centre = 0.25 * (seen[0] + seen[1] + seen[2] + seen[3]);
+    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) continue;
+    if (debug_) debug_candidates_.push_back({seen, Rejection::open_hole_unread, -1, {}, {}});
+    Detection det;
+    if (read_open_hole(seen, det) == Rejection::none) {
+      if (debug_) {
+        debug_candidates_.back().why = Rejection::none;
+        debug_candidates_.back().id = det.id;
+        debug_candidates_.back().first_corner = det.corners[0];
       }
+      out.push_back(det);
     }
   }
 }
@@ -334,28 +343,20 @@ Rejection Frame8Detector::read_open_hole(const std::array<Point2, 4>& coarse, De
   std::array<Line, 3> lines{};
   const double cell_px = distance(coarse[1], coarse[2]) / kInnerSide;
   for (int side = 0; side < 3; ++side) {
-    auto& n = edge_count_[static_cast<std::size_t>(side)];
-    n = collect_edge_points(coarse, side, EdgeMode::step, std::nullopt);
-    if (n < 3) return Rejection::few_edge_points;
-    if (!fit_line(edge_points_[static_cast<std::size_t>(side)].data(), n, std::max(0.6, 0.25 * cell_px),
-                  lines[static_cast<std::size_t>(side)])) {
-      return Rejection::no_edge_line;
+    if (const Rejection why =
+            fit_side(coarse, side, EdgeMode::step, std::nullopt, cell_px, lines[static_cast<std::size_t>(side)]);
+        why != Rejection::none) {
+      return why;
     }
   }
   Point2 v1, v2;
   if (!intersect(lines[0], lines[1], v1) || !intersect(lines[1], lines[2], v2)) return Rejection::parallel_sides;
-  if (distance(v1, coarse[1]) > 2.0 * cell_px + 2 * decimate_ ||
-      distance(v2, coarse[2]) > 2.0 * cell_px + 2 * decimate_) {
-    return Rejection::corner_moved;
-  }
-  const Point2 end_a = project(lines[0], coarse[0]), end_b = project(lines[2], coarse[3]);
-  Point2 p0 = end_a, p3 = end_b;
-  const Point2 ds = v2 - v1;
-  if (distance(v1, end_a) <= distance(v2, end_b) ? !intersect(line_through(end_a, end_a + ds), lines[2], p3)
-                                                 : !intersect(line_through(end_b, end_b + ds), lines[0], p0)) {
+  if (corner_moved(v1, coarse[1], cell_px) || corner_moved(v2, coarse[2], cell_px)) return Rejection::corner_moved;
+  std::array<Point2, 4> seen{};
+  if (!close_at_shorter_arm(v1, v2, lines[0], lines[2], project(lines[0], coarse[0]), project(lines[2], coarse[3]),
+                            seen)) {
     return Rejection::parallel_sides;
   }
-  const std::array<Point2, 4> seen{p0, v1, v2, p3};
   if (!convex(seen)) return Rejection::corners_not_convex;
   int rotation = 0;
   HiddenSide hidden;
