@@ -825,9 +825,10 @@ TEST(Frame8, EverySubPixelPhaseIsReadForEveryBitPattern) {
 }
 
 // The print with its hole cut out (issue 18), the ground showing through:
-// over a light ground it is the printed hole, and found as on paper; over
-// a dark one or clutter the hole is no light region and is mostly missed
-// (README: 0 to 60%), but what is read must be the marker's id.
+// over a light ground it is the printed hole, and found as on paper; the
+// bare marker (no paper margin) over a dark ground or clutter has no light
+// region round its ink either, and is mostly missed (README), but what is
+// read must be the marker's id.
 TEST(Frame8, CutHoleOverLightDarkAndClutteredGrounds) {
   auto det = make_detector(posed_config());
   EvalSettings settings = benchmark_settings();
@@ -848,6 +849,59 @@ TEST(Frame8, CutHoleOverLightDarkAndClutteredGrounds) {
       EXPECT_GE(t.detected, t.frames - 2) << name;
     }
   }
+}
+
+// The print as `markerctl marker` makes it (10 mm of paper round the
+// marker), its hole cut out over black, dark grey and clutter: the hole is
+// no lighter than the line, and the marker is found by its ink's outline
+// in the paper (stage 2c), for ids of every pattern (long white runs
+// beside C1, which cut its corner long and shallow, runs of black, single
+// cells), turned and rolled, where cells are 4 px or more. Its corners
+// come from the pattern's edges that do not need the hole.
+TEST(Frame8, CutHoleMarkerWithItsPaperMarginIsFoundOverDarkAndClutteredGrounds) {
+  auto det = make_detector(posed_config());
+  struct Ground {
+    bool clutter;
+    double grey;
+  };
+  int frames = 0, found = 0, wrong = 0;
+  double worst_corner_px = 0;
+  std::string missed;
+  for (const Ground ground : {Ground{false, 0}, Ground{false, 30}, Ground{true, 128}}) {
+    for (const int id : {127, 254, 15, 240, 165, 3, 96}) {
+      for (const double dist : {0.4, 0.7, 1.0}) {
+        const double yaw = (frames % 3 - 1) * 20.0, roll = (frames % 4) * 90.0 + 7;
+        Scene s = scene(id, dist, yaw, roll, 300 + static_cast<std::uint64_t>(frames));
+        s.cut_hole = true;
+        s.paper_margin_m = 0.010;
+        s.clutter = ground.clutter;
+        s.background_grey = ground.grey;
+        ++frames;
+        const Quad truth = project_marker_corners(kCamera, s);
+        bool right = false;
+        for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
+          if (d.id != id) {
+            ++wrong;
+            continue;
+          }
+          right = true;
+          worst_corner_px = std::max(worst_corner_px, max_corner_error(d.corners, truth));
+        }
+        found += right;
+        if (!right) {
+          missed += " grey " + std::to_string(static_cast<int>(ground.grey)) + (ground.clutter ? " clutter" : "") +
+                    " id " + std::to_string(id) + " " + std::to_string(dist) + " m;";
+        }
+      }
+    }
+  }
+  EXPECT_EQ(wrong, 0);
+  // Measured: 54 of 63 (none of them read before stage 2c), the worst
+  // corner 1.9 px off. Missed: ids whose white runs leave a side only a
+  // cell or two on the square (254, 127), where the quads tried take the
+  // cut at C1 for a side; and some at 1.0 m turned, with cells near 4 px.
+  EXPECT_GE(found, 50) << "of " << frames << ", missed:" << missed;
+  EXPECT_LT(worst_corner_px, 2.5);
 }
 
 // The backgrounds alone in which bench_accuracy --false-positives 10000

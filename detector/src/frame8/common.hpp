@@ -233,9 +233,15 @@ struct Component {
   std::int32_t x0 = 0, x1 = 0, y0 = 0, y1 = 0;
   std::int32_t first = -1, last = -1;
   bool touches_border = false;
-  // A quad was fitted to it, or it lies within a detection: stage 2b
-  // leaves it alone.
+  // It lies within a detection, is too small to hold an open hole, or is
+  // a quad with no dark island large enough to be a marker's ink: stage
+  // 2b leaves it alone.
   bool settled = false;
+  // A quad was fitted to it: its outline is no open hole, but a dark
+  // island inside it may be a marker's ink (stage 2c).
+  bool quad = false;
+  // The dark pixels within its rows' spans (quad fitting measures them).
+  std::int64_t dark_inside = 0;
 };
 
 // An edge of the printed pattern seen in the image: the point lies on the

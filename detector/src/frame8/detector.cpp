@@ -103,10 +103,15 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   if (debug_ && shape != Rejection::touches_border && shape != Rejection::box_size) {
     debug_candidates_.push_back({quad, shape, -1, {}, {}});
   }
-  // Stage 2b looks for open holes in what is left, and a component too
-  // small to hold one (the outlines of its dark islands included) is left
-  // alone as well.
-  c.settled = shape == Rejection::none || std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_open_hole_side();
+  // Stage 2b looks for open holes in what is left, and stage 2c for a
+  // marker's ink among the dark islands of what is left and of the quads
+  // not read (a cut-out hole's marker glued on light paper or plastic: the
+  // surround is a quad whose island is the marker). A component too small
+  // to hold either is left alone.
+  const double min_side = min_open_hole_side();
+  c.quad = shape == Rejection::none;
+  c.settled = std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side ||
+              (c.quad && static_cast<double>(c.dark_inside) < kMinInkShare * min_side * min_side);
   if (shape != Rejection::none) return;
   Detection det;
   const Rejection why = refine_and_decode(quad, det);
@@ -118,7 +123,10 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
       candidate.first_corner = det.corners[0];
     }
   }
-  if (why == Rejection::none) out.push_back(det);
+  if (why == Rejection::none) {
+    out.push_back(det);
+    c.settled = true;
+  }
 }
 
 // Perspective shortens one end of a far-turned marker below the cosine of

@@ -45,7 +45,7 @@ class Frame8Detector final : public MarkerDetector {
   void label_components();
 
   // Stage 2: quad fitting (quad_fit.cpp).
-  Rejection fit_quad(const Component& c, std::array<Point2, 4>& quad);
+  Rejection fit_quad(Component& c, std::array<Point2, 4>& quad);
   void convex_hull();
   bool max_area_quad(std::array<Point2, 4>& quad);
 
@@ -108,7 +108,12 @@ class Frame8Detector final : public MarkerDetector {
   // Stage 5: the whole pattern (pattern_fit.cpp).
   bool locate_edge(const Homography& H, Point2 g0, Point2 normal, double half, bool dip, double& offset,
                    double& strength) const;
-  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px, const HiddenSide& hidden = {});
+  // Where the hole is not known to be lighter than the line (stage 2c),
+  // its edge is left out, and the line's outer edge beside white cells
+  // measured instead.
+  enum class HoleEdge : std::uint8_t { measured, unknown };
+  int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px, const HiddenSide& hidden = {},
+                            HoleEdge hole_edge = HoleEdge::measured);
   bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
   Rejection finish_by_pattern(int rotation, Detection& det);
 
@@ -153,18 +158,44 @@ class Frame8Detector final : public MarkerDetector {
     return std::max(kResolvedCells * kInnerSide / decimate_, double{kTraceScale * kMinTracedSide}) - 4;
   }
   void make_traced_bits();
-  [[nodiscard]] bool traced_light(int x, int y) const {
-    if (x < 0 || y < 0 || x >= trace_w_ || y >= trace_h_) return false;
-    return (traced_bits_[trace_stride_ * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) &
-           1U;
-  }
-  [[nodiscard]] bool component_settled(int x, int y) const;
-  void trace_outline(int start_x, int start_y);
+  // Pixels an outline is traced on: light bits, a row of `stride` words
+  // each, `scale` working pixels to a bit each way, and a bit per pixel
+  // marking the left ends of runs an outline has passed.
+  struct TraceBits {
+    const std::uint64_t* bits;
+    std::uint64_t* passed;
+    std::size_t stride;
+    int w, h, scale;
+    [[nodiscard]] bool light(int x, int y) const {
+      if (x < 0 || y < 0 || x >= w || y >= h) return false;
+      return (bits[stride * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) & 1U;
+    }
+    [[nodiscard]] bool was_passed(int x, int y) const {
+      return (passed[stride * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) & 1U;
+    }
+  };
+  void trace_outline(const TraceBits& t, int start_x, int start_y);
+  // The component of the working image's light pixel (x, y).
+  [[nodiscard]] const Component* component_at(int x, int y) const;
+  // Stage 2c on the working image's own bits: the islands of components
+  // small enough that halving the bits could cut the light band round a
+  // marker's ink (the print's margin, a cover frame's plastic).
+  void find_ink_islands_unhalved(double min_side, std::vector<Detection>& out);
   void simplify_outline();
   [[nodiscard]] bool ring_shows_both_colours(Point2 a, Point2 b) const;
   void find_open_holes(std::vector<Detection>& out);
   void find_open_holes_on_outline(double min_side, std::vector<Detection>& out);
   Rejection read_open_hole(const std::array<Point2, 4>& coarse, Detection& det);
+  // Stage 2c, a hole no lighter than the line (ink_outline.cpp): the dark
+  // island of a marker's ink (ring's black cells and line) within a light
+  // surround, its outer square taken from the island's convex hull. An
+  // island is worth tracing when its dark pixels take this share of the
+  // least side squared (the ink alone, around a light hole, takes 0.36 of
+  // the outer square).
+  static constexpr double kMinInkShare = 0.25;
+  void find_marker_on_ink_outline(double min_side, int scale, std::vector<Detection>& out);
+  bool fit_outer_side(Point2 a, Point2 b, Line& line);
+  Rejection read_ink_outline(const std::array<Point2, 4>& traced, Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);
@@ -242,9 +273,10 @@ class Frame8Detector final : public MarkerDetector {
   int trace_w_ = 0, trace_h_ = 0;
   std::size_t trace_stride_ = 0;
   std::vector<std::uint64_t> traced_bits_, traced_;
-  std::vector<Point2> outline_;                // where the outline turns
-  int outline_extent_ = 0;                     // its box's longer side, working pixels
-  std::vector<std::int32_t> outline_corners_;  // its straight pieces' ends
+  std::vector<std::uint64_t> passed_unhalved_;  // TraceBits::passed on light_bits_
+  std::vector<Point2> outline_;                 // where the outline turns
+  int outline_extent_ = 0;                      // its box's longer side, working pixels
+  std::vector<std::int32_t> outline_corners_;   // its straight pieces' ends
   std::array<std::array<EdgePoint, kMaxEdgePoints>, 4> edge_points_{};
   std::array<int, 4> edge_count_{};
   std::array<PatternEdge, kMaxPatternEdges> pattern_edges_{};

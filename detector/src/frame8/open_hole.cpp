@@ -81,7 +81,7 @@ bool close_at_shorter_arm(Point2 v1, Point2 v2, const Line& arm_a, const Line& a
 // anticlockwise around a dark island within it. Components are
 // 4-connected: a pixel touching one only by a corner is outside it. Marks
 // the left end of every run it passes, so that each outline is traced once.
-void Frame8Detector::trace_outline(int start_x, int start_y) {
+void Frame8Detector::trace_outline(const TraceBits& t, int start_x, int start_y) {
   outline_.clear();
   // Directions: east, south, west, north (y down); a right turn adds one.
   // Per direction, the step, and the two pixels ahead of the corner
@@ -90,22 +90,22 @@ void Frame8Detector::trace_outline(int start_x, int start_y) {
   constexpr std::array<int, 4> kLeftX{0, 0, -1, -1}, kLeftY{-1, 0, 0, -1};
   constexpr std::array<int, 4> kRightX{0, -1, -1, 0}, kRightY{0, 0, -1, -1};
   const int sx = start_x, sy = start_y + 1, sd = 3;  // up the pixel's left side
-  const double scale = kTraceScale;
+  const double scale = t.scale;
   int x = sx, y = sy, d = sd;
   int x0 = x, x1 = x, y0 = y, y1 = y;
   do {
     const auto du = static_cast<std::size_t>(d);
     if (d == 3) {
       // The crack from (x, y) up to (x, y - 1) is the left end of a run on row y - 1.
-      traced_[trace_stride_ * static_cast<std::size_t>(y - 1) + static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1}
-                                                                                                     << (x & 63);
+      t.passed[t.stride * static_cast<std::size_t>(y - 1) + static_cast<std::size_t>(x >> 6)] |= std::uint64_t{1}
+                                                                                                 << (x & 63);
     }
     x += kDx[du];
     y += kDy[du];
     int turn = 0;
-    if (!traced_light(x + kRightX[du], y + kRightY[du])) {
+    if (!t.light(x + kRightX[du], y + kRightY[du])) {
       turn = 1;
-    } else if (traced_light(x + kLeftX[du], y + kLeftY[du])) {
+    } else if (t.light(x + kLeftX[du], y + kLeftY[du])) {
       turn = 3;
     }
     if (turn != 0) {
@@ -117,7 +117,7 @@ void Frame8Detector::trace_outline(int start_x, int start_y) {
       d = (d + turn) & 3;
     }
   } while (x != sx || y != sy || d != sd);
-  outline_extent_ = std::max(x1 - x0, y1 - y0) * kTraceScale;
+  outline_extent_ = std::max(x1 - x0, y1 - y0) * t.scale;
 }
 
 // The outline's corners (indices into outline_, in order): its straight
@@ -243,10 +243,20 @@ void Frame8Detector::make_traced_bits() {
   }
 }
 
+// Components up to this size (working pixels) have their islands traced
+// on the unhalved bits: a print's 10 mm margin is 4 px at 1.2 m, less the
+// threshold's rims, and halved it is gone.
+constexpr int kUnhalvedIslandsBox = 256;
+namespace {
+bool unhalved_islands(const Component& c) { return std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) <= kUnhalvedIslandsBox; }
+}  // namespace
+
 void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
   make_traced_bits();
   const int s = kTraceScale;
   const double min_side = min_open_hole_side();
+  find_ink_islands_unhalved(min_side, out);
+  const TraceBits halved{traced_bits_.data(), traced_.data(), trace_stride_, trace_w_, trace_h_, kTraceScale};
   for (int y = 0; y < trace_h_; ++y) {
     const std::uint64_t* row = traced_bits_.data() + trace_stride_ * static_cast<std::size_t>(y);
     std::uint64_t carry = 0;
@@ -257,10 +267,19 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
       for (; ends != 0; ends &= ends - 1) {
         const int x = static_cast<int>(i * 64) + __builtin_ctzll(ends);
         if ((traced_[trace_stride_ * static_cast<std::size_t>(y) + i] >> (x & 63)) & 1U) continue;
-        // Its component was a quad (read or refused already), or lies in a detection.
-        if (component_settled(x * s, y * s)) continue;
-        trace_outline(x, y);
+        // Its component was read, lies in a detection, or is a quad
+        // without a dark island worth a look.
+        const Component* c = component_at(x * s, y * s);
+        if (c == nullptr || c->settled) continue;
+        trace_outline(halved, x, y);
         if (outline_extent_ < min_side) continue;
+        // Clockwise round the component itself, anticlockwise round an
+        // island within it.
+        const bool island = twice_signed_area(outline_.data(), outline_.size()) < 0;
+        if (island && !unhalved_islands(*c)) find_marker_on_ink_outline(min_side, kTraceScale, out);
+        // A quad's outline and its islands' have been measured as a
+        // quad's already.
+        if (c->quad) continue;
         simplify_outline();
         find_open_holes_on_outline(min_side, out);
       }
@@ -268,15 +287,33 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
   }
 }
 
-// Whether the working image's light pixel (x, y) belongs to a settled
-// component (Component::settled).
-bool Frame8Detector::component_settled(int x, int y) const {
+void Frame8Detector::find_ink_islands_unhalved(double min_side, std::vector<Detection>& out) {
+  passed_unhalved_.assign(light_bits_.size(), 0);
+  const TraceBits unhalved{light_bits_.data(), passed_unhalved_.data(), light_stride_, work_.width, work_.height, 1};
+  const double min_island_area = kMinInkShare * min_side * min_side;
+  for (const std::int32_t root : roots_) {
+    const Component& c = components_[static_cast<std::size_t>(root)];
+    if (c.settled || !unhalved_islands(c) || std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side) continue;
+    if (c.quad && static_cast<double>(c.dark_inside) < min_island_area) continue;
+    // An island's outline passes the left end of a run of the component
+    // that has dark pixels to its left within the component's box.
+    for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
+      const Run& run = runs_[static_cast<std::size_t>(r)];
+      if (run.x0 <= c.x0 || unhalved.was_passed(run.x0, run.y)) continue;
+      trace_outline(unhalved, run.x0, run.y);
+      if (outline_extent_ < min_side) continue;
+      if (twice_signed_area(outline_.data(), outline_.size()) < 0) find_marker_on_ink_outline(min_side, 1, out);
+    }
+  }
+}
+
+const Component* Frame8Detector::component_at(int x, int y) const {
   const auto first = runs_.begin() + row_first_[static_cast<std::size_t>(y)];
   const auto last = runs_.begin() + row_first_[static_cast<std::size_t>(y) + 1];
   auto it = std::upper_bound(first, last, x, [](int value, const Run& r) { return value < r.x0; });
-  if (it == first) return false;
+  if (it == first) return nullptr;
   --it;
-  return x < it->x1 && components_[static_cast<std::size_t>(it->parent)].settled;
+  return x < it->x1 ? &components_[static_cast<std::size_t>(it->parent)] : nullptr;
 }
 
 void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Detection>& out) {

@@ -67,7 +67,7 @@ bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, 
 // different colours. The outer edge is left out: what lies beyond it is
 // unknown; so is everything near a hidden side.
 int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px,
-                                          const HiddenSide& hidden) {
+                                          const HiddenSide& hidden, HoleEdge hole_edge) {
   const auto cells = frame8::ring_cells(id);
   // White at a grid point of the quad: turned back into the marker's own
   // grid, where the marker's corner j sits at the quad's corner j + rotation.
@@ -109,6 +109,13 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotat
         if (along < kInnerLo + 0.2 || along > frame8::grid - kInnerLo - 0.2) continue;  // clear of the line's corners
         const double frac = along - k;
         if (frac < 0.15 || frac > 0.85) continue;  // two cells share the blur here
+        if (hole_edge == HoleEdge::unknown) {
+          // The step from a white cell into the line, inwards.
+          if (white_at(side_point(side, along, 0.5))) {
+            add(side_point(side, along, frame8::line_outer), {-outward.x, -outward.y}, 0.45, false, axis);
+          }
+          continue;
+        }
         if (white_at(side_point(side, along, 0.5))) {
           if (line_px < min_dip_line_px) continue;
           add(side_point(side, along, 1.25), outward, 0.65, true, axis);

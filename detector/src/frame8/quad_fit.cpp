@@ -21,7 +21,7 @@ constexpr double kMinLightShare = 0.3;
 
 // The quad of a light component, in working-image coordinates, clockwise on
 // screen; or why the component is none.
-Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& quad) {
+Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   if (c.touches_border) return Rejection::touches_border;
   const double d = decimate_;
   const int bw = c.x1 - c.x0, bh = c.y1 - c.y0 + 1;
@@ -56,6 +56,7 @@ Rejection Frame8Detector::fit_quad(const Component& c, std::array<Point2, 4>& qu
     const auto a = static_cast<std::size_t>(k), b = static_cast<std::size_t>(k + 1);
     spanned += std::max(0, std::min(line_max_[a], line_max_[b]) - std::max(line_min_[a], line_min_[b]));
   }
+  c.dark_inside = std::max<std::int64_t>(0, static_cast<std::int64_t>(spanned) - c.area);
   // Andrew's monotone chain over points already sorted by (y, x).
   hull_.clear();
   points_.clear();

@@ -45,6 +45,9 @@ Stage stage_of(Rejection r) {
     case Rejection::line_not_dark: return Stage::structure;
     case Rejection::line_not_ink: return Stage::structure;
     case Rejection::open_hole_unread: return Stage::quad_fit;
+    case Rejection::ink_outline_unread: return Stage::quad_fit;
+    case Rejection::ink_cells_unresolved: return Stage::cells;
+    case Rejection::ink_read_corrected: return Stage::bit_votes;
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
     case Rejection::second_pass_disagrees: return Stage::structure;
@@ -116,6 +119,9 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_not_dark: return "line_not_dark";
     case Rejection::line_not_ink: return "line_not_ink";
     case Rejection::open_hole_unread: return "open_hole_unread";
+    case Rejection::ink_outline_unread: return "ink_outline_unread";
+    case Rejection::ink_cells_unresolved: return "ink_cells_unresolved";
+    case Rejection::ink_read_corrected: return "ink_read_corrected";
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";

@@ -32,6 +32,10 @@ enum class Rejection : std::uint8_t {
   short_quad_side,   // a side under half the least hole side
   sharp_corner,      // a corner sharper than 20 degrees or flatter than 160
   open_hole_unread,  // 2b: a hole open on one side (open_hole.cpp) that no depth read
+  // 2c: a marker's ink outline (ink_outline.cpp)
+  ink_outline_unread,    // (not yet read)
+  ink_cells_unresolved,  // its cells under kResolvedCells across
+  ink_read_corrected,    // its read outvoted a cell
   // 3. edge refinement
   small_hole,       // the quad's mean side under min_hole_side_px
   few_edge_points,  // a side with under three edge points

@@ -1,0 +1,288 @@
+// Stage 2c, a hole no lighter than the line: candidates for markers whose
+// hole shows something as dark as the ink, or darker, or parted by
+// clutter's edges. A hole cut out of the print (as on any socket frame)
+// shows the wall or whatever stands behind it; where that is dark the
+// line has no inner edge, the hole's light pixels (where there are any)
+// leak out through the black ring cells beside it, and no quad is fitted.
+// What stays is the ink's outside: the ring's black cells and the line are
+// one dark island in the light paper or plastic around the marker (the
+// print's margin, the frame's plastic, a light wall), its outline the
+// outer square where the cells are black and the line's outer edge where
+// they are white. C0, C2 and C3 are black, so three of the square's
+// corners are the island's own and every side has a stretch on it: the
+// island's convex hull is the outer square with C1's corner cut off, and
+// its four longest sides, extended, give the square.
+//
+// The ring is read on that square as any quad's (stage 4), only where its
+// cells are resolved and with no bit outvoted, and the corners come from
+// the pattern's edges that do not need the hole (stage 5): the boundaries
+// between ring cells and the line's outer edge beside white cells. That
+// measured map must read the same code again.
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "frame8/detector.hpp"
+
+namespace markerd::detector::frame8 {
+
+namespace {
+
+// A hull vertex this near (traced pixels) the line of the side so far
+// extends it: a traced slant's hull steps by a pixel. The cut at C1 may
+// turn off the side by only a few degrees (one cell in over eight along,
+// id 127), but it leaves the line by a cell.
+constexpr double kSideStraightness = 1.5;
+// Where perspective takes the square's corners: a marker turned 70 degrees
+// and seen off the axis keeps them within 30 to 150 degrees.
+constexpr double kMinCornerSine = 0.5;
+// The hull with C1's corner cut off fills the square but for that corner:
+// half a cell squared where C1's neighbours are black, more where they are
+// white (down to about 0.85 for ids with long white runs beside C1).
+constexpr double kMinHullShare = 0.8;
+
+struct HullSide {
+  Point2 a, b;
+  double length;
+};
+
+}  // namespace
+
+void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std::vector<Detection>& out) {
+  points_.assign(outline_.begin(), outline_.end());
+  std::sort(points_.begin(), points_.end(), [](Point2 p, Point2 q) { return p.y < q.y || (p.y == q.y && p.x < q.x); });
+  convex_hull();
+  const auto n = static_cast<int>(hull_.size());
+  if (n < 4) return;
+  if (twice_signed_area(hull_.data(), hull_.size()) < 0) std::reverse(hull_.begin(), hull_.end());
+  const double hull_area = twice_signed_area(hull_.data(), hull_.size()) / 2;
+  auto at = [&](int i) { return hull_[static_cast<std::size_t>(((i % n) + n) % n)]; };
+  auto turn_sine = [](Point2 d1, Point2 d2) {
+    return (d1.x * d2.y - d1.y * d2.x) / (std::hypot(d1.x, d1.y) * std::hypot(d2.x, d2.y));
+  };
+  // Start at the hull's sharpest turn, so that no side wraps round the start.
+  int start = 0;
+  double sharpest = -1;
+  for (int i = 0; i < n; ++i) {
+    const double t = std::abs(turn_sine(at(i) - at(i - 1), at(i + 1) - at(i)));
+    if (t > sharpest) {
+      sharpest = t;
+      start = i;
+    }
+  }
+  // The hull's sides: consecutive edges that keep the direction of the
+  // side so far (its chord, once it is longer than the staircase).
+  std::array<HullSide, 16> sides{};
+  int count = 0;
+  for (int i = start; i < start + n && count < static_cast<int>(sides.size());) {
+    const Point2 a = at(i);
+    int j = i + 1;
+    while (j < start + n) {
+      const double chord = distance(a, at(j));
+      const double straightness = kSideStraightness * scale;
+      if (chord > straightness && std::abs(cross(a, at(j), at(j + 1))) > straightness * chord) break;
+      ++j;
+    }
+    sides[static_cast<std::size_t>(count++)] = {a, at(j), distance(a, at(j))};
+    i = j;
+  }
+  if (count < 4) return;
+  // Four sides in the hull's order whose lines make a convex quad with
+  // corners of a square in perspective, which the hull fills. The
+  // longest such four are the square's sides but where C1's cut is long
+  // and shallow (a white run beside it): the cut's line then makes as good
+  // a quad with the three sides beside it. The reads decide, the longest
+  // first.
+  constexpr std::size_t kTried = 3;
+  std::array<std::pair<double, std::array<Point2, 4>>, kTried> tries{};
+  std::size_t found = 0;
+  auto line_of = [](const HullSide& s) {
+    const double len = s.length;
+    Line l;
+    l.nx = -(s.b.y - s.a.y) / len;
+    l.ny = (s.b.x - s.a.x) / len;
+    l.c = l.nx * s.a.x + l.ny * s.a.y;
+    return l;
+  };
+  std::array<int, 4> pick{};
+  for (pick[0] = 0; pick[0] < count; ++pick[0]) {
+    for (pick[1] = pick[0] + 1; pick[1] < count; ++pick[1]) {
+      for (pick[2] = pick[1] + 1; pick[2] < count; ++pick[2]) {
+        for (pick[3] = pick[2] + 1; pick[3] < count; ++pick[3]) {
+          double total = 0;
+          for (const int k : pick) total += sides[static_cast<std::size_t>(k)].length;
+          if (found == kTried && total <= tries[kTried - 1].first) continue;
+          std::array<Point2, 4> q{};
+          bool ok = true;
+          for (int t = 0; t < 4 && ok; ++t) {
+            const HullSide& s1 = sides[static_cast<std::size_t>(pick[static_cast<std::size_t>(t)])];
+            const HullSide& s2 = sides[static_cast<std::size_t>(pick[static_cast<std::size_t>((t + 1) % 4)])];
+            ok = turn_sine(s1.b - s1.a, s2.b - s2.a) >= kMinCornerSine &&
+                 intersect(line_of(s1), line_of(s2), q[static_cast<std::size_t>((t + 1) % 4)]);
+          }
+          if (!ok || !convex(q)) continue;
+          const double area = twice_signed_area(q.data(), q.size()) / 2;
+          if (area <= 0 || hull_area < kMinHullShare * area) continue;
+          // Into the list, longest first.
+          std::size_t at_k = std::min(found, kTried - 1);
+          tries[at_k] = {total, q};
+          for (; at_k > 0 && tries[at_k - 1].first < tries[at_k].first; --at_k) std::swap(tries[at_k - 1], tries[at_k]);
+          found = std::min(found + 1, kTried);
+        }
+      }
+    }
+  }
+  for (std::size_t k = 0; k < found; ++k) {
+    std::array<Point2, 4> outer = tries[k].second;
+    for (auto& p : outer) p = to_full(p);
+    // The outer square spans ten cells, the open hole's least side seven.
+    if (distance(outer[0], outer[2]) + distance(outer[1], outer[3]) <
+        2 * std::sqrt(2.0) * min_side * decimate_ * frame8::grid / kInnerSide) {
+      return;
+    }
+    for (const Point2& p : outer) {
+      if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return;
+    }
+    const Point2 centre = 0.25 * (outer[0] + outer[1] + outer[2] + outer[3]);
+    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) return;
+    if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
+    Detection det;
+    const Rejection why = read_ink_outline(outer, det);
+    if (debug_) {
+      debug_candidates_.back().why = why;
+      if (why == Rejection::none) {
+        debug_candidates_.back().id = det.id;
+        debug_candidates_.back().first_corner = det.corners[0];
+      }
+    }
+    if (why == Rejection::none) {
+      out.push_back(det);
+      return;
+    }
+  }
+}
+
+// The outer square's side from a to b (clockwise, full-resolution pixels)
+// where the ink meets the light beyond it: at each point the steepest
+// dark-to-light step going outward, within about half a cell of the side
+// traced (the line's outer edge, a cell in, stays out of reach). Beside
+// white cells there is no step: those points drop out.
+bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, Line& line) {
+  const double len = distance(a, b);
+  const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
+  const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
+  const double cell_px = len / frame8::grid;
+  const int count = std::clamp(static_cast<int>(len / 1.5), 8, kMaxEdgePoints);
+  constexpr double step = 0.5;
+  const double reach = 0.6 * cell_px + 1.0;
+  const int n_steps = std::min(static_cast<int>(2 * reach / step) + 1, 64);
+  EdgePoint* pts = edge_points_[0].data();
+  int used = 0;
+  std::array<float, 64> profile{};
+  for (int k = 0; k < count; ++k) {
+    const double t = 0.04 + 0.92 * (k + 0.5) / count;
+    const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
+    bool ok = true;
+    for (int s = 0; s < n_steps && ok; ++s) {
+      const double off = -reach + s * step;
+      ok = sample(full_, px + off * nx, py + off * ny, profile[static_cast<std::size_t>(s)]);
+    }
+    if (!ok) continue;
+    auto rise = [&](int s) {
+      return static_cast<double>(profile[static_cast<std::size_t>(s + 1)] - profile[static_cast<std::size_t>(s)]);
+    };
+    int best = -1;
+    double best_rise = 0;
+    for (int s = 0; s + 1 < n_steps; ++s) {
+      if (rise(s) > best_rise) {
+        best_rise = rise(s);
+        best = s;
+      }
+    }
+    // Noise of a few grey levels makes steps of a few grey levels a half pixel.
+    constexpr double kMinRise = 8;
+    if (best < 0 || best_rise < kMinRise) continue;
+    int lo = best, hi = best;
+    while (lo > 0 && rise(lo - 1) > 0.05 * best_rise) --lo;
+    while (hi + 2 < n_steps && rise(hi + 1) > 0.05 * best_rise) ++hi;
+    double sum = 0, moment = 0;
+    for (int s = lo; s <= hi; ++s) {
+      sum += rise(s);
+      moment += rise(s) * (-reach + (s + 0.5) * step);
+    }
+    const double off = moment / sum;
+    pts[used++] = {px + off * nx, py + off * ny, best_rise};
+  }
+  if (used < 4) return false;
+  return fit_line(pts, used, std::max(0.6, 0.2 * cell_px), line);
+}
+
+// The ring read on the outer square found (full-resolution pixels), then
+// measured by the pattern's edges clear of the hole and read again there.
+Rejection Frame8Detector::read_ink_outline(const std::array<Point2, 4>& traced, Detection& det) {
+  // Each side measured where the ink meets the light; the traced one
+  // where it cannot be (lies a pixel or so out: the traced bits are
+  // light only where all four of their pixels are).
+  std::array<Line, 4> lines{};
+  for (int side = 0; side < 4; ++side) {
+    const Point2 a = traced[static_cast<std::size_t>(side)], b = traced[static_cast<std::size_t>((side + 1) % 4)];
+    Line& l = lines[static_cast<std::size_t>(side)];
+    if (!fit_outer_side(a, b, l)) {
+      const double len = distance(a, b);
+      l = {-(b.y - a.y) / len, (b.x - a.x) / len, 0};
+      l.c = l.nx * a.x + l.ny * a.y;
+    }
+  }
+  std::array<Point2, 4> outer{};
+  for (int side = 0; side < 4; ++side) {
+    if (!intersect(lines[static_cast<std::size_t>((side + 3) % 4)], lines[static_cast<std::size_t>(side)],
+                   outer[static_cast<std::size_t>(side)])) {
+      return Rejection::parallel_sides;
+    }
+    if (corner_moved(outer[static_cast<std::size_t>(side)], traced[static_cast<std::size_t>(side)],
+                     distance(traced[0], traced[2]) / (std::sqrt(2.0) * frame8::grid))) {
+      return Rejection::corner_moved;
+    }
+  }
+  if (!convex(outer)) return Rejection::corners_not_convex;
+  Homography to_outer;
+  if (!Homography::from_unit_square(outer, to_outer)) return Rejection::degenerate_quad;
+  constexpr double lo = kInnerLo / frame8::grid, hi = 1 - lo;
+  const std::array<Point2, 4> inner{to_outer.map(lo, lo), to_outer.map(hi, lo), to_outer.map(hi, hi),
+                                    to_outer.map(lo, hi)};
+  Homography H;
+  if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
+  const CellSize cell_size = cell_size_of(inner);
+  if (cell_size.narrow < kResolvedCells) return Rejection::ink_cells_unresolved;
+  int rotation = 0;
+  if (const Rejection why = decode(H, cell_size, det, rotation, nullptr); why != Rejection::none) return why;
+  if (det.bits_corrected > 0) return Rejection::ink_read_corrected;
+  if (collect_pattern_edges(H, det.id, rotation, cell_size.mean, {}, HoleEdge::unknown) < kMinPatternEdges) {
+    return Rejection::pattern_fit_failed;
+  }
+  Detection measured = det;
+  if (const Rejection why = finish_by_pattern(rotation, measured); why != Rejection::none) return why;
+  if (!measured.inner_corners) return Rejection::pattern_fit_failed;
+  // The hole as the pattern places it, in the quad's order, read again.
+  std::array<Point2, 4> hole{};
+  for (int j = 0; j < 4; ++j) {
+    hole[static_cast<std::size_t>((j + rotation) % 4)] = (*measured.inner_corners)[static_cast<std::size_t>(j)];
+  }
+  Homography again_H;
+  if (!Homography::from_unit_square(hole, again_H)) return Rejection::degenerate_quad;
+  Detection again;
+  int again_rotation = 0;
+  const Rejection again_read = decode(again_H, cell_size_of(hole), again, again_rotation, nullptr);
+  note_attempt(Read::second_pass, again_read);
+  if (again_read != Rejection::none || again.id != det.id || again_rotation != rotation || again.bits_corrected > 0) {
+    return Rejection::second_pass_disagrees;
+  }
+  det = measured;
+  return Rejection::none;
+}
+
+}  // namespace markerd::detector::frame8
