@@ -896,12 +896,11 @@ TEST(Frame8, CutHoleMarkerWithItsPaperMarginIsFoundOverDarkAndClutteredGrounds) 
     }
   }
   EXPECT_EQ(wrong, 0);
-  // Measured: 54 of 63 (none of them read before stage 2c), the worst
-  // corner 1.9 px off. Missed: ids whose white runs leave a side only a
-  // cell or two on the square (254, 127), where the quads tried take the
-  // cut at C1 for a side; and some at 1.0 m turned, with cells near 4 px.
-  EXPECT_GE(found, 50) << "of " << frames << ", missed:" << missed;
-  EXPECT_LT(worst_corner_px, 2.5);
+  // Measured: 59 of 63 (none of them read before stage 2c), the worst
+  // corner 0.95 px off. Missed: ids 127 and 254 over clutter near and at
+  // 1.0 m, whose white runs leave a side only a cell or two on the square.
+  EXPECT_GE(found, frames - 6) << "of " << frames << ", missed:" << missed;
+  EXPECT_LT(worst_corner_px, 1.5);
 }
 
 // The backgrounds alone in which bench_accuracy --false-positives 10000

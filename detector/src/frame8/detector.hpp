@@ -23,6 +23,20 @@ namespace markerd::detector::frame8 {
 
 class Frame8Detector final : public MarkerDetector {
  public:
+  // Stage 2c (ink_outline.cpp): a side of the ink's convex hull, and its
+  // length; and a square tried, its corners, each side's stretch of the
+  // hull and its line (side t runs from corner t to t + 1).
+  struct HullSide {
+    Point2 a, b;
+    double length = 0;
+  };
+  struct InkSquare {
+    double total = 0;
+    std::array<Point2, 4> corners{};
+    std::array<HullSide, 4> sides{};
+    std::array<Line, 4> lines{};
+  };
+
   explicit Frame8Detector(const DetectorConfig& config);
 
   [[nodiscard]] Family family() const override { return Family::frame8; }
@@ -194,8 +208,12 @@ class Frame8Detector final : public MarkerDetector {
   // the outer square).
   static constexpr double kMinInkShare = 0.25;
   void find_marker_on_ink_outline(double min_side, int scale, std::vector<Detection>& out);
-  bool fit_outer_side(Point2 a, Point2 b, Line& line);
-  Rejection read_ink_outline(const std::array<Point2, 4>& traced, Detection& det);
+  static constexpr std::size_t kTried = 3;
+  std::size_t pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
+                           std::array<InkSquare, kTried>& tries);
+  bool fit_outer_side(Point2 a, Point2 b, double cell_px, Line& line);
+  Rejection read_ink_outline(const InkSquare& square, Detection& det);
+  Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);

@@ -40,15 +40,26 @@ constexpr double kSideStraightness = 1.5;
 // Where perspective takes the square's corners: a marker turned 70 degrees
 // and seen off the axis keeps them within 30 to 150 degrees.
 constexpr double kMinCornerSine = 0.5;
+// A side's stretch on the square under this many cells is turned by the
+// side opposite (read_ink_outline).
+constexpr double kShortStretchCells = 3;
+// Two stretches of the hull measure as one side when their lines are this
+// near: in direction (sine), and each stretch's ends from the other's line
+// (cells; at least 0.6 px).
+constexpr double kSameLineSine = 0.05;
+constexpr double kSameLineCells = 0.15;
+
+Line line_through(const Frame8Detector::HullSide& s) {
+  Line l;
+  l.nx = -(s.b.y - s.a.y) / s.length;
+  l.ny = (s.b.x - s.a.x) / s.length;
+  l.c = l.nx * s.a.x + l.ny * s.a.y;
+  return l;
+}
 // The hull with C1's corner cut off fills the square but for that corner:
 // half a cell squared where C1's neighbours are black, more where they are
 // white (down to about 0.85 for ids with long white runs beside C1).
 constexpr double kMinHullShare = 0.8;
-
-struct HullSide {
-  Point2 a, b;
-  double length;
-};
 
 }  // namespace
 
@@ -81,65 +92,74 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
   for (int i = start; i < start + n && count < static_cast<int>(sides.size());) {
     const Point2 a = at(i);
     int j = i + 1;
-    while (j < start + n) {
-      const double chord = distance(a, at(j));
-      const double straightness = kSideStraightness * scale;
-      if (chord > straightness && std::abs(cross(a, at(j), at(j + 1))) > straightness * chord) break;
-      ++j;
-    }
+    const double straightness = kSideStraightness * scale;
+    // Every vertex passed must stay near the chord to the next: measured
+    // against the last chord only, a shallow cut at C1 and the short
+    // stretch after it drift into one side a vertex at a time.
+    auto straight_to = [&](int end) {
+      const Point2 b = at(end);
+      const double chord = distance(a, b);
+      if (chord <= straightness) return true;
+      for (int k = i + 1; k < end; ++k) {
+        if (std::abs(cross(a, b, at(k))) > straightness * chord) return false;
+      }
+      return true;
+    };
+    while (j < start + n && straight_to(j + 1)) ++j;
     sides[static_cast<std::size_t>(count++)] = {a, at(j), distance(a, at(j))};
     i = j;
   }
   if (count < 4) return;
-  // Four sides in the hull's order whose lines make a convex quad with
-  // corners of a square in perspective, which the hull fills. The
-  // longest such four are the square's sides but where C1's cut is long
-  // and shallow (a white run beside it): the cut's line then makes as good
-  // a quad with the three sides beside it. The reads decide, the longest
-  // first.
-  constexpr std::size_t kTried = 3;
-  std::array<std::pair<double, std::array<Point2, 4>>, kTried> tries{};
-  std::size_t found = 0;
-  auto line_of = [](const HullSide& s) {
-    const double len = s.length;
-    Line l;
-    l.nx = -(s.b.y - s.a.y) / len;
-    l.ny = (s.b.x - s.a.x) / len;
-    l.c = l.nx * s.a.x + l.ny * s.a.y;
-    return l;
-  };
-  std::array<int, 4> pick{};
-  for (pick[0] = 0; pick[0] < count; ++pick[0]) {
-    for (pick[1] = pick[0] + 1; pick[1] < count; ++pick[1]) {
-      for (pick[2] = pick[1] + 1; pick[2] < count; ++pick[2]) {
-        for (pick[3] = pick[2] + 1; pick[3] < count; ++pick[3]) {
-          double total = 0;
-          for (const int k : pick) total += sides[static_cast<std::size_t>(k)].length;
-          if (found == kTried && total <= tries[kTried - 1].first) continue;
-          std::array<Point2, 4> q{};
-          bool ok = true;
-          for (int t = 0; t < 4 && ok; ++t) {
-            const HullSide& s1 = sides[static_cast<std::size_t>(pick[static_cast<std::size_t>(t)])];
-            const HullSide& s2 = sides[static_cast<std::size_t>(pick[static_cast<std::size_t>((t + 1) % 4)])];
-            ok = turn_sine(s1.b - s1.a, s2.b - s2.a) >= kMinCornerSine &&
-                 intersect(line_of(s1), line_of(s2), q[static_cast<std::size_t>((t + 1) % 4)]);
-          }
-          if (!ok || !convex(q)) continue;
-          const double area = twice_signed_area(q.data(), q.size()) / 2;
-          if (area <= 0 || hull_area < kMinHullShare * area) continue;
-          // Into the list, longest first.
-          std::size_t at_k = std::min(found, kTried - 1);
-          tries[at_k] = {total, q};
-          for (; at_k > 0 && tries[at_k - 1].first < tries[at_k].first; --at_k) std::swap(tries[at_k - 1], tries[at_k]);
-          found = std::min(found + 1, kTried);
+  // In full-resolution pixels from here.
+  for (int k = 0; k < count; ++k) {
+    HullSide& side = sides[static_cast<std::size_t>(k)];
+    side.a = to_full(side.a);
+    side.b = to_full(side.b);
+    side.length *= decimate_;
+  }
+  const double area_full = hull_area * decimate_ * decimate_;
+  std::array<Line, 16> lines{};
+  for (int k = 0; k < count; ++k) lines[static_cast<std::size_t>(k)] = line_through(sides[static_cast<std::size_t>(k)]);
+  std::array<InkSquare, kTried> tries{};
+  if (pick_squares(sides.data(), lines.data(), count, area_full, tries) == 0) return;
+  // Each side measured where the ink meets the light, along its stretch
+  // of the hull: black cells there (beside a white cell the step within
+  // reach may be the line's, a cell in). Neighbouring stretches that the
+  // threshold's rims bent apart by a pixel or two (cells of 4 px) measure
+  // as one line, and are one side.
+  const double cell = std::sqrt(area_full) / frame8::grid;
+  std::array<bool, 16> measured{};
+  int merged = 0;
+  for (int k = 0; k < count; ++k) {
+    HullSide side = sides[static_cast<std::size_t>(k)];
+    Line line = lines[static_cast<std::size_t>(k)];
+    const bool ok = fit_outer_side(side.a, side.b, cell, line);
+    if (merged > 0 && ok && measured[static_cast<std::size_t>(merged - 1)]) {
+      HullSide& last = sides[static_cast<std::size_t>(merged - 1)];
+      const Line& last_line = lines[static_cast<std::size_t>(merged - 1)];
+      auto off = [](const Line& l, Point2 p) { return std::abs(l.nx * p.x + l.ny * p.y - l.c); };
+      const double reach = std::max(0.6, kSameLineCells * cell);
+      if (std::abs(line.nx * last_line.ny - line.ny * last_line.nx) < kSameLineSine && off(last_line, side.a) < reach &&
+          off(last_line, side.b) < reach && off(line, last.a) < reach && off(line, last.b) < reach) {
+        const HullSide joined{last.a, side.b, last.length + side.length};
+        Line joined_line = last_line;
+        if (fit_outer_side(joined.a, joined.b, cell, joined_line)) {
+          last = joined;
+          lines[static_cast<std::size_t>(merged - 1)] = joined_line;
+          continue;
         }
       }
     }
+    sides[static_cast<std::size_t>(merged)] = side;
+    lines[static_cast<std::size_t>(merged)] = line;
+    measured[static_cast<std::size_t>(merged)] = ok;
+    ++merged;
   }
+  const std::size_t found = pick_squares(sides.data(), lines.data(), merged, area_full, tries);
   for (std::size_t k = 0; k < found; ++k) {
-    std::array<Point2, 4> outer = tries[k].second;
-    for (auto& p : outer) p = to_full(p);
+    const InkSquare& square = tries[k];
     // The outer square spans ten cells, the open hole's least side seven.
+    const std::array<Point2, 4>& outer = square.corners;
     if (distance(outer[0], outer[2]) + distance(outer[1], outer[3]) <
         2 * std::sqrt(2.0) * min_side * decimate_ * frame8::grid / kInnerSide) {
       return;
@@ -151,7 +171,7 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
     if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) return;
     if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
     Detection det;
-    const Rejection why = read_ink_outline(outer, det);
+    const Rejection why = read_ink_outline(square, det);
     if (debug_) {
       debug_candidates_.back().why = why;
       if (why == Rejection::none) {
@@ -166,25 +186,76 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
   }
 }
 
-// The outer square's side from a to b (clockwise, full-resolution pixels)
-// where the ink meets the light beyond it: at each point the steepest
+// Four sides in the hull's order whose lines make a convex quad with
+// corners of a square in perspective, which the hull fills. The longest
+// such four are the square's sides but where C1's cut is long and shallow
+// (a white run beside it): the cut's line then makes as good a quad with
+// the three sides beside it. The reads decide, the longest first.
+std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
+                                         std::array<InkSquare, kTried>& tries) {
+  auto turn_sine = [](Point2 d1, Point2 d2) {
+    return (d1.x * d2.y - d1.y * d2.x) / (std::hypot(d1.x, d1.y) * std::hypot(d2.x, d2.y));
+  };
+  std::size_t found = 0;
+  std::array<int, 4> pick{};
+  for (pick[0] = 0; pick[0] < count; ++pick[0]) {
+    for (pick[1] = pick[0] + 1; pick[1] < count; ++pick[1]) {
+      for (pick[2] = pick[1] + 1; pick[2] < count; ++pick[2]) {
+        for (pick[3] = pick[2] + 1; pick[3] < count; ++pick[3]) {
+          double total = 0;
+          for (const int k : pick) total += sides[k].length;
+          if (found == kTried && total <= tries[kTried - 1].total) continue;
+          std::array<Point2, 4> q{};
+          bool ok = true;
+          for (int t = 0; t < 4 && ok; ++t) {
+            const int k1 = pick[static_cast<std::size_t>(t)], k2 = pick[static_cast<std::size_t>((t + 1) % 4)];
+            ok = turn_sine(sides[k1].b - sides[k1].a, sides[k2].b - sides[k2].a) >= kMinCornerSine &&
+                 intersect(lines[k1], lines[k2], q[static_cast<std::size_t>((t + 1) % 4)]);
+          }
+          if (!ok || !convex(q)) continue;
+          const double area = twice_signed_area(q.data(), q.size()) / 2;
+          if (area <= 0 || hull_area < kMinHullShare * area) continue;
+          // Into the list, longest first. Side t runs from corner t to t + 1.
+          std::size_t at = std::min(found, kTried - 1);
+          tries[at].total = total;
+          tries[at].corners = q;
+          for (int t = 0; t < 4; ++t) {
+            const int k = pick[static_cast<std::size_t>(t)];
+            tries[at].sides[static_cast<std::size_t>(t)] = sides[k];
+            tries[at].lines[static_cast<std::size_t>(t)] = lines[k];
+          }
+          for (; at > 0 && tries[at - 1].total < tries[at].total; --at) std::swap(tries[at - 1], tries[at]);
+          found = std::min(found + 1, kTried);
+        }
+      }
+    }
+  }
+  return found;
+}
+
+// The outer square's side through a and b (clockwise, full-resolution
+// pixels) where the ink meets the light beyond it: at each point the steepest
 // dark-to-light step going outward, within about half a cell of the side
 // traced (the line's outer edge, a cell in, stays out of reach). Beside
 // white cells there is no step: those points drop out.
-bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, Line& line) {
+bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, Line& line) {
   const double len = distance(a, b);
   const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
   const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
-  const double cell_px = len / frame8::grid;
   const int count = std::clamp(static_cast<int>(len / 1.5), 8, kMaxEdgePoints);
   constexpr double step = 0.5;
-  const double reach = 0.6 * cell_px + 1.0;
-  const int n_steps = std::min(static_cast<int>(2 * reach / step) + 1, 64);
+  // The hull lies on the ink's outside or a pixel beyond: inward, the
+  // search stops short of the line's outer edge (a cell in, beside a
+  // white cell).
+  const double reach = 0.4 * cell_px + 1.0, reach_out = 0.6 * cell_px + 1.0;
+  const int n_steps = std::min(static_cast<int>((reach + reach_out) / step) + 1, 64);
   EdgePoint* pts = edge_points_[0].data();
   int used = 0;
   std::array<float, 64> profile{};
   for (int k = 0; k < count; ++k) {
-    const double t = 0.04 + 0.92 * (k + 0.5) / count;
+    // Clear of the stretch's ends, which the blur rounds (a corner of the
+    // square, or the end of a black run).
+    const double t = 0.1 + 0.8 * (k + 0.5) / count;
     const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
     bool ok = true;
     for (int s = 0; s < n_steps && ok; ++s) {
@@ -205,7 +276,9 @@ bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, Line& line) {
     }
     // Noise of a few grey levels makes steps of a few grey levels a half pixel.
     constexpr double kMinRise = 8;
-    if (best < 0 || best_rise < kMinRise) continue;
+    // A rise at the window's inner end is the start of the line's step
+    // beside a white cell, not the ink's outside.
+    if (best <= 0 || best_rise < kMinRise) continue;
     int lo = best, hi = best;
     while (lo > 0 && rise(lo - 1) > 0.05 * best_rise) --lo;
     while (hi + 2 < n_steps && rise(hi + 1) > 0.05 * best_rise) ++hi;
@@ -223,20 +296,40 @@ bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, Line& line) {
 
 // The ring read on the outer square found (full-resolution pixels), then
 // measured by the pattern's edges clear of the hole and read again there.
-Rejection Frame8Detector::read_ink_outline(const std::array<Point2, 4>& traced, Detection& det) {
-  // Each side measured where the ink meets the light; the traced one
-  // where it cannot be (lies a pixel or so out: the traced bits are
-  // light only where all four of their pixels are).
-  std::array<Line, 4> lines{};
+Rejection Frame8Detector::read_ink_outline(const InkSquare& square, Detection& det) {
+  std::array<Line, 4> lines = square.lines;
+  const std::array<Point2, 4>& traced = square.corners;
+  const std::array<HullSide, 4>& flush = square.sides;
+  const Rejection measured = read_outer_square(traced, lines, det);
+  if (measured == Rejection::none) return measured;
+  // A stretch of a cell or two (C2 or C0 and one black cell beside it,
+  // the rest of the side white) places its side but turns it only
+  // roughly: a degree off moves the far corner, C1's, by a pixel a cell.
+  // Turned as the side opposite instead (parallel to it but for the
+  // perspective, a few degrees near and turned), where that side's stretch
+  // is longer, it may read.
+  bool turned = false;
   for (int side = 0; side < 4; ++side) {
-    const Point2 a = traced[static_cast<std::size_t>(side)], b = traced[static_cast<std::size_t>((side + 1) % 4)];
+    const HullSide& on = flush[static_cast<std::size_t>(side)];
+    const HullSide& facing = flush[static_cast<std::size_t>((side + 2) % 4)];
+    const double cell =
+        distance(traced[static_cast<std::size_t>(side)], traced[static_cast<std::size_t>((side + 1) % 4)]) /
+        frame8::grid;
+    if (on.length >= kShortStretchCells * cell || facing.length <= on.length) continue;
     Line& l = lines[static_cast<std::size_t>(side)];
-    if (!fit_outer_side(a, b, l)) {
-      const double len = distance(a, b);
-      l = {-(b.y - a.y) / len, (b.x - a.x) / len, 0};
-      l.c = l.nx * a.x + l.ny * a.y;
-    }
+    const Line& f = lines[static_cast<std::size_t>((side + 2) % 4)];
+    const Point2 mid = 0.5 * (on.a + on.b);
+    const double off = l.nx * mid.x + l.ny * mid.y - l.c;
+    const Point2 through{mid.x - off * l.nx, mid.y - off * l.ny};
+    l = {-f.nx, -f.ny, -f.nx * through.x - f.ny * through.y};
+    turned = true;
   }
+  if (!turned) return measured;
+  return read_outer_square(traced, lines, det);
+}
+
+Rejection Frame8Detector::read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines,
+                                            Detection& det) {
   std::array<Point2, 4> outer{};
   for (int side = 0; side < 4; ++side) {
     if (!intersect(lines[static_cast<std::size_t>((side + 3) % 4)], lines[static_cast<std::size_t>(side)],
