@@ -211,6 +211,7 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr std::size_t kTried = 3;
   std::size_t pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
                            std::array<InkSquare, kTried>& tries);
+  [[nodiscard]] bool ring_shows_cells(const std::array<Point2, 4>& outer) const;
   bool fit_outer_side(Point2 a, Point2 b, double cell_px, Line& line);
   Rejection read_ink_outline(const InkSquare& square, Detection& det);
   Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, Detection& det);

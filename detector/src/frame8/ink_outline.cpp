@@ -121,7 +121,13 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
   std::array<Line, 16> lines{};
   for (int k = 0; k < count; ++k) lines[static_cast<std::size_t>(k)] = line_through(sides[static_cast<std::size_t>(k)]);
   std::array<InkSquare, kTried> tries{};
-  if (pick_squares(sides.data(), lines.data(), count, area_full, tries) == 0) return;
+  const std::size_t traced = pick_squares(sides.data(), lines.data(), count, area_full, tries);
+  // Most islands are clutter's dark shapes, dark all over where a ring
+  // would be: a look at its cells costs less than measuring the sides.
+  if (std::none_of(tries.begin(), tries.begin() + static_cast<std::ptrdiff_t>(traced),
+                   [&](const InkSquare& square) { return ring_shows_cells(square.corners); })) {
+    return;
+  }
   // Each side measured where the ink meets the light, along its stretch
   // of the hull: black cells there (beside a white cell the step within
   // reach may be the line's, a cell in). Neighbouring stretches that the
@@ -184,6 +190,33 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
       return;
     }
   }
+}
+
+// Whether the ring of a square found (outer corners, full-resolution
+// pixels) shows light and dark cells: a sample at each data cell's centre,
+// through the square's map. Every id but 0 and 255 has at least four of
+// each among the 32, but the square traced may be a pixel or two off, and
+// a cell's sample then grey.
+bool Frame8Detector::ring_shows_cells(const std::array<Point2, 4>& outer) const {
+  Homography to_outer;
+  if (!Homography::from_unit_square(outer, to_outer)) return false;
+  std::array<float, 32> v{};
+  std::size_t n = 0;
+  for (int side = 0; side < 4; ++side) {
+    for (int k = 1; k <= 8; ++k) {
+      const Point2 g = side_point(side, k + 0.5, 0.5);
+      const Point2 p = to_outer.map(g.x / frame8::grid, g.y / frame8::grid);
+      if (!sample(full_, p.x, p.y, v[n])) return false;
+      ++n;
+    }
+  }
+  const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
+  constexpr float kMinContrast = 40;
+  if (*hi - *lo < kMinContrast) return false;
+  const float mid = 0.5F * (*lo + *hi);
+  const auto light = std::count_if(v.begin(), v.end(), [&](float x) { return x > mid; });
+  constexpr int kMinEach = 3;
+  return light >= kMinEach && static_cast<int>(v.size()) - light >= kMinEach;
 }
 
 // Four sides in the hull's order whose lines make a convex quad with

@@ -294,7 +294,10 @@ void Frame8Detector::find_ink_islands_unhalved(double min_side, std::vector<Dete
   for (const std::int32_t root : roots_) {
     const Component& c = components_[static_cast<std::size_t>(root)];
     if (c.settled || !unhalved_islands(c) || std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side) continue;
-    if (c.quad && static_cast<double>(c.dark_inside) < min_island_area) continue;
+    // Its rows' spans must hold dark pixels enough for a marker's ink
+    // (what fit_quad() measured; a component it turned down on its box
+    // alone has none worth a look).
+    if (static_cast<double>(c.dark_inside) < min_island_area) continue;
     // An island's outline passes the left end of a run of the component
     // that has dark pixels to its left within the component's box.
     for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
