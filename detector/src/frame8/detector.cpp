@@ -140,15 +140,6 @@ constexpr double kMinSideRatio = 0.08;
 // 127, 128, 129; 2 and 3 bits corrected, the second pass failing), none
 // with the rule, and no rate lost on paper or socket frames.
 constexpr int kUnconfirmedCorrections = 2;
-// Below this many pixels per cell (the mean of both directions), a sampled
-// read must be confirmed by the ring model (confirm_by_model). Bench_accuracy
-// with the print's 10 mm paper margin, 500 frames a point, 2.0 to 3.0 m
-// (1.4 to 2.1 px a cell): 14 wrong ids, none left with the check (and with
-// the corners' convexity), for 0 to 1.2 points of rate. None was seen
-// from here up; a marker turned far, whose short edges' cells are a pixel
-// while the long ones' are four, is read by its short edges' profiles,
-// which the model does not know.
-constexpr double kModelCheckedCells = 2.5;
 // From this many pixels per cell, the corners come from the whole pattern
 // (stage 5): below it the pattern's edges blur into each other.
 constexpr double kPatternCells = 1.0;

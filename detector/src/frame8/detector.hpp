@@ -207,7 +207,7 @@ class Frame8Detector final : public MarkerDetector {
   // least side squared (the ink alone, around a light hole, takes 0.36 of
   // the outer square).
   static constexpr double kMinInkShare = 0.25;
-  void find_marker_on_ink_outline(double min_side, int scale, std::vector<Detection>& out);
+  void find_marker_on_ink_outline(int scale, std::vector<Detection>& out);
   static constexpr std::size_t kTried = 3;
   std::size_t pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
                            std::array<InkSquare, kTried>& tries);

@@ -40,6 +40,10 @@ constexpr double kSideStraightness = 1.5;
 // Where perspective takes the square's corners: a marker turned 70 degrees
 // and seen off the axis keeps them within 30 to 150 degrees.
 constexpr double kMinCornerSine = 0.5;
+// Cells (pixels across) the ink's square is read down to: under 3 px its
+// cells are unmixed as any quad's (decode_cells.cpp), and the read is
+// checked as theirs.
+constexpr double kMinInkCells = 2.0;
 // A side's stretch on the square under this many cells is turned by the
 // side opposite (read_ink_outline).
 constexpr double kShortStretchCells = 3;
@@ -63,7 +67,7 @@ constexpr double kMinHullShare = 0.8;
 
 }  // namespace
 
-void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std::vector<Detection>& out) {
+void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection>& out) {
   points_.assign(outline_.begin(), outline_.end());
   std::sort(points_.begin(), points_.end(), [](Point2 p, Point2 q) { return p.y < q.y || (p.y == q.y && p.x < q.x); });
   convex_hull();
@@ -164,10 +168,9 @@ void Frame8Detector::find_marker_on_ink_outline(double min_side, int scale, std:
   const std::size_t found = pick_squares(sides.data(), lines.data(), merged, area_full, tries);
   for (std::size_t k = 0; k < found; ++k) {
     const InkSquare& square = tries[k];
-    // The outer square spans ten cells, the open hole's least side seven.
     const std::array<Point2, 4>& outer = square.corners;
     if (distance(outer[0], outer[2]) + distance(outer[1], outer[3]) <
-        2 * std::sqrt(2.0) * min_side * decimate_ * frame8::grid / kInnerSide) {
+        2 * std::sqrt(2.0) * kMinInkCells * frame8::grid) {
       return;
     }
     for (const Point2& p : outer) {
@@ -383,10 +386,17 @@ Rejection Frame8Detector::read_outer_square(const std::array<Point2, 4>& traced,
   Homography H;
   if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;
   const CellSize cell_size = cell_size_of(inner);
-  if (cell_size.narrow < kResolvedCells) return Rejection::ink_cells_unresolved;
+  if (cell_size.narrow < kMinInkCells) return Rejection::ink_cells_unresolved;
   int rotation = 0;
   if (const Rejection why = decode(H, cell_size, det, rotation, nullptr); why != Rejection::none) return why;
   if (det.bits_corrected > 0) return Rejection::ink_read_corrected;
+  // Under resolved cells the checks of any quad's read (detector.cpp): a
+  // near-uniform ring only where cells are resolved, and under 2.5 px the
+  // ring model, fitted to every pixel, must read the same.
+  if (near_uniform(det.id) && cell_size.narrow < kResolvedCells) return Rejection::near_uniform_unconfirmed;
+  if (cell_size.mean < kModelCheckedCells) {
+    if (const Rejection why = confirm_by_model(H, cell_size, det, rotation); why != Rejection::none) return why;
+  }
   if (collect_pattern_edges(H, det.id, rotation, cell_size.mean, {}, HoleEdge::unknown) < kMinPatternEdges) {
     return Rejection::pattern_fit_failed;
   }

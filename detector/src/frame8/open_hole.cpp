@@ -276,7 +276,7 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
         // Clockwise round the component itself, anticlockwise round an
         // island within it.
         const bool island = twice_signed_area(outline_.data(), outline_.size()) < 0;
-        if (island && !unhalved_islands(*c)) find_marker_on_ink_outline(min_side, kTraceScale, out);
+        if (island && !unhalved_islands(*c)) find_marker_on_ink_outline(kTraceScale, out);
         // A quad's outline and its islands' have been measured as a
         // quad's already.
         if (c->quad) continue;
@@ -305,7 +305,7 @@ void Frame8Detector::find_ink_islands_unhalved(double min_side, std::vector<Dete
       if (run.x0 <= c.x0 || unhalved.was_passed(run.x0, run.y)) continue;
       trace_outline(unhalved, run.x0, run.y);
       if (outline_extent_ < min_side) continue;
-      if (twice_signed_area(outline_.data(), outline_.size()) < 0) find_marker_on_ink_outline(min_side, 1, out);
+      if (twice_signed_area(outline_.data(), outline_.size()) < 0) find_marker_on_ink_outline(1, out);
     }
   }
 }
