@@ -497,9 +497,11 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
         s.frame = socket_frame();
         s.insert = Insert::socket;
         const Quad truth = project_marker_corners(kCamera, s);
+        // Within half a cell, as further turned (the test below).
+        const double half_cell = 0.5 * distance(truth[0], truth[3]) / frame8::grid;
         ++frames;
         for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
-          if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > 2.0) {
+          if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > half_cell) {
             ++wrong;
             ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at " << d << " m, yaw "
                           << yaw << ", corners off by " << max_corner_error(f.corners, truth);
@@ -510,14 +512,16 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
       }
     }
   }
-  EXPECT_GE(detected, 19) << "of " << frames;
+  // Measured: 24 of 32 since the ring cells are sampled clear of the
+  // outer roll (decode_cells.cpp).
+  EXPECT_GE(detected, 21) << "of " << frames;
   EXPECT_EQ(wrong, 0);
 }
 
 // The socket frame turned further, 25 and 30 deg either way at 0.5 m: the
 // line's corner nearest the camera lies on the inner roll's bend, lit or
 // shaded unlike the rest of the line, and one such light corner of four is
-// allowed (decode_checks.cpp). Never another id or orientation; the
+// allowed, or two on one side (decode_checks.cpp). Never another id or orientation; the
 // corners within half a cell (the print's outer edge lies on the outer
 // roll, bent away from the flat band whose square the corners are
 // extrapolated on: up to 3.5 px off here).
@@ -548,8 +552,10 @@ TEST(Frame8, MarkerOnASocketFrameTurnedFurther) {
       }
     }
   }
-  // Measured: 23 of 32; 11 before the light corner was allowed.
-  EXPECT_GE(detected, 20) << "of " << frames;
+  // Measured: 27 of 32 (23 before the ring cells were sampled clear of
+  // the outer roll and two light corners on one side allowed; 11 before
+  // one light corner was).
+  EXPECT_GE(detected, 24) << "of " << frames;
   EXPECT_EQ(wrong, 0);
 }
 
@@ -617,9 +623,11 @@ CoveredSideReads read_covered_sides(bool with_camera, double roll_deg, float ref
               std::max(distance(f.corners[seen_a], truth[seen_a]), distance(f.corners[seen_b], truth[seen_b]));
           // Without a camera the hole's perspective beyond the cover is
           // extrapolated from the quad seen, which tilts the seen side's
-          // corners too: a quarter of a cell (measured: up to 0.18).
+          // corners too: under a third of a cell (measured: up to 0.28,
+          // 0.18 before the ring cells were sampled clear of their outer
+          // quarter, which moves the run of depths that read).
           const double cell_px = distance(truth[0], truth[1]) / frame8::grid;
-          if (seen_error > (with_camera ? camera_corner_px : 0.25 * cell_px)) {
+          if (seen_error > (with_camera ? camera_corner_px : 0.33 * cell_px)) {
             ++out.corners_off;
             ADD_FAILURE() << "side " << static_cast<int>(side) << " at " << d << " m, yaw " << yaw << ", roll "
                           << roll_deg << ": seen corners off by " << seen_error << " px";

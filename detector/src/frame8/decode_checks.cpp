@@ -99,8 +99,12 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
     // (the checkered pattern's diagonal neighbour), nor beside a hidden side,
     // nor on a hole read grown beyond its component (inset_hole.cpp: the
     // middle of a large dark square, light to the adaptive threshold, grown
-    // to the square's edge, read as 254 with one light corner).
+    // to the square's edge, read as 254 with one light corner). Turned
+    // further (25 degrees and more), the side of the line nearest the camera
+    // lies on the roll seen face on and both its corners come out grey: two
+    // light corners are allowed where they are one side's.
     int seen = 0, light = 0;
+    std::array<bool, 4> light_at{};
     for (std::size_t j = 0; j < kLineCorners.size(); ++j) {
       const Point2 g = kLineCorners[j];
       if (r.hidden.covers(g)) continue;
@@ -111,8 +115,12 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
       if (r.soft(v) <= -r.confident) continue;
       if (static_cast<int>(j) == r.white_corner) return Rejection::line_corner_light;
       ++light;
+      light_at[j] = true;
     }
-    if (light > (seen == 4 && !reading_grown_hole_ ? 1 : 0)) return Rejection::line_corner_light;
+    const bool one_side = light == 2 && (light_at[0] == light_at[1] || light_at[1] == light_at[2]);
+    if (light > (seen == 4 && !reading_grown_hole_ ? 1 : 0) && !(one_side && seen == 4 && !reading_grown_hole_)) {
+      return Rejection::line_corner_light;
+    }
     int dark = 0, total = 0;
     double line_sum = 0;
     for (int k = 0; k < 7; ++k) {

@@ -11,7 +11,8 @@ namespace markerd::detector::frame8 {
 // roll and parted from the line by its shadow, is the light component, a
 // fraction of a cell inside the line on every side. The quad is read grown
 // by a quarter cell at a time; every size that reads must read the same id
-// with no cell outvoted, and the clearest read is kept.
+// with no cell outvoted, and the clearest read is kept. Near-uniform ids
+// are not read so.
 constexpr std::array<double, 4> kInsetCells{0.25, 0.5, 0.75, 1.0};
 
 bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
@@ -35,7 +36,12 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
     const Rejection why = decode(grown, size, read, read_rotation, nullptr);
     reading_grown_hole_ = false;
     note_attempt(Read::inset, why);
-    if (why != Rejection::none || read.bits_corrected > 0) continue;
+    // Grown to the next dark edge, a square of a tiled or checkered
+    // surface takes in the grout or squares round it, which read as a ring
+    // one colour from end to end but for its corners: no near-uniform id
+    // is read so (a checkerboard read as 127 once the cells were sampled
+    // clear of the ring's outer edge).
+    if (why != Rejection::none || read.bits_corrected > 0 || near_uniform(read.id)) continue;
     if (found && read.id != det.id) return false;
     if (found && read.margin <= det.margin) continue;
     det = read;
