@@ -40,6 +40,17 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   if (r.id == 0 || r.id == 255) {
     if (!config_.frame8.uniform_ids || cell_size.narrow < kResolvedCells) return Rejection::uniform_id;
   }
+  // The near-uniform ids are what a grid of keys or tiles shows round each
+  // of its squares; one whose ring runs off the image has corner cells
+  // sampled on whatever is left of them (a key at the image's top edge
+  // read as 126): they are read only with the whole ring in the image.
+  if (near_uniform(r.id)) {
+    for (const Point2 g :
+         {Point2{0, 0}, Point2{frame8::grid, 0}, Point2{frame8::grid, frame8::grid}, Point2{0, frame8::grid}}) {
+      const Point2 p = grid_point(H, g);
+      if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return Rejection::corner_off_image;
+    }
+  }
   // A covered edge is one leniency already: it does not get a second.
   if (r.orientation_clarity < config_.frame8.min_margin && (r.margin < kClearCode || r.corrected >= 4))
     return Rejection::second_leniency;

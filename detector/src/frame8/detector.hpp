@@ -35,6 +35,9 @@ class Frame8Detector final : public MarkerDetector {
     std::array<Point2, 4> corners{};
     std::array<HullSide, 4> sides{};
     std::array<Line, 4> lines{};
+    // Most of its sides measured as light cells against a dark ground: a
+    // bare print on a dark wall, the ink merged with the ground.
+    bool dark_ground = false;
   };
 
   explicit Frame8Detector(const DetectorConfig& config);
@@ -209,12 +212,13 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr double kMinInkShare = 0.25;
   void find_marker_on_ink_outline(int scale, std::vector<Detection>& out);
   static constexpr std::size_t kTried = 3;
-  std::size_t pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
+  std::size_t pick_squares(const HullSide* sides, const Line* lines, const int* sense, int count, double hull_area,
                            std::array<InkSquare, kTried>& tries);
   [[nodiscard]] bool ring_shows_cells(const std::array<Point2, 4>& outer) const;
-  bool fit_outer_side(Point2 a, Point2 b, double cell_px, Line& line);
+  bool fit_outer_side(Point2 a, Point2 b, double cell_px, float sign, Line& line);
   Rejection read_ink_outline(const InkSquare& square, Detection& det);
-  Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, Detection& det);
+  Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, bool dark_ground,
+                              Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);

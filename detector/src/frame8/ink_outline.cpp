@@ -124,8 +124,12 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
   const double area_full = hull_area * decimate_ * decimate_;
   std::array<Line, 16> lines{};
   for (int k = 0; k < count; ++k) lines[static_cast<std::size_t>(k)] = line_through(sides[static_cast<std::size_t>(k)]);
+  // The step's sense per side: +1 ink to light outwards (the print's
+  // margin, a frame's plastic), -1 light to dark (white cells against a
+  // dark ground round a bare print), 0 not measured.
+  std::array<int, 16> sense{};
   std::array<InkSquare, kTried> tries{};
-  const std::size_t traced = pick_squares(sides.data(), lines.data(), count, area_full, tries);
+  const std::size_t traced = pick_squares(sides.data(), lines.data(), sense.data(), count, area_full, tries);
   // Most islands are clutter's dark shapes, dark all over where a ring
   // would be: a look at its cells costs less than measuring the sides.
   if (std::none_of(tries.begin(), tries.begin() + static_cast<std::ptrdiff_t>(traced),
@@ -138,13 +142,17 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
   // threshold's rims bent apart by a pixel or two (cells of 4 px) measure
   // as one line, and are one side.
   const double cell = std::sqrt(area_full) / frame8::grid;
-  std::array<bool, 16> measured{};
   int merged = 0;
   for (int k = 0; k < count; ++k) {
     HullSide side = sides[static_cast<std::size_t>(k)];
     Line line = lines[static_cast<std::size_t>(k)];
-    const bool ok = fit_outer_side(side.a, side.b, cell, line);
-    if (merged > 0 && ok && measured[static_cast<std::size_t>(merged - 1)]) {
+    int side_sense = 0;
+    for (const int candidate : {1, -1}) {
+      if (side_sense == 0 && fit_outer_side(side.a, side.b, cell, static_cast<float>(candidate), line)) {
+        side_sense = candidate;
+      }
+    }
+    if (merged > 0 && side_sense != 0 && sense[static_cast<std::size_t>(merged - 1)] == side_sense) {
       HullSide& last = sides[static_cast<std::size_t>(merged - 1)];
       const Line& last_line = lines[static_cast<std::size_t>(merged - 1)];
       auto off = [](const Line& l, Point2 p) { return std::abs(l.nx * p.x + l.ny * p.y - l.c); };
@@ -153,7 +161,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
           off(last_line, side.b) < reach && off(line, last.a) < reach && off(line, last.b) < reach) {
         const HullSide joined{last.a, side.b, last.length + side.length};
         Line joined_line = last_line;
-        if (fit_outer_side(joined.a, joined.b, cell, joined_line)) {
+        if (fit_outer_side(joined.a, joined.b, cell, static_cast<float>(side_sense), joined_line)) {
           last = joined;
           lines[static_cast<std::size_t>(merged - 1)] = joined_line;
           continue;
@@ -162,10 +170,10 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
     }
     sides[static_cast<std::size_t>(merged)] = side;
     lines[static_cast<std::size_t>(merged)] = line;
-    measured[static_cast<std::size_t>(merged)] = ok;
+    sense[static_cast<std::size_t>(merged)] = side_sense;
     ++merged;
   }
-  const std::size_t found = pick_squares(sides.data(), lines.data(), merged, area_full, tries);
+  const std::size_t found = pick_squares(sides.data(), lines.data(), sense.data(), merged, area_full, tries);
   for (std::size_t k = 0; k < found; ++k) {
     const InkSquare& square = tries[k];
     const std::array<Point2, 4>& outer = square.corners;
@@ -227,8 +235,8 @@ bool Frame8Detector::ring_shows_cells(const std::array<Point2, 4>& outer) const 
 // such four are the square's sides but where C1's cut is long and shallow
 // (a white run beside it): the cut's line then makes as good a quad with
 // the three sides beside it. The reads decide, the longest first.
-std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* lines, int count, double hull_area,
-                                         std::array<InkSquare, kTried>& tries) {
+std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* lines, const int* sense, int count,
+                                         double hull_area, std::array<InkSquare, kTried>& tries) {
   auto turn_sine = [](Point2 d1, Point2 d2) {
     return (d1.x * d2.y - d1.y * d2.x) / (std::hypot(d1.x, d1.y) * std::hypot(d2.x, d2.y));
   };
@@ -255,11 +263,14 @@ std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* line
           std::size_t at = std::min(found, kTried - 1);
           tries[at].total = total;
           tries[at].corners = q;
+          int dark_sides = 0;
           for (int t = 0; t < 4; ++t) {
             const int k = pick[static_cast<std::size_t>(t)];
             tries[at].sides[static_cast<std::size_t>(t)] = sides[k];
             tries[at].lines[static_cast<std::size_t>(t)] = lines[k];
+            dark_sides += sense[k] < 0;
           }
+          tries[at].dark_ground = dark_sides >= 2;
           for (; at > 0 && tries[at - 1].total < tries[at].total; --at) std::swap(tries[at - 1], tries[at]);
           found = std::min(found + 1, kTried);
         }
@@ -274,7 +285,7 @@ std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* line
 // dark-to-light step going outward, within about half a cell of the side
 // traced (the line's outer edge, a cell in, stays out of reach). Beside
 // white cells there is no step: those points drop out.
-bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, Line& line) {
+bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, float sign, Line& line) {
   const double len = distance(a, b);
   const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
   const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
@@ -300,7 +311,8 @@ bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, Line& li
     }
     if (!ok) continue;
     auto rise = [&](int s) {
-      return static_cast<double>(profile[static_cast<std::size_t>(s + 1)] - profile[static_cast<std::size_t>(s)]);
+      return static_cast<double>(sign *
+                                 (profile[static_cast<std::size_t>(s + 1)] - profile[static_cast<std::size_t>(s)]));
     };
     int best = -1;
     double best_rise = 0;
@@ -336,7 +348,7 @@ Rejection Frame8Detector::read_ink_outline(const InkSquare& square, Detection& d
   std::array<Line, 4> lines = square.lines;
   const std::array<Point2, 4>& traced = square.corners;
   const std::array<HullSide, 4>& flush = square.sides;
-  const Rejection measured = read_outer_square(traced, lines, det);
+  const Rejection measured = read_outer_square(traced, lines, square.dark_ground, det);
   if (measured == Rejection::none) return measured;
   // A stretch of a cell or two (C2 or C0 and one black cell beside it,
   // the rest of the side white) places its side but turns it only
@@ -361,17 +373,20 @@ Rejection Frame8Detector::read_ink_outline(const InkSquare& square, Detection& d
     turned = true;
   }
   if (!turned) return measured;
-  return read_outer_square(traced, lines, det);
+  return read_outer_square(traced, lines, square.dark_ground, det);
 }
 
 Rejection Frame8Detector::read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines,
-                                            Detection& det) {
+                                            bool dark_ground, Detection& det) {
   std::array<Point2, 4> outer{};
   for (int side = 0; side < 4; ++side) {
-    if (!intersect(lines[static_cast<std::size_t>((side + 3) % 4)], lines[static_cast<std::size_t>(side)],
-                   outer[static_cast<std::size_t>(side)])) {
+    Point2& p = outer[static_cast<std::size_t>(side)];
+    if (!intersect(lines[static_cast<std::size_t>((side + 3) % 4)], lines[static_cast<std::size_t>(side)], p)) {
       return Rejection::parallel_sides;
     }
+    // A square cut by the image's border (a key of a keyboard there read
+    // as 126) is not read.
+    if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return Rejection::corner_off_image;
     if (corner_moved(outer[static_cast<std::size_t>(side)], traced[static_cast<std::size_t>(side)],
                      distance(traced[0], traced[2]) / (std::sqrt(2.0) * frame8::grid))) {
       return Rejection::corner_moved;
@@ -394,6 +409,10 @@ Rejection Frame8Detector::read_outer_square(const std::array<Point2, 4>& traced,
   // near-uniform ring only where cells are resolved, and under 2.5 px the
   // ring model, fitted to every pixel, must read the same.
   if (near_uniform(det.id) && cell_size.narrow < kResolvedCells) return Rejection::near_uniform_unconfirmed;
+  // White cells alone on a dark ground, with no light round the ink, are
+  // what a grid of light keys or tiles shows too, around each of its
+  // squares: one colour from end to end but for the corners.
+  if (near_uniform(det.id) && dark_ground) return Rejection::near_uniform_unconfirmed;
   if (cell_size.mean < kModelCheckedCells) {
     if (const Rejection why = confirm_by_model(H, cell_size, det, rotation); why != Rejection::none) return why;
   }
