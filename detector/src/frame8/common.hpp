@@ -126,6 +126,16 @@ inline double twice_signed_area(const Point2* v, std::size_t n) {
   return sum;
 }
 
+// The line through a and b (distinct points).
+inline Line line_through(Point2 a, Point2 b) {
+  const double len = distance(a, b);
+  Line l;
+  l.nx = -(b.y - a.y) / len;
+  l.ny = (b.x - a.x) / len;
+  l.c = l.nx * a.x + l.ny * a.y;
+  return l;
+}
+
 inline bool intersect(const Line& l1, const Line& l2, Point2& p) {
   const double det = l1.nx * l2.ny - l1.ny * l2.nx;
   if (std::abs(det) < 1e-9) return false;

@@ -53,13 +53,6 @@ constexpr double kShortStretchCells = 3;
 constexpr double kSameLineSine = 0.05;
 constexpr double kSameLineCells = 0.15;
 
-Line line_through(const Frame8Detector::HullSide& s) {
-  Line l;
-  l.nx = -(s.b.y - s.a.y) / s.length;
-  l.ny = (s.b.x - s.a.x) / s.length;
-  l.c = l.nx * s.a.x + l.ny * s.a.y;
-  return l;
-}
 // The hull with C1's corner cut off fills the square but for that corner:
 // half a cell squared where C1's neighbours are black, more where they are
 // white (down to about 0.85 for ids with long white runs beside C1).
@@ -123,7 +116,10 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
   }
   const double area_full = hull_area * decimate_ * decimate_;
   std::array<Line, 16> lines{};
-  for (int k = 0; k < count; ++k) lines[static_cast<std::size_t>(k)] = line_through(sides[static_cast<std::size_t>(k)]);
+  for (int k = 0; k < count; ++k) {
+    const HullSide& side = sides[static_cast<std::size_t>(k)];
+    lines[static_cast<std::size_t>(k)] = line_through(side.a, side.b);
+  }
   // The step's sense per side: +1 ink to light outwards (the print's
   // margin, a frame's plastic), -1 light to dark (white cells against a
   // dark ground round a bare print), 0 not measured.

@@ -43,15 +43,6 @@ constexpr double kCornerPiece = 0.2;
 constexpr double kMinTurnSine = 0.5;
 constexpr double kMinArmsCosine = 0.75;
 
-Line line_through(Point2 a, Point2 b) {
-  const double len = distance(a, b);
-  Line l;
-  l.nx = -(b.y - a.y) / len;
-  l.ny = (b.x - a.x) / len;
-  l.c = l.nx * a.x + l.ny * a.y;
-  return l;
-}
-
 Point2 project(const Line& l, Point2 p) {
   const double off = l.nx * p.x + l.ny * p.y - l.c;
   return {p.x - off * l.nx, p.y - off * l.ny};
@@ -271,6 +262,9 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
         // without a dark island worth a look.
         const Component* c = component_at(x * s, y * s);
         if (c == nullptr || c->settled) continue;
+        // A small quad's islands were traced unhalved, and its own outline
+        // holds no open hole: nothing here to trace it for.
+        if (c->quad && unhalved_islands(*c)) continue;
         trace_outline(halved, x, y);
         if (outline_extent_ < min_side) continue;
         // Clockwise round the component itself, anticlockwise round an
