@@ -476,12 +476,11 @@ TEST(Frame8, MarkerOnASwitchFrameNear) {
   EXPECT_EQ(t.wrong, 0);
 }
 
-// The socket frame turned (issue 18), 10 and 20 deg either way: never
-// another id, never the wrong orientation. Found in 21 of 32 (issue 18 asks
-// for at least 90% to within 10 deg of the flat print's 80 deg: far from
-// it; what is missed is mostly the white corner C1 on the frame's rounded
-// corner, mixed with the roll's shade or the wall, and from 30 deg the
-// hole split by the inner roll's shaded fold).
+// The socket frame turned (issue 18), 10 and 20 deg either way, at 0.5
+// and 0.95 m: never another id, never the wrong orientation, the corners
+// within half a cell. (Issue 18 asks for at least 90% to within 10 deg of
+// the flat print's 80 deg; from 40 deg at 0.5 m the socket is mostly
+// missed: the hole is split by the inner roll's shaded fold.)
 TEST(Frame8, MarkerOnASocketFrameTurned) {
   DetectorConfig cfg;
   cfg.camera = kCamera;
@@ -512,16 +511,19 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
       }
     }
   }
-  // Measured: 24 of 32 since the ring cells are sampled clear of the
-  // outer roll (decode_cells.cpp).
-  EXPECT_GE(detected, 21) << "of " << frames;
+  // Measured: 30 of 32 since a hole read off its ring is read again on
+  // the grid fitted to the ring's own edges (ring_edges.cpp); 24 before.
+  EXPECT_GE(detected, 28) << "of " << frames;
   EXPECT_EQ(wrong, 0);
 }
 
-// The socket frame turned further, 25 and 30 deg either way at 0.5 m: the
-// line's corner nearest the camera lies on the inner roll's bend, lit or
-// shaded unlike the rest of the line, and one such light corner of four is
-// allowed, or two on one side (decode_checks.cpp). Never another id or orientation; the
+// The socket frame turned further, 25 and 30 deg either way at 0.5 m, 30
+// and 35 deg at 0.95 m: the line's corner nearest the camera lies on the
+// inner roll's bend, lit or shaded unlike the rest of the line, and one
+// such light corner of four is allowed, or two on one side
+// (decode_checks.cpp); the hole seen is shifted against the ring by the
+// roll shown on one side and hidden on the other, and its rounded corners
+// come out unevenly (quad_fit.cpp). Never another id or orientation; the
 // corners within half a cell (the print's outer edge lies on the outer
 // roll, bent away from the flat band whose square the corners are
 // extrapolated on: up to 3.5 px off here).
@@ -532,10 +534,15 @@ TEST(Frame8, MarkerOnASocketFrameTurnedFurther) {
   auto det = make_detector(cfg);
   int frames = 0, detected = 0, wrong = 0;
   std::uint64_t seed = 170;
-  for (const double yaw : {-30.0, -25.0, 25.0, 30.0}) {
+  struct View {
+    double distance, yaw;
+  };
+  for (const View v : {View{0.5, -30}, View{0.5, -25}, View{0.5, 25}, View{0.5, 30}, View{0.95, -35}, View{0.95, -30},
+                       View{0.95, 30}, View{0.95, 35}}) {
+    const double yaw = v.yaw;
     for (int k = 0; k < 8; ++k) {
       const int id = static_cast<int>((seed * 37) % 254) + 1;
-      Scene s = scene(id, 0.5, yaw, 0, ++seed);
+      Scene s = scene(id, v.distance, yaw, 0, ++seed);
       s.frame = socket_frame();
       s.insert = Insert::socket;
       const Quad truth = project_marker_corners(kCamera, s);
@@ -544,18 +551,21 @@ TEST(Frame8, MarkerOnASocketFrameTurnedFurther) {
       for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
         if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > half_cell) {
           ++wrong;
-          ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at yaw " << yaw
-                        << ", corners off by " << max_corner_error(f.corners, truth);
+          ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at " << v.distance
+                        << " m, yaw " << yaw << ", corners off by " << max_corner_error(f.corners, truth);
           continue;
         }
         ++detected;
       }
     }
   }
-  // Measured: 27 of 32 (23 before the ring cells were sampled clear of
-  // the outer roll and two light corners on one side allowed; 11 before
-  // one light corner was).
-  EXPECT_GE(detected, 24) << "of " << frames;
+  // Measured: 58 of 64. At 0.5 m 32 of 32 (27 before a hole read off its
+  // ring was read again on the ring's own edges, ring_edges.cpp; 23 before
+  // the ring cells were sampled clear of the outer roll and two light
+  // corners on one side allowed; 11 before one light corner was); at
+  // 0.95 m 26 of 32 (bench_accuracy found 40% at 30 deg and 72% at 35
+  // before holes of 20 to 30 px could have rounded corners; 94% now).
+  EXPECT_GE(detected, 54) << "of " << frames;
   EXPECT_EQ(wrong, 0);
 }
 

@@ -24,6 +24,7 @@ const char* Frame8Detector::read_name(Read how) {
     case Read::second_pass: return "second_pass";
     case Read::side_hidden: return "side_hidden";
     case Read::inset: return "inset";
+    case Read::ring_edges: return "ring_edges";
     case Read::model_check: return "model_check";
   }
   return "?";

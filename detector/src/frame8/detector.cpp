@@ -222,6 +222,10 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     if (!read && worth_it && read_inset(inner, cell_size, det, rotation, H)) {
       return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
+    if (!read && worth_it && read_on_ring_edges(H, cell_size, det, rotation, H)) {
+      read = true;
+      inner = {H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+    }
     if (!read) return sampled;
   }
   // A quad that ends at something dark in front of the marker may have

@@ -129,8 +129,15 @@ class Frame8Detector final : public MarkerDetector {
   // its edge is left out, and the line's outer edge beside white cells
   // measured instead.
   enum class HoleEdge : std::uint8_t { measured, unknown };
+  // The ring's colours in a quad's grid, a cell each, row by row: white,
+  // black, or 0 (the line and hole, or a ring cell of unknown colour).
+  using CellColours = std::array<std::int8_t, frame8::grid * frame8::grid>;
+  static constexpr std::int8_t kWhiteCell = 1, kBlackCell = -1;
+  static CellColours colours_of_code(int id, int rotation);
   int collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px, const HiddenSide& hidden = {},
                             HoleEdge hole_edge = HoleEdge::measured);
+  int collect_pattern_edges(const Homography& H, const CellColours& colours, double cell_px,
+                            const HiddenSide& hidden = {}, HoleEdge hole_edge = HoleEdge::measured);
   bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
   Rejection finish_by_pattern(int rotation, Detection& det);
 
@@ -220,6 +227,7 @@ class Frame8Detector final : public MarkerDetector {
   Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, bool dark_ground,
                               Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
+  bool read_on_ring_edges(const Homography& seen, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   Rejection finish_from_hole(const Homography& H, const HiddenSide& hidden, int rotation, double cell_px,
                              Detection& det);
   bool read_by_profile_fit(const std::array<Point2, 4>& from, double cell_px, CellSize cell_size, Detection& det,
@@ -240,6 +248,7 @@ class Frame8Detector final : public MarkerDetector {
     second_pass,
     side_hidden,
     inset,
+    ring_edges,
     model_check
   };
   static const char* read_name(Read how);

@@ -61,22 +61,41 @@ bool Frame8Detector::locate_edge(const Homography& H, Point2 g0, Point2 normal, 
   return true;
 }
 
-// Collects the pattern's edges for the code `id` read with `rotation`:
-// the hole's edge (a step where the ring cell beyond is black, the line's
-// centre where it is white) and every boundary between ring cells of
-// different colours. The outer edge is left out: what lies beyond it is
-// unknown; so is everything near a hidden side.
+// The ring's colours for the code `id` read with `rotation`, in the quad's
+// grid: the marker's corner j sits at the quad's corner j + rotation.
+Frame8Detector::CellColours Frame8Detector::colours_of_code(int id, int rotation) {
+  const auto cells = frame8::ring_cells(id);
+  CellColours colours{};
+  for (int row = 0; row < frame8::grid; ++row) {
+    for (int col = 0; col < frame8::grid; ++col) {
+      Point2 g{col + 0.5, row + 0.5};
+      for (int r = 0; r < rotation; ++r) g = {g.y, frame8::grid - g.x};
+      const auto cell = cells[static_cast<std::size_t>(static_cast<int>(g.y) * frame8::grid + static_cast<int>(g.x))];
+      colours[static_cast<std::size_t>(row * frame8::grid + col)] = cell == 1 ? kWhiteCell : cell == 0 ? kBlackCell : 0;
+    }
+  }
+  return colours;
+}
+
 int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotation, double cell_px,
                                           const HiddenSide& hidden, HoleEdge hole_edge) {
-  const auto cells = frame8::ring_cells(id);
-  // White at a grid point of the quad: turned back into the marker's own
-  // grid, where the marker's corner j sits at the quad's corner j + rotation.
-  auto white_at = [&](Point2 g) {
-    for (int r = 0; r < rotation; ++r) g = {g.y, frame8::grid - g.x};
+  return collect_pattern_edges(H, colours_of_code(id, rotation), cell_px, hidden, hole_edge);
+}
+
+// Collects the pattern's edges for the ring's `colours`: the hole's edge (a
+// step where the ring cell beyond is black, the line's centre where it is
+// white) and every boundary between ring cells of different colours. A
+// cell of unknown colour gives none. The outer edge is left out: what lies
+// beyond it is unknown; so is everything near a hidden side.
+int Frame8Detector::collect_pattern_edges(const Homography& H, const CellColours& colours, double cell_px,
+                                          const HiddenSide& hidden, HoleEdge hole_edge) {
+  auto colour_at = [&](Point2 g) {
     const int col = std::clamp(static_cast<int>(g.x), 0, frame8::grid - 1);
     const int row = std::clamp(static_cast<int>(g.y), 0, frame8::grid - 1);
-    return cells[static_cast<std::size_t>(row * frame8::grid + col)] == 1;
+    return colours[static_cast<std::size_t>(row * frame8::grid + col)];
   };
+  auto white_at = [&](Point2 g) { return colour_at(g) == kWhiteCell; };
+  auto black_at = [&](Point2 g) { return colour_at(g) == kBlackCell; };
   static constexpr std::array<Point2, 4> kOutward{{{0, -1}, {1, 0}, {0, 1}, {-1, 0}}};
   // The line beside a white cell is half a cell wide. Narrower than the
   // blurred edge (two profile sigmas: 1.5 px with the default blur), its dip
@@ -119,15 +138,17 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, int id, int rotat
         if (white_at(side_point(side, along, 0.5))) {
           if (line_px < min_dip_line_px) continue;
           add(side_point(side, along, 1.25), outward, 0.65, true, axis);
-        } else {
+        } else if (black_at(side_point(side, along, 0.5))) {
           add(side_point(side, along, kInnerLo), outward, 0.45, false, axis);
         }
       }
     }
     // Boundaries between neighbouring ring cells of different colours, across the ring.
     for (int boundary = 1; boundary < frame8::grid; ++boundary) {
-      const bool before_white = white_at(side_point(side, boundary - 0.5, 0.5));
-      if (before_white == white_at(side_point(side, boundary + 0.5, 0.5))) continue;
+      const int before = colour_at(side_point(side, boundary - 0.5, 0.5));
+      const int after = colour_at(side_point(side, boundary + 0.5, 0.5));
+      if (before == 0 || after == 0 || before == after) continue;
+      const bool before_white = before == kWhiteCell;
       // The normal points from the white cell to the black one.
       const Point2 forward = side_point(side, boundary + 1, 0) - side_point(side, boundary, 0);
       const Point2 normal = before_white ? forward : Point2{-forward.x, -forward.y};

@@ -82,22 +82,27 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   // radius r of about a tenth of the hole's side (6.5 mm on a 56 mm socket
   // frame), which leaves the largest quad inside the hull 0.08 to 0.11 of
   // it short (measured on renders from 0.3 to 0.7 m). Rounded corners put
-  // the hull's sides evenly outside the quad's, by 0.29 r; a part of
-  // something else joined to the hole (clutter behind a cut-out hole) sticks
-  // out of one side, and would place the cells a cell off.
+  // the hull's sides evenly outside the quad's, by 0.29 r; turned, the
+  // inner roll shown at one corner rounds it more than the others, the
+  // quad's side beside it tilts, and the hull stands out by up to 0.09 of
+  // a side at the side's other end (socket frame at 25 and 30 deg from
+  // 0.5 m). A part of something else joined to the hole (clutter behind a
+  // cut-out hole) sticks out of one side further, and would place the
+  // cells a cell off.
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
   }
   const double staircase = 0.35 * perimeter;
-  // Below about 30 px a side the rounding costs less than the staircase
-  // allows already, and a bulge of a pixel or two is all a misplaced quad
-  // shows: only larger holes may have rounded corners.
-  constexpr double kRoundedMinSide = 30;
+  // Under 20 px a side (cells of 3 px) a bulge of a pixel or two is all a
+  // misplaced quad shows: only larger holes may have rounded corners. The
+  // blur rounds a far socket frame's corners further: its hole of 25 to
+  // 30 px, turned 30 deg at 0.95 m, falls 0.11 to 0.16 short of its hull.
+  constexpr double kRoundedMinSide = 20;
   if (hull_area - quad_area > 0.06 * hull_area + staircase) {
     if (perimeter / 4 < kRoundedMinSide) return Rejection::not_a_quad;
     constexpr double kRoundedShortfall = 0.12;  // of the hull's area, corner radius up to 0.11 of the side
-    constexpr double kRoundedBulge = 0.07;      // of the mean side: 0.29 r, and a pixel of staircase
+    constexpr double kRoundedBulge = 0.09;      // of the mean side, and a pixel of staircase
     if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
     double bulge = 0;
     for (const Point2& p : hull_) {
