@@ -32,8 +32,8 @@ bool Frame8Detector::read_on_ring_edges(const Homography& seen, CellSize cell_si
     CellColours colours{};
     auto colour = [&](frame8::Cell cell, const CellSample& s) {
       if (!r.clear(s)) return;
-      colours[static_cast<std::size_t>(cell.row * frame8::grid + cell.col)] = r.soft(s.mean) > 0 ? kWhiteCell
-                                                                                                   : kBlackCell;
+      colours[static_cast<std::size_t>(cell.row * frame8::grid + cell.col)] =
+          r.soft(s.mean) > 0 ? kWhiteCell : kBlackCell;
     };
     for (int k = 0; k < 4; ++k) colour(frame8::corner_cell(k), r.corner[static_cast<std::size_t>(k)]);
     for (int edge = 0; edge < 4; ++edge) {
