@@ -476,45 +476,57 @@ TEST(Frame8, MarkerOnASwitchFrameNear) {
   EXPECT_EQ(t.wrong, 0);
 }
 
-// The socket frame turned (issue 18), 10 and 20 deg either way, at 0.5
-// and 0.95 m: never another id, never the wrong orientation, the corners
-// within half a cell. (Issue 18 asks for at least 90% to within 10 deg of
-// the flat print's 80 deg; from 40 deg at 0.5 m the socket is mostly
-// missed: the hole is split by the inner roll's shaded fold.)
-TEST(Frame8, MarkerOnASocketFrameTurned) {
+// A socket frame turned: `per_view` frames at each distance and yaw, ids
+// and seeds running on from `seed`. A read counts when it has the right id
+// and orientation and its corners lie within `corner_cells` of the truth
+// (the print's outer edge lies on the outer roll, bent away from the flat
+// band whose square the corners are extrapolated on: up to 3.5 px off at
+// 0.5 m and 30 deg); any other read is a failure.
+struct SocketView {
+  double distance, yaw;
+};
+struct SocketReads {
+  int frames = 0, detected = 0, wrong = 0;
+};
+SocketReads read_turned_socket(std::initializer_list<SocketView> views, int per_view, std::uint64_t seed,
+                               double corner_cells = 0.5) {
   DetectorConfig cfg;
   cfg.camera = kCamera;
   cfg.marker_size_m = 0.08;
   auto det = make_detector(cfg);
-  int frames = 0, detected = 0, wrong = 0;
-  std::uint64_t seed = 70;
-  for (const double d : {0.5, 0.95}) {
-    for (const double yaw : {-20.0, -10.0, 10.0, 20.0}) {
-      for (int k = 0; k < 4; ++k) {
-        const int id = static_cast<int>((seed * 37) % 254) + 1;
-        Scene s = scene(id, d, yaw, 0, ++seed);
-        s.frame = socket_frame();
-        s.insert = Insert::socket;
-        const Quad truth = project_marker_corners(kCamera, s);
-        // Within half a cell, as further turned (the test below).
-        const double half_cell = 0.5 * distance(truth[0], truth[3]) / frame8::grid;
-        ++frames;
-        for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
-          if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > half_cell) {
-            ++wrong;
-            ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at " << d << " m, yaw "
-                          << yaw << ", corners off by " << max_corner_error(f.corners, truth);
-            continue;
-          }
-          ++detected;
+  SocketReads reads;
+  for (const SocketView v : views) {
+    for (int k = 0; k < per_view; ++k) {
+      const int id = static_cast<int>((seed * 37) % 254) + 1;
+      Scene s = scene(id, v.distance, v.yaw, 0, ++seed);
+      s.frame = socket_frame();
+      s.insert = Insert::socket;
+      const Quad truth = project_marker_corners(kCamera, s);
+      const double tolerance = corner_cells * distance(truth[0], truth[3]) / frame8::grid;
+      ++reads.frames;
+      for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
+        if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > tolerance) {
+          ++reads.wrong;
+          ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at " << v.distance
+                        << " m, yaw " << v.yaw << ", corners off by " << max_corner_error(f.corners, truth);
+          continue;
         }
+        ++reads.detected;
       }
     }
   }
+  return reads;
+}
+
+// The socket frame turned (issue 18), 10 and 20 deg either way, at 0.5
+// and 0.95 m.
+TEST(Frame8, MarkerOnASocketFrameTurned) {
+  const SocketReads r = read_turned_socket(
+      {{0.5, -20}, {0.5, -10}, {0.5, 10}, {0.5, 20}, {0.95, -20}, {0.95, -10}, {0.95, 10}, {0.95, 20}}, 4, 70);
   // Measured: 30 of 32 since a hole read off its ring is read again on
   // the grid fitted to the ring's own edges (ring_edges.cpp); 24 before.
-  EXPECT_GE(detected, 28) << "of " << frames;
-  EXPECT_EQ(wrong, 0);
+  EXPECT_GE(r.detected, 28) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
 }
 
 // The socket frame turned further, 25 and 30 deg either way at 0.5 m, 30
@@ -523,50 +535,34 @@ TEST(Frame8, MarkerOnASocketFrameTurned) {
 // such light corner of four is allowed, or two on one side
 // (decode_checks.cpp); the hole seen is shifted against the ring by the
 // roll shown on one side and hidden on the other, and its rounded corners
-// come out unevenly (quad_fit.cpp). Never another id or orientation; the
-// corners within half a cell (the print's outer edge lies on the outer
-// roll, bent away from the flat band whose square the corners are
-// extrapolated on: up to 3.5 px off here).
+// come out unevenly (quad_fit.cpp).
 TEST(Frame8, MarkerOnASocketFrameTurnedFurther) {
-  DetectorConfig cfg;
-  cfg.camera = kCamera;
-  cfg.marker_size_m = 0.08;
-  auto det = make_detector(cfg);
-  int frames = 0, detected = 0, wrong = 0;
-  std::uint64_t seed = 170;
-  struct View {
-    double distance, yaw;
-  };
-  for (const View v : {View{0.5, -30}, View{0.5, -25}, View{0.5, 25}, View{0.5, 30}, View{0.95, -35}, View{0.95, -30},
-                       View{0.95, 30}, View{0.95, 35}}) {
-    const double yaw = v.yaw;
-    for (int k = 0; k < 8; ++k) {
-      const int id = static_cast<int>((seed * 37) % 254) + 1;
-      Scene s = scene(id, v.distance, yaw, 0, ++seed);
-      s.frame = socket_frame();
-      s.insert = Insert::socket;
-      const Quad truth = project_marker_corners(kCamera, s);
-      const double half_cell = 0.5 * distance(truth[0], truth[3]) / frame8::grid;
-      ++frames;
-      for (const Detection& f : detect(*det, render_scene(kCamera, s))) {
-        if (f.id != id || f.quarter_turns != 0 || max_corner_error(f.corners, truth) > half_cell) {
-          ++wrong;
-          ADD_FAILURE() << "id " << f.id << " for " << id << " turns " << f.quarter_turns << " at " << v.distance
-                        << " m, yaw " << yaw << ", corners off by " << max_corner_error(f.corners, truth);
-          continue;
-        }
-        ++detected;
-      }
-    }
-  }
+  const SocketReads r = read_turned_socket(
+      {{0.5, -30}, {0.5, -25}, {0.5, 25}, {0.5, 30}, {0.95, -35}, {0.95, -30}, {0.95, 30}, {0.95, 35}}, 8, 170);
   // Measured: 58 of 64. At 0.5 m 32 of 32 (27 before a hole read off its
   // ring was read again on the ring's own edges, ring_edges.cpp; 23 before
   // the ring cells were sampled clear of the outer roll and two light
   // corners on one side allowed; 11 before one light corner was); at
   // 0.95 m 26 of 32 (bench_accuracy found 40% at 30 deg and 72% at 35
   // before holes of 20 to 30 px could have rounded corners; 94% now).
-  EXPECT_GE(detected, 54) << "of " << frames;
-  EXPECT_EQ(wrong, 0);
+  EXPECT_GE(r.detected, 54) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
+}
+
+// The socket frame turned 40 and 45 deg either way at 0.5 m: the inner
+// roll facing the camera shows as a light band parted from the hole by
+// the roll's shaded fold, and the hole's component ends a cell short of
+// the line on that side; grown over the band, it reads (roll_fold.cpp).
+// The corners within a cell: the outer roll, bent away, lies across a
+// third of the ring's cells and the pattern fit leans on the rest (0.8
+// of a cell off at worst here, 0.4 mostly).
+TEST(Frame8, MarkerOnASocketFrameTurnedPastTheFold) {
+  const SocketReads r = read_turned_socket({{0.5, -45}, {0.5, -40}, {0.5, 40}, {0.5, 45}}, 8, 270, 1.0);
+  // Measured: 22 of 32, 16 of 16 at 40 deg (none before the hole was
+  // grown over the band; bench_accuracy: 4% at 40 and 45 deg before, 94
+  // and 72% now).
+  EXPECT_GE(r.detected, 19) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
 }
 
 struct CoveredSideReads {

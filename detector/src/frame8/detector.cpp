@@ -97,6 +97,7 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   std::array<Point2, 4> quad{
       {{c.x0 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y0 - 0.5}, {c.x1 - 0.5, c.y1 + 0.5}, {c.x0 - 0.5, c.y1 + 0.5}}};
   const Rejection shape = fit_quad(c, quad);
+  const std::array<Point2, 4> working_quad = quad;
   for (auto& p : quad) p = to_full(p);
   // Components that fail on their box alone are not candidates: the debug
   // output would list every speck of clutter.
@@ -114,7 +115,8 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
               (c.quad && static_cast<double>(c.dark_inside) < kMinInkShare * min_side * min_side);
   if (shape != Rejection::none) return;
   Detection det;
-  const Rejection why = refine_and_decode(quad, det);
+  Rejection why = refine_and_decode(quad, det);
+  if (why != Rejection::none && read_hole_past_fold(c, working_quad, det)) why = Rejection::none;
   if (debug_) {
     DebugCandidate& candidate = debug_candidates_.back();
     candidate.why = why;
