@@ -558,10 +558,10 @@ TEST(Frame8, MarkerOnASocketFrameTurnedFurther) {
 // of a cell off at worst here, 0.4 mostly).
 TEST(Frame8, MarkerOnASocketFrameTurnedPastTheFold) {
   const SocketReads r = read_turned_socket({{0.5, -45}, {0.5, -40}, {0.5, 40}, {0.5, 45}}, 8, 270, 1.0);
-  // Measured: 22 of 32, 16 of 16 at 40 deg (none before the hole was
+  // Measured: 24 of 32, 16 of 16 at 40 deg (none before the hole was
   // grown over the band; bench_accuracy: 4% at 40 and 45 deg before, 94
-  // and 72% now).
-  EXPECT_GE(r.detected, 19) << "of " << r.frames;
+  // and 90% now).
+  EXPECT_GE(r.detected, 21) << "of " << r.frames;
   EXPECT_EQ(r.wrong, 0);
 }
 

@@ -20,13 +20,13 @@ constexpr int kProbes = 5;
 // The band beside at least this many probes, one component.
 constexpr int kMinProbeHits = 3;
 // It lies along at least this share of the side, and reaches out at most
-// this many of the quad's cells (a seventh of its side across): the roll
-// seen at 40 deg from 0.5 m is about a cell of the marker wide, 1.9 of
-// the quad's, which lacks the band. A run of white ring cells beyond a
-// quad that ends at the line reaches as far; grown over it, the quad's
-// cells fall a cell off on that side and the read fails.
+// this many cells of the quad grown over it (a seventh of its side
+// across): the fold and the roll seen from 0.5 m reach 1.4 cells at 40
+// deg, 1.6 at 45. A run of white ring cells beyond a quad that ends at the
+// line reaches as far; grown over it, the quad's cells fall more than a
+// cell off on that side and the read fails.
 constexpr double kMinBandCover = 0.5;
-constexpr double kMaxBandCells = 2.0;
+constexpr double kMaxBandCells = 1.8;
 
 }  // namespace
 
@@ -84,7 +84,7 @@ bool Frame8Detector::read_hole_past_fold(const Component& hole, const std::array
     const double across = 0.5 * (distance(quad[static_cast<std::size_t>((side + 3) % 4)], a) +
                                  distance(b, quad[static_cast<std::size_t>((side + 2) % 4)]));
     if (std::min(hi, len) - std::max(lo, 0.0) < kMinBandCover * len) continue;
-    if (reach > kMaxBandCells * across / kInnerSide) continue;
+    if (reach * (kInnerSide - kMaxBandCells) > kMaxBandCells * across) continue;
     // The side moved out by the band's reach, along the neighbouring sides.
     std::array<Point2, 4> grown = quad;
     const Line moved = line_through(a + reach * out, b + reach * out);
