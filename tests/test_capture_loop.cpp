@@ -412,7 +412,18 @@ TEST(SimCamera, KeepsItsFrameRate) {
   for (int k = 0; k < 10; ++k) ASSERT_TRUE(sim.wait_frame(kFrameComes));
   const auto elapsed = std::chrono::steady_clock::now() - start;
   EXPECT_GE(elapsed, 95ms);  // ten periods of 10 ms; never early
-  // A timeout shorter than the period is a wait without a frame.
+}
+
+// A timeout shorter than the time to the next frame is a wait without a
+// frame. The period is a second, so that the test holds however late the
+// test thread gets to ask (at 10 ms a period, a thread held up by 9 ms on
+// a loaded machine found the next frame due).
+TEST(SimCamera, AWaitShorterThanThePeriodEndsWithoutAFrame) {
+  SimCameraSettings settings = quiet_settings();
+  settings.fps = 1;
+  SimCamera sim(settings, detector::CameraModel::thesis_640x480(), {});
+  sim.open();
+  ASSERT_TRUE(sim.wait_frame(kFrameComes));
   EXPECT_FALSE(sim.wait_frame(1ms));
 }
 
