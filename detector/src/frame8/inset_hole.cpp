@@ -11,8 +11,10 @@ namespace markerd::detector::frame8 {
 // roll and parted from the line by its shadow, is the light component, a
 // fraction of a cell inside the line on every side. The quad is read grown
 // by a quarter cell at a time; every size that reads must read the same id
-// with no cell outvoted, and the clearest read is kept. Near-uniform ids
-// are not read so.
+// with no cell outvoted, two sizes at least must read, and the clearest
+// read is kept. Near-uniform ids are not read so. (A checkerboard's
+// square, read at one size only, gave id 63; the switch frame's rates from
+// 0.3 to 1.5 m and turned to 60 deg are the same with two sizes asked.)
 constexpr std::array<double, 4> kInsetCells{0.25, 0.5, 0.75, 1.0};
 
 bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
@@ -21,6 +23,7 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
   Homography seen;
   if (!Homography::from_unit_square(inner, seen)) return false;
   bool found = false;
+  int reads = 0;
   for (const double inset : kInsetCells) {
     if (inset * 2 >= kInnerSide - 1) break;
     const double grow = inset / (kInnerSide - 2 * inset);  // in the seen quad's units
@@ -43,13 +46,14 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
     // clear of the ring's outer edge).
     if (why != Rejection::none || read.bits_corrected > 0 || near_uniform(read.id)) continue;
     if (found && read.id != det.id) return false;
+    ++reads;
     if (found && read.margin <= det.margin) continue;
     det = read;
     rotation = read_rotation;
     H = grown;
     found = true;
   }
-  return found;
+  return found && reads >= 2;
 }
 
 }  // namespace markerd::detector::frame8

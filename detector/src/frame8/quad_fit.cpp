@@ -86,9 +86,10 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   // inner roll shown at one corner rounds it more than the others, the
   // quad's side beside it tilts, and the hull stands out by up to 0.09 of
   // a side at the side's other end (socket frame at 25 and 30 deg from
-  // 0.5 m). A part of something else joined to the hole (clutter behind a
-  // cut-out hole) sticks out of one side further, and would place the
-  // cells a cell off.
+  // 0.5 m), 0.11 where the blur rounds a hole of 35 to 40 px further (30
+  // deg from 0.72 m, the hull 0.13 to 0.165 over the quad). A part of
+  // something else joined to the hole (clutter behind a cut-out hole)
+  // sticks out of one side further, and would place the cells a cell off.
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
@@ -101,8 +102,8 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   constexpr double kRoundedMinSide = 20;
   if (hull_area - quad_area > 0.06 * hull_area + staircase) {
     if (perimeter / 4 < kRoundedMinSide) return Rejection::not_a_quad;
-    constexpr double kRoundedShortfall = 0.12;  // of the hull's area, corner radius up to 0.11 of the side
-    constexpr double kRoundedBulge = 0.09;      // of the mean side, and a pixel of staircase
+    constexpr double kRoundedShortfall = 0.16;  // of the hull's area
+    constexpr double kRoundedBulge = 0.11;      // of the mean side, and a pixel of staircase
     if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
     double bulge = 0;
     for (const Point2& p : hull_) {
