@@ -46,6 +46,8 @@ struct Homography {
     const double w = g * u + h * v + 1;
     return {(a * u + b * v + c) / w, (d * u + e * v + f) / w};
   }
+  // The quad it maps the unit square onto (a hole's corners).
+  [[nodiscard]] std::array<Point2, 4> quad() const { return {map(0, 0), map(1, 0), map(1, 1), map(0, 1)}; }
 };
 
 // Grid coordinates (0..10 across the marker, y down) of the inner square's

@@ -226,7 +226,7 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     }
     if (!read && worth_it && read_on_ring_edges(H, cell_size, det, rotation, H)) {
       read = true;
-      inner = {H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+      inner = H.quad();
     }
     if (!read) return sampled;
   }

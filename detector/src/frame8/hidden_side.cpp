@@ -237,7 +237,7 @@ Rejection Frame8Detector::finish_from_hole(const Homography& H, const HiddenSide
   if (collect_pattern_edges(H, det.id, rotation, cell_px, hidden) >= kMinPatternEdges) {
     Detection by_pattern = det;
     if (finish_by_pattern(rotation, by_pattern) == Rejection::none && by_pattern.inner_corners) {
-      const std::array<Point2, 4> hole{H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+      const std::array<Point2, 4> hole = H.quad();
       const double limit = kMaxCornerMove * cell_px;
       bool near = true;
       for (int j = 0; j < 4; ++j) {
@@ -252,7 +252,7 @@ Rejection Frame8Detector::finish_from_hole(const Homography& H, const HiddenSide
     }
   }
   if (!config_.camera) return report(grid_map(H), rotation, det);
-  std::array<Point2, 4> hole{H.map(0, 0), H.map(1, 0), H.map(1, 1), H.map(0, 1)};
+  std::array<Point2, 4> hole = H.quad();
   for (Point2& p : hole) p = config_.camera->pixel_to_normalized(p);
   Homography normalized;
   if (!Homography::from_unit_square(hole, normalized)) return Rejection::degenerate_quad;

@@ -48,7 +48,7 @@ bool Frame8Detector::read_on_ring_edges(const Homography& seen, CellSize cell_si
     // The ring's edges move the grid by a fraction of a cell; a fit that
     // moved it by more found other edges.
     if (distance(fitted.map(0.5, 0.5), seen_centre) > cell_size.mean) return false;
-    const std::array<Point2, 4> hole{fitted.map(0, 0), fitted.map(1, 0), fitted.map(1, 1), fitted.map(0, 1)};
+    const std::array<Point2, 4> hole = fitted.quad();
     if (!convex(hole)) return false;
     const CellSize size = cell_size_of(hole);
     if (size.narrow < kResolvedCells) return false;

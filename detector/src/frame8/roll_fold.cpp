@@ -38,13 +38,9 @@ constexpr double kMaxBandCells = 1.8;
 // thin, along the whole side just beyond the fold: the side is moved out
 // to the band's far edge and the quad read again.
 bool Frame8Detector::read_hole_past_fold(const Component& hole, const std::array<Point2, 4>& quad, Detection& det) {
-  double perimeter = 0;
-  for (int i = 0; i < 4; ++i) {
-    perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
-  }
   // Cells of 3 px at least, in full-resolution pixels: a read of fewer
   // would not tell a cell's colour across the roll.
-  if (perimeter / 4 * decimate_ < kResolvedCells * kInnerSide) return false;
+  if (cell_size_of(quad).mean * decimate_ < kResolvedCells) return false;
   for (int side = 0; side < 4; ++side) {
     const Point2 a = quad[static_cast<std::size_t>(side)];
     const Point2 b = quad[static_cast<std::size_t>((side + 1) % 4)];
