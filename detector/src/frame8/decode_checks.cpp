@@ -67,6 +67,18 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // cells are unresolved the blur lifts the half-cell line towards the
   // white of its neighbours, so the bar there is lower: it follows the
   // line's width in pixels on that side, which foreshortening narrows.
+  // Glued on a cover frame turned 45 degrees or more, the far side's line
+  // lies on the inner roll turned away from the camera, hidden behind the
+  // fold, and the cells nearest that side, squeezed and on the bend, may
+  // not read clearly. One side without its line is allowed where no cell
+  // is outvoted and every bit has two clear votes at least (as for a
+  // hidden side, hidden_side.cpp), on cells of 3 px or more and not for
+  // the near-uniform ids a grid's squares show: a light bar between two
+  // strokes has no such code round it.
+  constexpr int kMinVotesWithoutLine = 2;
+  const bool code_clear = cell_size.mean >= kResolvedCells && r.corrected == 0 && r.margin >= kClearCode &&
+                          r.hidden.side < 0 && !near_uniform(r.id);
+  int side_without_line = -1;
   for (int side = 0; side < 4; ++side) {
     if (side == r.hidden.side) continue;
     if (model) {
@@ -93,7 +105,17 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
       ++total;
       dark += r.soft(darkest) < line_ceiling;
     }
-    if (total < 4 || dark < 0.5 * total) return Rejection::line_missing;
+    if (total < 4 || dark < 0.5 * total) {
+      if (!code_clear || side_without_line >= 0) return Rejection::line_missing;
+      side_without_line = side;
+    }
+  }
+  if (side_without_line >= 0) {
+    for (std::size_t bit = 0; bit < 8; ++bit) {
+      int votes = 0;
+      for (std::size_t edge = 0; edge < 4; ++edge) votes += r.weight[edge] > 0 && r.clear(r.cell[edge][bit]);
+      if (votes < kMinVotesWithoutLine) return Rejection::line_missing;
+    }
   }
 
   // The line must be dark where it is resolved, all around and at each of
