@@ -228,6 +228,7 @@ class Frame8Detector final : public MarkerDetector {
                               Detection& det);
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   bool read_on_ring_edges(const Homography& seen, CellSize cell_size, Detection& det, int& rotation, Homography& H);
+  bool read_from_ring_edges(const Homography& start, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   // Stage 2, a hole parted by a cover frame's fold (roll_fold.cpp); `quad`
   // in working-image pixels.
   bool read_hole_past_fold(const Component& hole, const std::array<Point2, 4>& quad, Detection& det);

@@ -20,11 +20,62 @@ namespace markerd::detector::frame8 {
 // round takes the cells that read clearly on the first fit.
 constexpr int kRounds = 2;
 
+// The hole seen on a cover frame is the line's inner edge on the inner
+// roll, below the plane of the ring: turned by an angle t, it is displaced
+// towards the far side by that depth times tan t, the same for all its
+// sides (measured at 40 deg from 0.95 m: 0.3 to 0.5 of a cell). The depth
+// is about this many cells (the roll's radius is 0.75 of a cell on a
+// socket frame and less on a switch's); 0.4 to 0.8 found the same markers.
+constexpr double kRollDepthCells = 0.6;
+// Turned less than this (tan 27 deg), the displacement is under a third
+// of a cell and the fit to the ring's edges undoes it from the hole seen.
+constexpr double kMinTurnTan = 0.5;
+
+namespace {
+
+// The map moved by `along_u`, `along_v` cells across the hole's unit square.
+bool moved(const Homography& H, double along_u, double along_v, Homography& out) {
+  const double du = along_u / kInnerSide, dv = along_v / kInnerSide;
+  return Homography::from_unit_square({H.map(du, dv), H.map(1 + du, dv), H.map(1 + du, 1 + dv), H.map(du, 1 + dv)},
+                                      out);
+}
+
+}  // namespace
+
 bool Frame8Detector::read_on_ring_edges(const Homography& seen, CellSize cell_size, Detection& det, int& rotation,
                                         Homography& H) {
   if (cell_size.narrow < kResolvedCells) return false;
-  Homography at = seen;
-  const Point2 seen_centre = seen.map(0.5, 0.5);
+  // The fit starts from the hole seen and, turned far, from the hole moved
+  // back either way along the direction foreshortened (which way is far is
+  // not told reliably by a hole of a few dozen pixels with rounded
+  // corners; the wrong way reads no code). The turn is the square's
+  // foreshortening.
+  const double across_u = distance(seen.map(0, 0.5), seen.map(1, 0.5));
+  const double across_v = distance(seen.map(0.5, 0), seen.map(0.5, 1));
+  const double cos_turn = std::min(across_u, across_v) / std::max(across_u, across_v);
+  const double tan_turn = std::sqrt(1 - cos_turn * cos_turn) / cos_turn;
+  const double back = kRollDepthCells * tan_turn;
+  std::array<Homography, 3> starts{seen, seen, seen};
+  int start_count = 1;
+  if (tan_turn >= kMinTurnTan) {
+    const bool along_u = across_u < across_v;
+    for (const double sign : {1.0, -1.0}) {
+      if (moved(seen, along_u ? sign * back : 0, along_u ? 0 : sign * back,
+                starts[static_cast<std::size_t>(start_count)])) {
+        ++start_count;
+      }
+    }
+  }
+  for (int start = 0; start < start_count; ++start) {
+    if (read_from_ring_edges(starts[static_cast<std::size_t>(start)], cell_size, det, rotation, H)) return true;
+  }
+  return false;
+}
+
+bool Frame8Detector::read_from_ring_edges(const Homography& start, CellSize cell_size, Detection& det, int& rotation,
+                                          Homography& H) {
+  Homography at = start;
+  const Point2 start_centre = start.map(0.5, 0.5);
   for (int round = 0; round < kRounds; ++round) {
     RingRead r;
     if (read_cells(at, cell_size, nullptr, r) != Rejection::none) return false;
@@ -47,7 +98,7 @@ bool Frame8Detector::read_on_ring_edges(const Homography& seen, CellSize cell_si
     const Homography fitted = Homography::from_grid_map(M);
     // The ring's edges move the grid by a fraction of a cell; a fit that
     // moved it by more found other edges.
-    if (distance(fitted.map(0.5, 0.5), seen_centre) > cell_size.mean) return false;
+    if (distance(fitted.map(0.5, 0.5), start_centre) > cell_size.mean) return false;
     const std::array<Point2, 4> hole = fitted.quad();
     if (!convex(hole)) return false;
     const CellSize size = cell_size_of(hole);
