@@ -46,8 +46,11 @@ struct Homography {
     const double w = g * u + h * v + 1;
     return {(a * u + b * v + c) / w, (d * u + e * v + f) / w};
   }
-  // The quad it maps the unit square onto (a hole's corners).
-  [[nodiscard]] std::array<Point2, 4> quad() const { return {map(0, 0), map(1, 0), map(1, 1), map(0, 1)}; }
+  // The quad it maps the unit square onto (a hole's corners), or the
+  // rectangle from (u0, v0) to (u1, v1) of it (a hole grown or moved).
+  [[nodiscard]] std::array<Point2, 4> quad(double u0 = 0, double v0 = 0, double u1 = 1, double v1 = 1) const {
+    return {map(u0, v0), map(u1, v0), map(u1, v1), map(u0, v1)};
+  }
 };
 
 // Grid coordinates (0..10 across the marker, y down) of the inner square's

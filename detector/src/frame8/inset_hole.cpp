@@ -27,8 +27,7 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
   for (const double inset : kInsetCells) {
     if (inset * 2 >= kInnerSide - 1) break;
     const double grow = inset / (kInnerSide - 2 * inset);  // in the seen quad's units
-    const std::array<Point2, 4> hole{seen.map(-grow, -grow), seen.map(1 + grow, -grow), seen.map(1 + grow, 1 + grow),
-                                     seen.map(-grow, 1 + grow)};
+    const std::array<Point2, 4> hole = seen.quad(-grow, -grow, 1 + grow, 1 + grow);
     Homography grown;
     if (!Homography::from_unit_square(hole, grown)) continue;
     const CellSize size = cell_size_of(hole);

@@ -36,8 +36,7 @@ namespace {
 // The map moved by `along_u`, `along_v` cells across the hole's unit square.
 bool moved(const Homography& H, double along_u, double along_v, Homography& out) {
   const double du = along_u / kInnerSide, dv = along_v / kInnerSide;
-  return Homography::from_unit_square({H.map(du, dv), H.map(1 + du, dv), H.map(1 + du, 1 + dv), H.map(du, 1 + dv)},
-                                      out);
+  return Homography::from_unit_square(H.quad(du, dv, 1 + du, 1 + dv), out);
 }
 
 }  // namespace
