@@ -110,13 +110,7 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
       side_without_line = side;
     }
   }
-  if (side_without_line >= 0) {
-    for (std::size_t bit = 0; bit < 8; ++bit) {
-      int votes = 0;
-      for (std::size_t edge = 0; edge < 4; ++edge) votes += r.weight[edge] > 0 && r.clear(r.cell[edge][bit]);
-      if (votes < kMinVotesWithoutLine) return Rejection::line_missing;
-    }
-  }
+  if (side_without_line >= 0 && r.fewest_agreeing < kMinVotesWithoutLine) return Rejection::line_missing;
 
   // The line must be dark where it is resolved, all around and at each of
   // its four corners: a light square among the bits of a checkered pattern

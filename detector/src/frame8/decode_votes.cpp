@@ -4,6 +4,8 @@
 
 #include "frame8/detector.hpp"
 
+#include <algorithm>
+
 namespace markerd::detector::frame8 {
 
 // How well an edge's cells are resolved along the edge, 0..1: a cell under
@@ -43,6 +45,7 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
   r.erased = 0;
   r.outvoted = {};
   r.margin = 1.0;
+  r.fewest_agreeing = 4;
   for (int b = 0; b < 8; ++b) {
     double sum = 0, wsum = 0;
     for (int e = 0; e < 4; ++e) {
@@ -75,6 +78,7 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
     // already: what is left must agree, twice at least, on every bit.
     if (r.hidden.side >= 0 && (dissent > 0 || agree < 2)) return Rejection::bit_uncorrectable;
     r.corrected += dissent;
+    r.fewest_agreeing = std::min(r.fewest_agreeing, agree);
     r.margin = std::min(r.margin, std::abs(sum) / wsum);
     if (bit) r.id |= 1 << b;
   }

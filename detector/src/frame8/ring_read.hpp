@@ -37,8 +37,9 @@ struct RingRead {
   bool orientation_ambiguous = false;
 
   // 4d: the code, its cell reads overruled and erased, per edge the cells
-  // the other edges outvoted, and the weakest bit's margin.
-  int id = 0, corrected = 0, erased = 0;
+  // the other edges outvoted, the fewest clear reads that agreed on a bit,
+  // and the weakest bit's margin.
+  int id = 0, corrected = 0, erased = 0, fewest_agreeing = 0;
   std::array<int, 4> outvoted{};
   double margin = 1.0;
 
