@@ -59,6 +59,17 @@ std::array<Point2, 4> clean_inner(int cell = 10, int origin = 50) {
   return {{{lo, lo}, {hi, lo}, {hi, hi}, {lo, hi}}};
 }
 
+// Paints the data cell of `bit` on `edge` of clean_marker() one grey.
+void paint_cell(GreyImage& img, int edge, int bit, std::uint8_t grey) {
+  const frame8::Cell c = frame8::data_cell(edge, bit);
+  for (int y = 50 + 10 * c.row; y < 60 + 10 * c.row; ++y) {
+    for (int x = 50 + 10 * c.col; x < 60 + 10 * c.col; ++x) img.row(y)[x] = grey;
+  }
+}
+
+// Paints the cell of `bit` on `edge` of clean_marker(id) the other colour.
+void flip_cell(GreyImage& img, int id, int edge, int bit) { paint_cell(img, edge, bit, ((id >> bit) & 1) ? 30 : 220); }
+
 class Frame8StageTest : public ::testing::Test {
  protected:
   Frame8Detector detector_{DetectorConfig{}};
@@ -183,21 +194,13 @@ TEST_F(Frame8StageTest, DecodingReadsACleanPatternInEachOrientation) {
 TEST_F(Frame8StageTest, DecodingCorrectsOneEdgeAndRejectsTwo) {
   const int id = 165;
   GreyImage img = clean_marker(id);
-  // Flips the cell of `bit` on `edge` (paints it the other colour).
-  auto flip = [&](int edge, int bit) {
-    const frame8::Cell c = frame8::data_cell(edge, bit);
-    const std::uint8_t colour = ((id >> bit) & 1) ? 30 : 220;
-    for (int y = 50 + 10 * c.row; y < 60 + 10 * c.row; ++y) {
-      for (int x = 50 + 10 * c.col; x < 60 + 10 * c.col; ++x) img.row(y)[x] = colour;
-    }
-  };
-  flip(1, 3);
+  flip_cell(img, id, 1, 3);
   Detection det;
   int rotation = 0;
   ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none);
   EXPECT_EQ(det.id, id);
   EXPECT_EQ(det.bits_corrected, 1);
-  flip(2, 3);  // a second edge against the same bit: two dissenters
+  flip_cell(img, id, 2, 3);  // a second edge against the same bit: two dissenters
   EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::bit_uncorrectable);
 }
 
@@ -215,15 +218,8 @@ TEST_F(Frame8StageTest, DecodingAllowsOneSideWithoutItsLineOnlyForAnAgreedCode) 
       for (int b = across_from; b < across_from + 5; ++b) (horizontal ? img.row(b)[a] : img.row(a)[b]) = 220;
     }
   };
-  // Paints a cell: grey (112, a little darker than midway between ink 30
-  // and paper 220: bit 4 is black) leaves it unclear but leaning the right
-  // way, the other colour has it outvoted.
-  auto paint_cell = [](GreyImage& img, int edge, int bit, std::uint8_t grey) {
-    const frame8::Cell c = frame8::data_cell(edge, bit);
-    for (int y = 50 + 10 * c.row; y < 60 + 10 * c.row; ++y) {
-      for (int x = 50 + 10 * c.col; x < 60 + 10 * c.col; ++x) img.row(y)[x] = grey;
-    }
-  };
+  // A cell painted grey 112, a little darker than midway between ink 30
+  // and paper 220 (bit 4 is black), reads unclear but leaning the right way.
   constexpr std::uint8_t kUnclear = 112;
   static_assert(((id >> 4) & 1) == 0);
   const auto read = [this](const GreyImage& img) {
@@ -250,7 +246,7 @@ TEST_F(Frame8StageTest, DecodingAllowsOneSideWithoutItsLineOnlyForAnAgreedCode) 
   EXPECT_EQ(read(img), Rejection::line_missing);
   // A cell outvoted.
   img = top_unlined;
-  paint_cell(img, 2, 3, ((id >> 3) & 1) ? 30 : 220);
+  flip_cell(img, id, 2, 3);
   EXPECT_EQ(read(img), Rejection::line_missing);
   // The right side's line missing too.
   img = top_unlined;
