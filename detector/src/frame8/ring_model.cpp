@@ -29,7 +29,7 @@ constexpr double kMaxOutside = 0.5;
 // that the pixels leave undetermined (an outside strip barely touched).
 constexpr double kRidge = 0.02;
 // How far (in footprint widths) a grid line still counts for a pixel.
-constexpr double kReach = 5;
+constexpr double kReach = 3.5;
 // Steps of the map per alignment; it converges in three or four.
 constexpr int kAlignIterations = 4;
 
@@ -73,6 +73,28 @@ constexpr std::array<Rect, RingModel::kRegions> make_rects() {
   return rects;
 }
 constexpr std::array<Rect, RingModel::kRegions> kRects = make_rects();
+
+// The regions lie between the lines: per interval of each axis (between
+// kLines[i] and kLines[i + 1]), the regions that cover the cell of the two
+// intervals, as bits. A pixel's footprint reaches the intervals of the lines
+// it looks up and the one before; or-ing their cells' bits gives its
+// regions in ascending order without testing all of them.
+constexpr int kIntervals = static_cast<int>(kLines.size()) - 1;
+using RegionBits = std::uint64_t;
+static_assert(RingModel::kRegions <= 64);
+constexpr std::array<std::array<RegionBits, kIntervals>, kIntervals> make_region_bits() {
+  std::array<std::array<RegionBits, kIntervals>, kIntervals> bits{};
+  for (int r = 0; r < RingModel::kRegions; ++r) {
+    const Rect& q = kRects[static_cast<std::size_t>(r)];
+    for (int y = q.y0; y < q.y1; ++y) {
+      for (int x = q.x0; x < q.x1; ++x) {
+        bits[static_cast<std::size_t>(y)][static_cast<std::size_t>(x)] |= RegionBits{1} << r;
+      }
+    }
+  }
+  return bits;
+}
+constexpr std::array<std::array<RegionBits, kIntervals>, kIntervals> kRegionBits = make_region_bits();
 
 // The marker's outer corners in grid coordinates.
 constexpr std::array<std::pair<int, int>, 4> kOuterCorners{{{0, 0}, {grid, 0}, {grid, grid}, {0, grid}}};
@@ -198,11 +220,19 @@ int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, dou
   };
   axis(gx, sx, fx, dx, x_lo, x_hi);
   axis(gy, sy, fy, dy, y_lo, y_hi);
+  // A region with both bounds below the looked-up lines, or both above,
+  // has nothing: the ones left span an interval from the one before x_lo
+  // to the one before x_hi.
+  RegionBits regions = 0;
+  for (int y = std::max(0, y_lo - 1); y < std::min(kIntervals, y_hi); ++y) {
+    for (int x = std::max(0, x_lo - 1); x < std::min(kIntervals, x_hi); ++x) {
+      regions |= kRegionBits[static_cast<std::size_t>(y)][static_cast<std::size_t>(x)];
+    }
+  }
   int n = 0;
-  for (int r = 0; r < kRegions; ++r) {
+  for (; regions != 0; regions &= regions - 1) {
+    const int r = __builtin_ctzll(regions);
     const Rect& q = kRects[static_cast<std::size_t>(r)];
-    // Both bounds below the looked-up lines, or both above: nothing.
-    if (q.x1 < x_lo || q.x0 >= x_hi || q.y1 < y_lo || q.y0 >= y_hi) continue;
     const auto x0 = static_cast<std::size_t>(q.x0), x1 = static_cast<std::size_t>(q.x1);
     const auto y0 = static_cast<std::size_t>(q.y0), y1 = static_cast<std::size_t>(q.y1);
     const double mx = fx[x1] - fx[x0], my = fy[y1] - fy[y0];
@@ -269,10 +299,14 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   constexpr int kParams = kRegions + 8;
   using Matrix = Eigen::Matrix<double, kParams, kParams>;
   using Params = Eigen::Matrix<double, kParams, 1>;
+  // The normal equations in three blocks, each entry summed over the
+  // pixels in the same order as one matrix would: the levels' own (lower
+  // triangle, as in solve_levels()), the map's against each level, and the
+  // map's own, dense, whose loops over eight run without indirection.
   Matrix jtj = Matrix::Zero();
   Params jte = Params::Zero();
-  std::array<double, kRegions + 8> jrow{};
-  std::array<int, kRegions + 8> index{};
+  std::array<std::array<double, 8>, kRegions> map_level{};
+  std::array<double, 8 * 8> map_map{};
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
@@ -285,26 +319,41 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
         model += level_(static_cast<int>(r)) * cover_[r];
         dgx += level_(static_cast<int>(r)) * slope_x_[r];
         dgy += level_(static_cast<int>(r)) * slope_y_[r];
-        index[static_cast<std::size_t>(a)] = static_cast<int>(r);
-        jrow[static_cast<std::size_t>(a)] = cover_[r];
       }
       const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
       const double radial = dgx * gx + dgy * gy;
-      const std::array<double, 8> geometry{dgx * u, dgx * v, dgx, dgy * u, dgy * v, dgy, -radial * u, -radial * v};
-      for (int k = 0; k < 8; ++k) {
-        index[static_cast<std::size_t>(n + k)] = kRegions + k;
-        jrow[static_cast<std::size_t>(n + k)] = geometry[static_cast<std::size_t>(k)] / w;
-      }
+      const std::array<double, 8> geometry{dgx * u / w, dgx * v / w, dgx / w,         dgy * u / w,
+                                           dgy * v / w, dgy / w,     -radial * u / w, -radial * v / w};
       const double e = row[px] - model;
-      // The lower triangle only (index ascends), as in solve_levels().
-      for (int a = 0; a < n + 8; ++a) {
-        const int ia = index[static_cast<std::size_t>(a)];
-        const double ja = jrow[static_cast<std::size_t>(a)];
+      for (int a = 0; a < n; ++a) {
+        const int ia = touched_[static_cast<std::size_t>(a)];
+        const double ja = cover_[static_cast<std::size_t>(ia)];
         jte(ia) += ja * e;
         for (int c = 0; c <= a; ++c)
-          jtj(ia, index[static_cast<std::size_t>(c)]) += ja * jrow[static_cast<std::size_t>(c)];
+          jtj(ia, touched_[static_cast<std::size_t>(c)]) +=
+              ja * cover_[static_cast<std::size_t>(touched_[static_cast<std::size_t>(c)])];
+      }
+      // Deep in the hole or a cell, no line within reach: the map moves
+      // nothing there.
+      if (dgx == 0 && dgy == 0) continue;
+      for (int a = 0; a < n; ++a) {
+        const auto ia = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
+        const double ja = cover_[ia];
+        for (int k = 0; k < 8; ++k)
+          map_level[ia][static_cast<std::size_t>(k)] += geometry[static_cast<std::size_t>(k)] * ja;
+      }
+      for (int k = 0; k < 8; ++k) {
+        const double jk = geometry[static_cast<std::size_t>(k)];
+        jte(kRegions + k) += jk * e;
+        for (int c = 0; c <= k; ++c)
+          map_map[static_cast<std::size_t>(8 * k + c)] += jk * geometry[static_cast<std::size_t>(c)];
       }
     }
+  }
+  for (int k = 0; k < 8; ++k) {
+    for (int r = 0; r < kRegions; ++r)
+      jtj(kRegions + k, r) = map_level[static_cast<std::size_t>(r)][static_cast<std::size_t>(k)];
+    for (int c = 0; c <= k; ++c) jtj(kRegions + k, kRegions + c) = map_map[static_cast<std::size_t>(8 * k + c)];
   }
   for (int r = 0; r < kRegions; ++r) {
     jtj(r, r) += kRidge;
