@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cstdint>
+#include <initializer_list>
 #include <optional>
 #include <utility>
 #include <vector>
@@ -222,7 +223,7 @@ class Frame8Detector final : public MarkerDetector {
   std::size_t pick_squares(const HullSide* sides, const Line* lines, const int* sense, int count, double hull_area,
                            std::array<InkSquare, kTried>& tries);
   [[nodiscard]] bool ring_shows_cells(const std::array<Point2, 4>& outer) const;
-  bool fit_outer_side(Point2 a, Point2 b, double cell_px, float sign, Line& line);
+  int fit_outer_side(Point2 a, Point2 b, double cell_px, std::initializer_list<int> signs, Line& line);
   Rejection read_ink_outline(const InkSquare& square, Detection& det);
   Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, bool dark_ground,
                               Detection& det);
@@ -271,6 +272,10 @@ class Frame8Detector final : public MarkerDetector {
   // Edge points per side: about one per 1.5 px along a side of up to 72 px;
   // longer sides need no more to place a line.
   static constexpr int kMaxEdgePoints = 48;
+  // The profiles across an outer side of the ink (fit_outer_side), kept
+  // for each sense of its step tried on them.
+  static constexpr int kMaxProfileSteps = 64;
+  std::array<std::array<float, kMaxProfileSteps>, kMaxEdgePoints> outer_profiles_{};
   // The profile fit's sums per side (EdgeMode::fit_profile): a few fits
   // instead of one per point, each on less noise.
   static constexpr std::size_t kProfileSegments = 4;

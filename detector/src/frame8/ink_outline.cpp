@@ -23,6 +23,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <initializer_list>
 #include <utility>
 #include <vector>
 
@@ -142,12 +143,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
   for (int k = 0; k < count; ++k) {
     HullSide side = sides[static_cast<std::size_t>(k)];
     Line line = lines[static_cast<std::size_t>(k)];
-    int side_sense = 0;
-    for (const int candidate : {1, -1}) {
-      if (side_sense == 0 && fit_outer_side(side.a, side.b, cell, static_cast<float>(candidate), line)) {
-        side_sense = candidate;
-      }
-    }
+    const int side_sense = fit_outer_side(side.a, side.b, cell, {1, -1}, line);
     if (merged > 0 && side_sense != 0 && sense[static_cast<std::size_t>(merged - 1)] == side_sense) {
       HullSide& last = sides[static_cast<std::size_t>(merged - 1)];
       const Line& last_line = lines[static_cast<std::size_t>(merged - 1)];
@@ -157,7 +153,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
           off(last_line, side.b) < reach && off(line, last.a) < reach && off(line, last.b) < reach) {
         const HullSide joined{last.a, side.b, last.length + side.length};
         Line joined_line = last_line;
-        if (fit_outer_side(joined.a, joined.b, cell, static_cast<float>(side_sense), joined_line)) {
+        if (fit_outer_side(joined.a, joined.b, cell, {side_sense}, joined_line) != 0) {
           last = joined;
           lines[static_cast<std::size_t>(merged - 1)] = joined_line;
           continue;
@@ -278,10 +274,12 @@ std::size_t Frame8Detector::pick_squares(const HullSide* sides, const Line* line
 
 // The outer square's side through a and b (clockwise, full-resolution
 // pixels) where the ink meets the light beyond it: at each point the steepest
-// dark-to-light step going outward, within about half a cell of the side
-// traced (the line's outer edge, a cell in, stays out of reach). Beside
-// white cells there is no step: those points drop out.
-bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, float sign, Line& line) {
+// step going outward in the sense of each of `signs` in turn (+1 dark to
+// light, -1 light to dark), within about half a cell of the side traced (the
+// line's outer edge, a cell in, stays out of reach). Beside white cells
+// there is no step: those points drop out. Returns the sense whose points
+// gave `line`, 0 for none. The profiles are sampled once for every sense.
+int Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, std::initializer_list<int> signs, Line& line) {
   const double len = distance(a, b);
   const double dx = (b.x - a.x) / len, dy = (b.y - a.y) / len;
   const double nx = dy, ny = -dx;  // outward for a clockwise quad with y down
@@ -291,51 +289,59 @@ bool Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, float si
   // search stops short of the line's outer edge (a cell in, beside a
   // white cell).
   const double reach = 0.4 * cell_px + 1.0, reach_out = 0.6 * cell_px + 1.0;
-  const int n_steps = std::min(static_cast<int>((reach + reach_out) / step) + 1, 64);
-  EdgePoint* pts = edge_points_[0].data();
-  int used = 0;
-  std::array<float, 64> profile{};
+  const int n_steps = std::min(static_cast<int>((reach + reach_out) / step) + 1, kMaxProfileSteps);
+  std::array<Point2, kMaxEdgePoints> base{};
+  int sampled = 0;
   for (int k = 0; k < count; ++k) {
     // Clear of the stretch's ends, which the blur rounds (a corner of the
     // square, or the end of a black run).
     const double t = 0.1 + 0.8 * (k + 0.5) / count;
     const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
+    std::array<float, kMaxProfileSteps>& profile = outer_profiles_[static_cast<std::size_t>(sampled)];
     bool ok = true;
     for (int s = 0; s < n_steps && ok; ++s) {
       const double off = -reach + s * step;
       ok = sample(full_, px + off * nx, py + off * ny, profile[static_cast<std::size_t>(s)]);
     }
-    if (!ok) continue;
-    auto rise = [&](int s) {
-      return static_cast<double>(sign *
-                                 (profile[static_cast<std::size_t>(s + 1)] - profile[static_cast<std::size_t>(s)]));
-    };
-    int best = -1;
-    double best_rise = 0;
-    for (int s = 0; s + 1 < n_steps; ++s) {
-      if (rise(s) > best_rise) {
-        best_rise = rise(s);
-        best = s;
-      }
-    }
-    // Noise of a few grey levels makes steps of a few grey levels a half pixel.
-    constexpr double kMinRise = 8;
-    // A rise at the window's inner end is the start of the line's step
-    // beside a white cell, not the ink's outside.
-    if (best <= 0 || best_rise < kMinRise) continue;
-    int lo = best, hi = best;
-    while (lo > 0 && rise(lo - 1) > 0.05 * best_rise) --lo;
-    while (hi + 2 < n_steps && rise(hi + 1) > 0.05 * best_rise) ++hi;
-    double sum = 0, moment = 0;
-    for (int s = lo; s <= hi; ++s) {
-      sum += rise(s);
-      moment += rise(s) * (-reach + (s + 0.5) * step);
-    }
-    const double off = moment / sum;
-    pts[used++] = {px + off * nx, py + off * ny, best_rise};
+    if (ok) base[static_cast<std::size_t>(sampled++)] = {px, py};
   }
-  if (used < 4) return false;
-  return fit_line(pts, used, std::max(0.6, 0.2 * cell_px), line);
+  EdgePoint* pts = edge_points_[0].data();
+  for (const int sign : signs) {
+    int used = 0;
+    for (int k = 0; k < sampled; ++k) {
+      const std::array<float, kMaxProfileSteps>& profile = outer_profiles_[static_cast<std::size_t>(k)];
+      auto rise = [&](int s) {
+        return static_cast<double>(static_cast<float>(sign) *
+                                   (profile[static_cast<std::size_t>(s + 1)] - profile[static_cast<std::size_t>(s)]));
+      };
+      int best = -1;
+      double best_rise = 0;
+      for (int s = 0; s + 1 < n_steps; ++s) {
+        if (rise(s) > best_rise) {
+          best_rise = rise(s);
+          best = s;
+        }
+      }
+      // Noise of a few grey levels makes steps of a few grey levels a half pixel.
+      constexpr double kMinRise = 8;
+      // A rise at the window's inner end is the start of the line's step
+      // beside a white cell, not the ink's outside.
+      if (best <= 0 || best_rise < kMinRise) continue;
+      int lo = best, hi = best;
+      while (lo > 0 && rise(lo - 1) > 0.05 * best_rise) --lo;
+      while (hi + 2 < n_steps && rise(hi + 1) > 0.05 * best_rise) ++hi;
+      double sum = 0, moment = 0;
+      for (int s = lo; s <= hi; ++s) {
+        sum += rise(s);
+        moment += rise(s) * (-reach + (s + 0.5) * step);
+      }
+      const double off = moment / sum;
+      const Point2 p = base[static_cast<std::size_t>(k)];
+      pts[used++] = {p.x + off * nx, p.y + off * ny, best_rise};
+    }
+    if (used >= 4 && fit_line(pts, used, std::max(0.6, 0.2 * cell_px), line)) return sign;
+  }
+  return 0;
 }
 
 // The ring read on the outer square found (full-resolution pixels), then
