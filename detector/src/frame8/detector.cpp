@@ -298,14 +298,21 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
     return Rejection::near_uniform_unconfirmed;
   }
 
-  if (cell_size.mean < kModelCheckedCells && !by_model) {
-    if (const Rejection why = confirm_by_model(H, cell_size, det, rotation); why != Rejection::none) return why;
-  }
-
   // With the code known, every edge of the printed pattern is a measurement.
-  if (cell_px >= kPatternCells && collect_pattern_edges(H, det.id, rotation, cell_px) >= kMinPatternEdges) {
-    return finish_by_pattern(rotation, det);
+  const bool by_pattern =
+      cell_px >= kPatternCells && collect_pattern_edges(H, det.id, rotation, cell_px) >= kMinPatternEdges;
+  if (cell_size.mean < kModelCheckedCells && !by_model) {
+    // The model aligns its own map; started from the pattern's (where the
+    // quad's outer corners are up to a pixel off, the pattern's are a
+    // tenth of that), it needs one or two steps instead of four. A wrong
+    // code finds few of the edges it predicts where there are none, and
+    // the fit drops those it finds off the others: its map is the ring's
+    // all the same, and the model's levels, free of any code, still read.
+    Homography start = H;
+    if (Eigen::Matrix3d M; by_pattern && fit_grid_map(M)) start = Homography::from_grid_map(M);
+    if (const Rejection why = confirm_by_model(start, cell_size, det, rotation); why != Rejection::none) return why;
   }
+  if (by_pattern) return finish_by_pattern(rotation, det);
 
   if (!config_.camera) return report(grid_map(H), rotation, det);
   return refit_undistorted(rotation, det);

@@ -105,7 +105,11 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
         below = upto;
       }
       part(5) = 1 - below;
-      m.gram.selfadjointView<Eigen::Lower>().rankUpdate(part);
+      // The lower triangle by hand: Eigen's rank update of a fixed 6x6
+      // takes its general blocked path, and this loop is most of the fit.
+      for (int a = 0; a < 6; ++a) {
+        for (int b = 0; b <= a; ++b) m.gram(a, b) += part(a) * part(b);
+      }
       m.cross += part * level[static_cast<std::size_t>(i)];
     }
     m.gram = m.gram.selfadjointView<Eigen::Lower>();
