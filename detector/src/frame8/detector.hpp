@@ -293,7 +293,8 @@ class Frame8Detector final : public MarkerDetector {
   int decimate_ = 1;
   std::vector<std::uint8_t> decimated_;
   std::vector<std::uint32_t> tile_sum_;
-  std::vector<std::uint32_t> tile_row_sum_;
+  std::vector<std::uint32_t> tile_row_sum_;  // padded with a row of zeros above and below
+  std::vector<std::uint32_t> tile_span_x_;   // per tile column, the pixels its 3x3 neighbourhood spans
   std::vector<std::uint8_t> tile_threshold_;
   std::vector<std::uint8_t> pixel_threshold_;
   std::vector<std::uint8_t> column_max_, local_max_;

@@ -111,30 +111,35 @@ void Frame8Detector::threshold_and_runs() {
   // The 3x3 sums are separable; the pixel count of a neighbourhood is the
   // product of its width and height, and the rounding division by it is a
   // multiplication by its reciprocal (exact for these sums, see kMaxTileSum).
-  tile_row_sum_.resize(static_cast<std::size_t>(tw) * th);
+  // Each row's sums of three tiles, with a row of zeros above the first
+  // and below the last, so that the column sums below need no test.
+  tile_row_sum_.assign(static_cast<std::size_t>(tw) * (th + 2), 0);
   for (int ty = 0; ty < th; ++ty) {
     const std::uint32_t* in = tile_sum_.data() + static_cast<std::size_t>(ty) * tw;
-    std::uint32_t* out = tile_row_sum_.data() + static_cast<std::size_t>(ty) * tw;
-    for (int tx = 0; tx < tw; ++tx) {
-      out[tx] = in[tx] + (tx > 0 ? in[tx - 1] : 0) + (tx + 1 < tw ? in[tx + 1] : 0);
-    }
+    std::uint32_t* out = tile_row_sum_.data() + static_cast<std::size_t>(ty + 1) * tw;
+    out[0] = in[0] + (tw > 1 ? in[1] : 0);
+    for (int tx = 1; tx + 1 < tw; ++tx) out[tx] = in[tx - 1] + in[tx] + in[tx + 1];
+    if (tw > 1) out[tw - 1] = in[tw - 2] + in[tw - 1];
   }
   auto span = [](int t, int tiles, int pixels) {  // pixels covered by tiles t-1 .. t+1
     const int lo = std::max(0, t - 1) * kTile;
     const int hi = std::min(tiles, t + 2) * kTile;
     return std::min(hi, pixels) - lo;
   };
+  tile_span_x_.resize(static_cast<std::size_t>(tw));
+  for (int tx = 0; tx < tw; ++tx)
+    tile_span_x_[static_cast<std::size_t>(tx)] = static_cast<std::uint32_t>(span(tx, tw, w));
   tile_threshold_.resize(static_cast<std::size_t>(tw) * th);
   const int offset = config_.frame8.threshold_offset;
   for (int ty = 0; ty < th; ++ty) {
-    const std::uint32_t* mid = tile_row_sum_.data() + static_cast<std::size_t>(ty) * tw;
-    const std::uint32_t* up = ty > 0 ? mid - tw : nullptr;
-    const std::uint32_t* down = ty + 1 < th ? mid + tw : nullptr;
-    const int rows = span(ty, th, h);
+    const std::uint32_t* up = tile_row_sum_.data() + static_cast<std::size_t>(ty) * tw;
+    const std::uint32_t* mid = up + tw;
+    const std::uint32_t* down = mid + tw;
+    const auto rows = static_cast<std::uint32_t>(span(ty, th, h));
     std::uint8_t* out = tile_threshold_.data() + static_cast<std::size_t>(ty) * tw;
     for (int tx = 0; tx < tw; ++tx) {
-      const std::uint32_t sum = mid[tx] + (up ? up[tx] : 0) + (down ? down[tx] : 0);
-      const auto n = static_cast<std::uint32_t>(rows * span(tx, tw, w));
+      const std::uint32_t sum = up[tx] + mid[tx] + down[tx];
+      const std::uint32_t n = rows * tile_span_x_[static_cast<std::size_t>(tx)];
       const auto mean = static_cast<int>(((sum + n / 2) * kReciprocal[n]) >> 32);
       out[tx] = static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
     }
