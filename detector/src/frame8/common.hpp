@@ -103,9 +103,26 @@ inline Point2 side_point(int side, double along, double in) {
 
 inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
 
+// Whether a bilinear sample at (x, y) lies inside the image; the samples
+// along a segment do when both its ends do.
+inline bool samples_inside(const GreyView& img, double x, double y) {
+  return x >= 0 && y >= 0 && x <= img.width - 1.001 && y <= img.height - 1.001;
+}
+
+// Bilinear sample at a point samples_inside() accepts.
+inline float sample_inside(const GreyView& img, double x, double y) {
+  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
+  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
+  const std::uint8_t* r0 = img.row(y0) + x0;
+  const std::uint8_t* r1 = r0 + img.stride;
+  const float top = r0[0] + fx * (r0[1] - r0[0]);
+  const float bot = r1[0] + fx * (r1[1] - r1[0]);
+  return top + fy * (bot - top);
+}
+
 // Bilinear sample; false outside the image.
 inline bool sample(const GreyView& img, double x, double y, float& out) {
-  if (!(x >= 0 && y >= 0 && x <= img.width - 1.001 && y <= img.height - 1.001)) return false;
+  if (!samples_inside(img, x, y)) return false;
   const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
   const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
   const std::uint8_t* r0 = img.row(y0) + x0;
