@@ -146,11 +146,22 @@ bool Frame8Detector::max_area_quad(std::array<Point2, 4>& quad) {
     int k = i + 1;
     int l = i + 3;
     for (int j = i + 2; j < i + n - 1; ++j) {
+      // Each triangle's area carried along as its apex walks on.
       if (k >= j) k = j - 1;
-      while (k + 1 < j && std::abs(cross(at(i), at(k + 1), at(j))) >= std::abs(cross(at(i), at(k), at(j)))) ++k;
+      double area_k = std::abs(cross(at(i), at(k), at(j)));
+      for (; k + 1 < j; ++k) {
+        const double next = std::abs(cross(at(i), at(k + 1), at(j)));
+        if (next < area_k) break;
+        area_k = next;
+      }
       if (l <= j) l = j + 1;
-      while (l + 1 < i + n && std::abs(cross(at(j), at(l + 1), at(i))) >= std::abs(cross(at(j), at(l), at(i)))) ++l;
-      const double area = std::abs(cross(at(i), at(k), at(j))) + std::abs(cross(at(j), at(l), at(i)));
+      double area_l = std::abs(cross(at(j), at(l), at(i)));
+      for (; l + 1 < i + n; ++l) {
+        const double next = std::abs(cross(at(j), at(l + 1), at(i)));
+        if (next < area_l) break;
+        area_l = next;
+      }
+      const double area = area_k + area_l;
       if (area > best) {
         best = area;
         quad = {at(i), at(k), at(j), at(l)};
