@@ -151,16 +151,27 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
   };
   Moments m;
   double best_stretch = 1, best_shift = 0, best = std::numeric_limits<double>::infinity();
-  for (int i = 0; i < kStretchSteps; ++i) {
-    const double stretch = kMinStretch + i * kStretchStep;
-    for (int j = -kShiftSteps; j <= kShiftSteps; ++j) {
-      const double shift = j * kShiftStep;
-      moments(stretch, shift, m);
-      if (const double r = free_corners(m); r < best) {
-        best = r;
-        best_stretch = stretch;
-        best_shift = shift;
-      }
+  int best_i = 0, best_j = 0;
+  auto try_at = [&](int i, int j) {
+    const double stretch = kMinStretch + i * kStretchStep, shift = j * kShiftStep;
+    moments(stretch, shift, m);
+    if (const double r = free_corners(m); r < best) {
+      best = r;
+      best_stretch = stretch;
+      best_shift = shift;
+      best_i = i;
+      best_j = j;
+    }
+  };
+  // Every other step first, then the steps beside the best: the profile is
+  // blurred over a cell, and its fit varies smoothly over a step.
+  for (int i = 0; i < kStretchSteps; i += 2) {
+    for (int j = -kShiftSteps; j <= kShiftSteps; j += 2) try_at(i, j);
+  }
+  const int coarse_i = best_i, coarse_j = best_j;
+  for (int i = std::max(0, coarse_i - 1); i <= std::min(kStretchSteps - 1, coarse_i + 1); ++i) {
+    for (int j = std::max(-kShiftSteps, coarse_j - 1); j <= std::min(kShiftSteps, coarse_j + 1); ++j) {
+      if ((i - coarse_i) % 2 != 0 || (j - coarse_j) % 2 != 0) try_at(i, j);
     }
   }
   // Then each colouring at its best, near there.
