@@ -204,6 +204,28 @@ TEST_F(Frame8StageTest, DecodingCorrectsOneEdgeAndRejectsTwo) {
   EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::bit_uncorrectable);
 }
 
+// A cover outvotes the cells of one edge, and at most the cell at each end
+// of the edges beside it; two cells outvoted on a second edge besides are a
+// second leniency, refused even where the code is the right one.
+TEST_F(Frame8StageTest, DecodingLetsACoverOutvoteOneEdgeButNotASecond) {
+  constexpr int id = 165;  // 10100101: a dark cover outvotes its four white cells
+  static_assert(((id >> 3) & 1) == 0 && ((id >> 6) & 1) == 0);
+  GreyImage covered = clean_marker(id);
+  for (int bit = 0; bit < 8; ++bit) paint_cell(covered, 2, bit, 30);
+  Detection det;
+  int rotation = 0;
+  ASSERT_EQ(decode(covered, clean_inner(), 10, det, rotation), Rejection::none);
+  EXPECT_EQ(det.id, id);
+  EXPECT_EQ(det.bits_corrected, 4);
+  GreyImage img = covered;
+  flip_cell(img, id, 1, 3);  // one cell more, on the edge beside
+  ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none);
+  EXPECT_EQ(det.id, id);
+  EXPECT_EQ(det.bits_corrected, 5);
+  flip_cell(img, id, 1, 6);  // a second cell there
+  EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::covered_edge_unclear);
+}
+
 // Glued on a cover frame turned far, the far side's line lies on the inner
 // roll turned away from the camera, and the cells nearest it may not read
 // clearly: one side without its line is read where no cell is outvoted and

@@ -3,6 +3,8 @@
 
 #include "frame8/detector.hpp"
 
+#include <algorithm>
+
 namespace markerd::detector::frame8 {
 
 // Cells under this many pixels with two bits outvoted are as likely a dark
@@ -27,6 +29,16 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // Outvoting most of an edge (a covered edge) is only believable when the
   // other three read clearly.
   if (r.corrected >= 4 && r.margin < kClearCode) return Rejection::covered_edge_unclear;
+  // A cover outvotes one edge, and at most the cell at each end of the edges
+  // beside it: two cells outvoted on a second edge are a second leniency (a
+  // light bar in clutter beside a dark shape read so, as id 192, with six
+  // cells of a barely resolved edge and two of a resolved one outvoted).
+  if (r.corrected >= 4) {
+    const auto most = std::max_element(r.outvoted.begin(), r.outvoted.end());
+    for (auto e = r.outvoted.begin(); e != r.outvoted.end(); ++e) {
+      if (e != most && *e >= 2) return Rejection::covered_edge_unclear;
+    }
+  }
   // A marker of about fifteen pixels with two bits or more outvoted is as
   // likely a dark blob in clutter whose unmixed ring (unmix_ring) shows a
   // light cell or two: measured, 3 false detections in 3000 cluttered
