@@ -26,6 +26,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <exception>
+#include <numbers>
 #include <opencv2/core/utility.hpp>
 #include <optional>
 #include <span>
@@ -475,6 +476,12 @@ int main(int argc, char** argv) {
       "time: medians (errors over detected frames, time of detect() alone over all frames)\n\n");
   std::fflush(stdout);
 
+  // A dumped frame's distance and turn, for its name: "0.95m-45deg" (the
+  // angle between the marker's normal and the optical axis).
+  const auto where = [](const markerd::detector::Scene& scene) {
+    const double turn = std::acos(std::clamp(std::abs(scene.pose.rotation(2, 2)), 0.0, 1.0)) * 180 / std::numbers::pi;
+    return fmt::format("{:.2f}m-{:.0f}deg", scene.pose.translation.norm(), turn);
+  };
   const bool progress = isatty(STDERR_FILENO) != 0;
   std::vector<std::string> summary;
   for (const auto& info : families) {
@@ -493,8 +500,7 @@ int main(int argc, char** argv) {
                                    const std::vector<markerd::detector::Detection>& found) {
           int wrong = -1;
           for (const auto& d : found) wrong = d.id != scene.id ? d.id : wrong;
-          const double dist = scene.pose.translation.norm();
-          const std::string path = fmt::format("{}/{}-{:.2f}m-id{}-read{}-seed{}.pgm", dump_wrong, info.name, dist,
+          const std::string path = fmt::format("{}/{}-{}-id{}-read{}-seed{}.pgm", dump_wrong, info.name, where(scene),
                                                scene.id, wrong, scene.seed);
           write_pgm(path, image);
           std::fprintf(stderr, "bench_accuracy: wrong id, frame written to %s\n", path.c_str());
@@ -502,8 +508,8 @@ int main(int argc, char** argv) {
       }
       if (!dump_missed.empty()) {
         settings.on_miss = [&](const markerd::detector::GreyImage& image, const markerd::detector::Scene& scene) {
-          const std::string path = fmt::format("{}/{}-{:.2f}m-id{}-missed-seed{}.pgm", dump_missed, info.name,
-                                               scene.pose.translation.norm(), scene.id, scene.seed);
+          const std::string path = fmt::format("{}/{}-{}-id{}-missed-seed{}.pgm", dump_missed, info.name, where(scene),
+                                               scene.id, scene.seed);
           write_pgm(path, image);
         };
       }
