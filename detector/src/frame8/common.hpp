@@ -123,13 +123,25 @@ inline float sample_inside(const GreyView& img, double x, double y) {
 // Bilinear sample; false outside the image.
 inline bool sample(const GreyView& img, double x, double y, float& out) {
   if (!samples_inside(img, x, y)) return false;
-  const int x0 = static_cast<int>(x), y0 = static_cast<int>(y);
-  const float fx = static_cast<float>(x - x0), fy = static_cast<float>(y - y0);
-  const std::uint8_t* r0 = img.row(y0) + x0;
-  const std::uint8_t* r1 = r0 + img.stride;
-  const float top = r0[0] + fx * (r0[1] - r0[0]);
-  const float bot = r1[0] + fx * (r1[1] - r1[0]);
-  out = top + fy * (bot - top);
+  out = sample_inside(img, x, y);
+  return true;
+}
+
+// A profile across an edge: `count` samples from `at` + `from` * `across`,
+// `step` apart along `across` (a unit vector). False, with nothing
+// sampled, when any sample would fall outside the image: the samples lie
+// on a segment, so its two ends decide.
+inline bool sample_profile(const GreyView& img, Point2 at, Point2 across, double from, double step, int count,
+                           float* out) {
+  const double to = from + (count - 1) * step;
+  if (!samples_inside(img, at.x + from * across.x, at.y + from * across.y) ||
+      !samples_inside(img, at.x + to * across.x, at.y + to * across.y)) {
+    return false;
+  }
+  for (int s = 0; s < count; ++s) {
+    const double off = from + s * step;
+    out[s] = sample_inside(img, at.x + off * across.x, at.y + off * across.y);
+  }
   return true;
 }
 

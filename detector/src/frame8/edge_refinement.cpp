@@ -104,15 +104,7 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
                              : near  ? 0.75 * cell_px + 1.5
                                      : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
     const int n_steps = std::min(static_cast<int>((reach_in + reach_out) / step) + 1, 64);
-    const double last = -reach_in + (n_steps - 1) * step;
-    if (!samples_inside(full_, px - reach_in * nx, py - reach_in * ny) ||
-        !samples_inside(full_, px + last * nx, py + last * ny)) {
-      continue;
-    }
-    for (int s = 0; s < n_steps; ++s) {
-      const double off = -reach_in + s * step;
-      profile[static_cast<std::size_t>(s)] = sample_inside(full_, px + off * nx, py + off * ny);
-    }
+    if (!sample_profile(full_, {px, py}, {nx, ny}, -reach_in, step, n_steps, profile.data())) continue;
     if (fitting) {
       // Summed per segment of the side and fitted below: the cells
       // beyond the line differ from point to point, but the model's level

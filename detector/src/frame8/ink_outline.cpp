@@ -297,17 +297,10 @@ int Frame8Detector::fit_outer_side(Point2 a, Point2 b, double cell_px, std::init
     // square, or the end of a black run).
     const double t = 0.1 + 0.8 * (k + 0.5) / count;
     const double px = a.x + t * (b.x - a.x), py = a.y + t * (b.y - a.y);
-    std::array<float, kMaxProfileSteps>& profile = outer_profiles_[static_cast<std::size_t>(sampled)];
-    const double last = -reach + (n_steps - 1) * step;
-    if (!samples_inside(full_, px - reach * nx, py - reach * ny) ||
-        !samples_inside(full_, px + last * nx, py + last * ny)) {
-      continue;
+    if (sample_profile(full_, {px, py}, {nx, ny}, -reach, step, n_steps,
+                       outer_profiles_[static_cast<std::size_t>(sampled)].data())) {
+      base[static_cast<std::size_t>(sampled++)] = {px, py};
     }
-    for (int s = 0; s < n_steps; ++s) {
-      const double off = -reach + s * step;
-      profile[static_cast<std::size_t>(s)] = sample_inside(full_, px + off * nx, py + off * ny);
-    }
-    base[static_cast<std::size_t>(sampled++)] = {px, py};
   }
   EdgePoint* pts = edge_points_[0].data();
   for (const int sign : signs) {
