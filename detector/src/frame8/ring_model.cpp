@@ -247,6 +247,23 @@ int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, dou
   return n;
 }
 
+// The levels' rows of the normal equations for one pixel: its regions'
+// coverages against each other, the lower triangle only (touched_ ascends:
+// LDLT reads no more, and this is most of a fit's time), and against the
+// pixel's grey (or, aligning, its residual).
+template <typename Normal, typename Rhs>
+void RingModel::add_levels(int n, double value, Normal& normal, Rhs& rhs) const {
+  for (int a = 0; a < n; ++a) {
+    const int ra = touched_[static_cast<std::size_t>(a)];
+    const double ca = cover_[static_cast<std::size_t>(ra)];
+    rhs(ra) += ca * value;
+    for (int c = 0; c <= a; ++c) {
+      const int rc = touched_[static_cast<std::size_t>(c)];
+      normal(ra, rc) += ca * cover_[static_cast<std::size_t>(rc)];
+    }
+  }
+}
+
 bool RingModel::solve_levels(const GreyView& image) {
   // Normal equations of: pixel = sum over regions of coverage * level.
   using Matrix = Eigen::Matrix<double, kRegions, kRegions>;
@@ -261,17 +278,7 @@ bool RingModel::solve_levels(const GreyView& image) {
       const int n = coverage(px, py, false, gx, gy, w);
       if (n == 0) continue;
       const double b = row[px];
-      // The lower triangle only (touched_ ascends): LDLT reads no more,
-      // and this loop is most of the fit's time.
-      for (int a = 0; a < n; ++a) {
-        const int ra = touched_[static_cast<std::size_t>(a)];
-        const double ca = cover_[static_cast<std::size_t>(ra)];
-        atb(ra) += ca * b;
-        for (int c = 0; c <= a; ++c) {
-          const int rc = touched_[static_cast<std::size_t>(c)];
-          ata(ra, rc) += ca * cover_[static_cast<std::size_t>(rc)];
-        }
-      }
+      add_levels(n, b, ata, atb);
       btb += b * b;
       ++used;
     }
@@ -325,14 +332,7 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
       const std::array<double, 8> geometry{dgx * u / w, dgx * v / w, dgx / w,         dgy * u / w,
                                            dgy * v / w, dgy / w,     -radial * u / w, -radial * v / w};
       const double e = row[px] - model;
-      for (int a = 0; a < n; ++a) {
-        const int ia = touched_[static_cast<std::size_t>(a)];
-        const double ja = cover_[static_cast<std::size_t>(ia)];
-        jte(ia) += ja * e;
-        for (int c = 0; c <= a; ++c)
-          jtj(ia, touched_[static_cast<std::size_t>(c)]) +=
-              ja * cover_[static_cast<std::size_t>(touched_[static_cast<std::size_t>(c)])];
-      }
+      add_levels(n, e, jtj, jte);
       // Deep in the hole or a cell, no line within reach: the map moves
       // nothing there.
       if (dgx == 0 && dgy == 0) continue;

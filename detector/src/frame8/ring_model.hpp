@@ -76,6 +76,10 @@ class RingModel {
   // number of regions touched (listed in touched_), 0 for a pixel that lies
   // mostly outside the marker.
   int coverage(int px, int py, bool slopes, double& gx, double& gy, double& w);
+  // Adds the n regions coverage() touched to the levels' normal equations
+  // (`normal`'s levels block, lower triangle) with `value` on the right.
+  template <typename Normal, typename Rhs>
+  void add_levels(int n, double value, Normal& normal, Rhs& rhs) const;
   [[nodiscard]] Eigen::Matrix3d grid_to_image() const;
   [[nodiscard]] Eigen::Matrix3d from_centred() const;  // centred pixel -> pixel
 
