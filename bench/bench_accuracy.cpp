@@ -199,13 +199,23 @@ std::string summary_row(const markerd::detector::FamilyInfo& info, const Sweeps&
 }
 
 // A binary PGM: readable by markerctl detect and any image viewer.
-void write_pgm(const std::string& path, const markerd::detector::GreyImage& image) {
+// The frame, with the marker's true outer corners (TL, TR, BR, BL, pixels)
+// in a comment where it shows one: what a look at a missed or misread frame
+// compares with.
+void write_pgm(const std::string& path, const markerd::detector::GreyImage& image,
+               const std::optional<markerd::detector::Quad>& truth = std::nullopt) {
   std::FILE* f = std::fopen(path.c_str(), "wb");
   if (!f) {
     std::fprintf(stderr, "bench_accuracy: cannot write %s\n", path.c_str());
     return;
   }
-  std::fprintf(f, "P5\n%d %d\n255\n", image.width(), image.height());
+  std::fprintf(f, "P5\n");
+  if (truth) {
+    const markerd::detector::Quad& q = *truth;
+    std::fprintf(f, "# truth corners %.3f %.3f %.3f %.3f %.3f %.3f %.3f %.3f\n", q[0].x, q[0].y, q[1].x, q[1].y, q[2].x,
+                 q[2].y, q[3].x, q[3].y);
+  }
+  std::fprintf(f, "%d %d\n255\n", image.width(), image.height());
   const auto view = image.view();
   for (int y = 0; y < view.height; ++y) std::fwrite(view.row(y), 1, static_cast<std::size_t>(view.width), f);
   std::fclose(f);
@@ -315,7 +325,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   std::string dump_missed;
   app.add_option("--dump-missed", dump_missed,
-                 "write each frame whose marker was not found into this directory, as PGM named as for --dump-wrong")
+                 "write each frame whose marker was not found into this directory, as PGM named as for --dump-wrong "
+                 "(with the marker's true corners in a comment)")
       ->check(CLI::ExistingDirectory);
   app.add_flag("--model-small-cells", model_small_cells,
                "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
@@ -502,7 +513,7 @@ int main(int argc, char** argv) {
           for (const auto& d : found) wrong = d.id != scene.id ? d.id : wrong;
           const std::string path = fmt::format("{}/{}-{}-id{}-read{}-seed{}.pgm", dump_wrong, info.name, where(scene),
                                                scene.id, wrong, scene.seed);
-          write_pgm(path, image);
+          write_pgm(path, image, markerd::detector::project_marker_corners(camera, scene));
           std::fprintf(stderr, "bench_accuracy: wrong id, frame written to %s\n", path.c_str());
         };
       }
@@ -510,7 +521,7 @@ int main(int argc, char** argv) {
         settings.on_miss = [&](const markerd::detector::GreyImage& image, const markerd::detector::Scene& scene) {
           const std::string path = fmt::format("{}/{}-{}-id{}-missed-seed{}.pgm", dump_missed, info.name, where(scene),
                                                scene.id, scene.seed);
-          write_pgm(path, image);
+          write_pgm(path, image, markerd::detector::project_marker_corners(camera, scene));
         };
       }
       const auto run = [&](double d, double yaw) {
