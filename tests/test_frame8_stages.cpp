@@ -18,15 +18,16 @@
 
 namespace markerd::detector::frame8 {
 
-// A clean marker, axis-aligned: `cell` pixels a cell, its outer edge from
-// pixel `origin` (pixel centres at integers), ink 30 on paper 220.
-GreyImage clean_marker(int id, int cell = 10, int origin = 50, int size = 200) {
+// A clean marker, axis-aligned: `cell_x` by `cell_y` pixels a cell (a
+// marker turned about its vertical axis is narrower across), its outer
+// edge from pixel `origin` (pixel centres at integers), ink 30 on paper 220.
+GreyImage clean_marker(int id, int cell_x, int cell_y, int origin, int size) {
   GreyImage img(size, size, 220);
   const auto cells = frame8::ring_cells(id);
   for (int y = 0; y < size; ++y) {
     for (int x = 0; x < size; ++x) {
-      const double gx = static_cast<double>(x - origin) / cell + 0.5 / cell;
-      const double gy = static_cast<double>(y - origin) / cell + 0.5 / cell;
+      const double gx = static_cast<double>(x - origin) / cell_x + 0.5 / cell_x;
+      const double gy = static_cast<double>(y - origin) / cell_y + 0.5 / cell_y;
       if (gx < 0 || gy < 0 || gx >= frame8::grid || gy >= frame8::grid) continue;
       const int col = static_cast<int>(gx), row = static_cast<int>(gy);
       const std::uint8_t ring = cells[static_cast<std::size_t>(row * frame8::grid + col)];
@@ -42,6 +43,10 @@ GreyImage clean_marker(int id, int cell = 10, int origin = 50, int size = 200) {
     }
   }
   return img;
+}
+
+GreyImage clean_marker(int id, int cell = 10, int origin = 50, int size = 200) {
+  return clean_marker(id, cell, cell, origin, size);
 }
 
 // The same image turned a quarter clockwise.
@@ -87,6 +92,22 @@ class Frame8StageTest : public ::testing::Test {
     detector_.full_ = img.view();
     detector_.decimate_ = 1;
     return detector_.refine_sides(coarse, Frame8Detector::EdgeMode::step, std::nullopt, cell_px, inner);
+  }
+
+  // One side's line by the step alone, within its first reach.
+  Rejection fit_side_by_step(const GreyImage& img, const std::array<Point2, 4>& coarse, int side, double cell_px) {
+    detector_.full_ = img.view();
+    detector_.decimate_ = 1;
+    Line line;
+    return detector_.fit_side(coarse, side, Frame8Detector::EdgeMode::step, std::nullopt, cell_px, line);
+  }
+
+  bool read_by_ring_alignment(const GreyImage& img, const std::array<Point2, 4>& seen, CellSize size, Detection& det,
+                              Homography& H) {
+    detector_.full_ = img.view();
+    detector_.decimate_ = 1;
+    int rotation = 0;
+    return detector_.read_by_ring_alignment(seen, size, det, rotation, H);
   }
 
   // convex_hull() then max_area_quad() on contour points sorted by (y, x).
@@ -171,6 +192,121 @@ TEST_F(Frame8StageTest, EdgeRefinementPutsTheSidesOnTheHolesEdge) {
   for (std::size_t k = 0; k < 4; ++k) {
     EXPECT_LT(distance(inner[k], truth[k]), 0.05) << "corner " << k << " at " << inner[k].x << "," << inner[k].y;
   }
+}
+
+// A cover frame's inner roll turned towards the camera shows as a band
+// lighter than the hole between the hole's component and the line: the
+// quad's side lies short of the line by up to two cells, beyond the step's
+// first reach, and is searched again further out.
+TEST_F(Frame8StageTest, EdgeRefinementFindsTheLineBeyondALighterBand) {
+  GreyImage img = clean_marker(165);
+  const std::array<Point2, 4> truth = clean_inner();
+  // The band: the hole's last 8 px before the right side's line.
+  for (int y = 65; y <= 134; ++y) {
+    for (int x = 127; x <= 134; ++x) img.row(y)[x] = 250;
+  }
+  std::array<Point2, 4> coarse = truth;
+  coarse[1].x -= 8;
+  coarse[2].x -= 8;
+  EXPECT_EQ(fit_side_by_step(img, coarse, 1, 10), Rejection::few_edge_points);
+  std::array<Point2, 4> inner{};
+  ASSERT_EQ(refine(img, coarse, 10, inner), Rejection::none);
+  for (std::size_t k = 0; k < 4; ++k) {
+    EXPECT_LT(distance(inner[k], truth[k]), 0.3) << "corner " << k << " at " << inner[k].x << "," << inner[k].y;
+  }
+}
+
+// A marker turned 55 degrees on a cover frame, as clean_marker() draws it
+// narrower across (cells 4 px by 10): its hole, and the hole seen, off on
+// both sides across the turn. On the far side the line is hidden by its
+// roll and the hole seen reaches the ring (half a cell too far); on the
+// near side the lit roll lies between it and the line (1.75 cells short).
+struct TurnedHole {
+  static constexpr int kCellX = 4, kCellY = 10, kOrigin = 50;
+  double left = kOrigin - 0.5 + 1.5 * kCellX, right = kOrigin - 0.5 + 8.5 * kCellX;
+  double top = kOrigin - 0.5 + 1.5 * kCellY, bottom = kOrigin - 0.5 + 8.5 * kCellY;
+  [[nodiscard]] std::array<Point2, 4> truth() const {
+    return {{{left, top}, {right, top}, {right, bottom}, {left, bottom}}};
+  }
+  [[nodiscard]] std::array<Point2, 4> seen() const {
+    const double far = left - 0.5 * kCellX, near = right - 1.75 * kCellX;
+    return {{{far, top}, {near, top}, {near, bottom}, {far, bottom}}};
+  }
+  static GreyImage image(int id) { return clean_marker(id, kCellX, kCellY, kOrigin, 200); }
+  static constexpr CellSize kSize{kCellX, 7.0};
+};
+
+// The search of the two sides across the turn finds where the ring's cells
+// are clearest, and reads.
+TEST_F(Frame8StageTest, RingAlignmentReadsAHoleSeenOffOnBothSidesOfATurn) {
+  const TurnedHole hole;
+  for (const int id : {165, 77, 200, 51}) {
+    Detection det;
+    Homography H;
+    ASSERT_TRUE(read_by_ring_alignment(TurnedHole::image(id), hole.seen(), TurnedHole::kSize, det, H)) << "id " << id;
+    EXPECT_EQ(det.id, id);
+    const std::array<Point2, 4> found = H.quad(), truth = hole.truth();
+    for (std::size_t k = 0; k < 4; ++k) {
+      EXPECT_LT(distance(found[k], truth[k]), 0.3 * TurnedHole::kCellX) << "id " << id << " corner " << k;
+    }
+  }
+}
+
+// A grid's squares, moved onto its lines, read as near-uniform ids: none
+// is read so, the marker's own neither.
+TEST_F(Frame8StageTest, RingAlignmentReadsNoNearUniformId) {
+  const TurnedHole hole;
+  Detection det;
+  Homography H;
+  EXPECT_FALSE(read_by_ring_alignment(TurnedHole::image(254), hole.seen(), TurnedHole::kSize, det, H));
+}
+
+// A dark oval in clean_marker()'s hole reaching the line on its left and
+// right sides (a socket's recess, blurred into the line): the hole's light
+// pixels above and below it are two pieces.
+void part_hole(GreyImage& img) {
+  for (int y = 65; y < 135; ++y) {
+    for (int x = 65; x < 135; ++x) {
+      const double u = (x - 99.5) / 35.5, v = (y - 99.5) / 25.0;
+      if (u * u + v * v <= 1) img.row(y)[x] = 30;
+    }
+  }
+}
+
+// Where a socket's recess reaches the line on two opposite sides, the
+// hole's light pixels are two pieces, neither the hole: the pieces are
+// read as one, parted either way.
+TEST_F(Frame8StageTest, AHolePartedInTwoIsReadAsOne) {
+  GreyImage img = clean_marker(165);
+  part_hole(img);
+  const Quad outer{{{49.5, 49.5}, {149.5, 49.5}, {149.5, 149.5}, {49.5, 149.5}}};
+  for (const GreyImage& view : {img, turned(img)}) {
+    std::vector<Detection> found;
+    detector_.detect(view.view(), found);
+    ASSERT_EQ(found.size(), 1U);
+    EXPECT_EQ(found[0].id, 165);
+    // Turned a quarter, the same square (its first corner the next one).
+    for (const Point2& corner : found[0].corners) {
+      const double nearest = std::min({distance(corner, outer[0]), distance(corner, outer[1]),
+                                       distance(corner, outer[2]), distance(corner, outer[3])});
+      EXPECT_LT(nearest, 0.5);
+    }
+  }
+}
+
+// Two squares of a grid side by side make the same pair, the grid's lines
+// round them a ring of one colour but for a cell or two: no near-uniform
+// id is read from two pieces.
+TEST_F(Frame8StageTest, APartedHoleReadsNoNearUniformId) {
+  GreyImage img = clean_marker(254);
+  part_hole(img);
+  std::vector<Detection> found;
+  detector_.detect(img.view(), found);
+  EXPECT_TRUE(found.empty());
+  // Whole, the hole reads.
+  detector_.detect(clean_marker(254).view(), found);
+  ASSERT_EQ(found.size(), 1U);
+  EXPECT_EQ(found[0].id, 254);
 }
 
 TEST_F(Frame8StageTest, DecodingReadsACleanPatternInEachOrientation) {

@@ -72,6 +72,14 @@ inline Eigen::Matrix3d grid_map(const Homography& H) {
   return unit_to_image * grid_to_unit;
 }
 
+// The map from grid coordinates to the image of a homography onto the
+// marker's outer square.
+inline Eigen::Matrix3d outer_grid_map(const Homography& H) {
+  Eigen::Matrix3d unit_to_image;
+  unit_to_image << H.a, H.b, H.c, H.d, H.e, H.f, H.g, H.h, 1;
+  return unit_to_image * Eigen::Vector3d(1.0 / frame8::grid, 1.0 / frame8::grid, 1).asDiagonal();
+}
+
 inline Homography Homography::from_grid_map(const Eigen::Matrix3d& grid_to_image) {
   Eigen::Matrix3d unit_to_grid;
   unit_to_grid << kInnerSide, 0, kInnerLo, 0, kInnerSide, kInnerLo, 0, 0, 1;
@@ -290,6 +298,9 @@ struct Component {
   // a quad with no dark island large enough to be a marker's ink: stage
   // 2b leaves it alone.
   bool settled = false;
+  // It lies within a detection, or was read: no piece of another hole
+  // (stage 2d).
+  bool read = false;
   // A quad was fitted to it: its outline is no open hole, but a dark
   // island inside it may be a marker's ink (stage 2c).
   bool quad = false;

@@ -25,6 +25,7 @@ const char* Frame8Detector::read_name(Read how) {
     case Read::side_hidden: return "side_hidden";
     case Read::inset: return "inset";
     case Read::ring_edges: return "ring_edges";
+    case Read::ring_alignment: return "ring_alignment";
     case Read::model_check: return "model_check";
   }
   return "?";

@@ -239,4 +239,27 @@ Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, co
   return Rejection::none;
 }
 
+// A sample at each data cell's centre. Every id but 0 and 255 has at
+// least three of each colour among the 32 (ids 1 and 254: four), but the
+// map may be a pixel or two off, and a cell's sample then grey.
+bool Frame8Detector::ring_shows_cells(const Eigen::Matrix3d& grid_to_image) const {
+  std::array<float, 32> v{};
+  std::size_t n = 0;
+  for (int side = 0; side < 4; ++side) {
+    for (int k = 1; k <= 8; ++k) {
+      const Point2 g = side_point(side, k + 0.5, 0.5);
+      const Point2 p = map_grid(grid_to_image, g.x, g.y);
+      if (!sample(full_, p.x, p.y, v[n])) return false;
+      ++n;
+    }
+  }
+  const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
+  constexpr float kMinContrast = 40;
+  if (*hi - *lo < kMinContrast) return false;
+  const float mid = 0.5F * (*lo + *hi);
+  const auto light = std::count_if(v.begin(), v.end(), [&](float x) { return x > mid; });
+  constexpr int kMinEach = 3;
+  return light >= kMinEach && static_cast<int>(v.size()) - light >= kMinEach;
+}
+
 }  // namespace markerd::detector::frame8

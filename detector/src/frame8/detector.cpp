@@ -80,11 +80,14 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   for (const std::int32_t r : roots_) {
     Component& c = components_[static_cast<std::size_t>(r)];
     if (inside_detection(c, out)) {
-      c.settled = true;
+      c.settled = c.read = true;
     } else {
       consider_component(r, out);
     }
   }
+  // Then the holes no quad was: parted in two (2d), open on one side (2b),
+  // or no lighter than the line (2c).
+  read_hole_fragments(out);
   find_open_holes(out);
   remove_nested(out);
   if (debug_) write_debug(out);
@@ -117,17 +120,10 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   Detection det;
   Rejection why = refine_and_decode(quad, det);
   if (why != Rejection::none && read_hole_past_fold(c, working_quad, det)) why = Rejection::none;
-  if (debug_) {
-    DebugCandidate& candidate = debug_candidates_.back();
-    candidate.why = why;
-    if (why == Rejection::none) {
-      candidate.id = det.id;
-      candidate.first_corner = det.corners[0];
-    }
-  }
+  note_outcome(why, det);
   if (why == Rejection::none) {
     out.push_back(det);
-    c.settled = true;
+    c.settled = c.read = true;
   }
 }
 
@@ -151,6 +147,18 @@ constexpr double kPatternCells = 1.0;
 // the corners and the pose. Rejection::none when `det` holds a detection;
 // otherwise the first read's rejection, or the stage that failed before it.
 Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
+  reached_wide_ = false;
+  const Rejection why = measure_and_read(coarse, det);
+  // A side found only past the step's first reach may be a grid's next
+  // line (window panes, tiles, keys): its squares' rings read as
+  // near-uniform ids, or with a cell outvoted. No such read is taken so.
+  if (why == Rejection::none && reached_wide_ && (near_uniform(det.id) || det.bits_corrected > 0)) {
+    return Rejection::grid_like_read;
+  }
+  return why;
+}
+
+Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, Detection& det) {
   double perimeter = 0;
   for (int i = 0; i < 4; ++i) {
     perimeter += distance(coarse[static_cast<std::size_t>(i)], coarse[static_cast<std::size_t>((i + 1) % 4)]);
@@ -225,6 +233,10 @@ Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse,
       return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
     if (!read && worth_it && read_on_ring_edges(H, cell_size, det, rotation, H)) {
+      read = true;
+      inner = H.quad();
+    }
+    if (!read && worth_it && read_by_ring_alignment(inner, cell_size, det, rotation, H)) {
       read = true;
       inner = H.quad();
     }

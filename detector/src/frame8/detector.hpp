@@ -72,9 +72,10 @@ class Frame8Detector final : public MarkerDetector {
   // light-to-dark step; or, without a code, each point classified by its own
   // profile (the line alone or merged with a black cell); or the profiles
   // fitted with a model of the blurred line and the cells beyond it
-  // (fit_edge_profile), summed over kProfileSegments segments per side.
+  // (fit_edge_profile), summed over kProfileSegments segments per side;
+  // or the step, searched twice as far out (where the first finds none).
   // With the code read (`id`), the step points also know the cell beyond.
-  enum class EdgeMode : std::uint8_t { step, classify_by_profile, fit_profile };
+  enum class EdgeMode : std::uint8_t { step, classify_by_profile, fit_profile, step_wide };
   int collect_edge_points(const std::array<Point2, 4>& q, int side, EdgeMode mode, std::optional<int> id);
   bool fit_edge_profile(const float* profile, int n, double s0, double step, double cell_px, double& e) const;
   Rejection fit_side(const std::array<Point2, 4>& from, int side, EdgeMode mode, std::optional<int> id, double cell_px,
@@ -93,6 +94,11 @@ class Frame8Detector final : public MarkerDetector {
   }
   Rejection refit_undistorted(int rotation, Detection& det);
 
+  // Whether a ring shows light and dark cells where a map (grid coordinates
+  // to full-resolution pixels) puts them (decode_cells.cpp): a look that
+  // costs less than measuring a quad's sides or reading it, and that most
+  // of clutter's shapes fail.
+  [[nodiscard]] bool ring_shows_cells(const Eigen::Matrix3d& grid_to_image) const;
   // Stage 4: decoding (decode.cpp), through 4a to 4e.
   Rejection decode(const Homography& H, CellSize cell_size, Detection& det, int& rotation,
                    const frame8::RingModel::Levels* model, const HiddenSide& hidden = {}) const;
@@ -148,6 +154,10 @@ class Frame8Detector final : public MarkerDetector {
   // The detector that runs them (detector.cpp).
   void consider_component(std::int32_t root, std::vector<Detection>& out);
   Rejection refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det);
+  Rejection measure_and_read(const std::array<Point2, 4>& coarse, Detection& det);
+  // Set when a side of the quad being read was found only past the step's
+  // first reach (EdgeMode::step_wide).
+  bool reached_wide_ = false;
   // Stage 3b, a side hidden (hidden_side.cpp) or the hole inset all round
   // (inset_hole.cpp): the last reads of a quad.
   [[nodiscard]] bool looks_covered(const Homography& H, int side, bool into_hole) const;
@@ -208,6 +218,10 @@ class Frame8Detector final : public MarkerDetector {
   void find_ink_islands_unhalved(double min_side, std::vector<Detection>& out);
   void simplify_outline();
   [[nodiscard]] bool ring_shows_both_colours(Point2 a, Point2 b) const;
+  // Stage 2d, a hole parted by its insert (hole_fragments.cpp), after every
+  // quad: two pieces of a hole read as one quad.
+  void read_hole_fragments(std::vector<Detection>& out);
+  bool fit_pieces_quad(const Component& a, const Component& b, std::array<Point2, 4>& quad);
   void find_open_holes(std::vector<Detection>& out);
   void find_open_holes_on_outline(double min_side, std::vector<Detection>& out);
   Rejection read_open_hole(const std::array<Point2, 4>& coarse, Detection& det);
@@ -222,7 +236,6 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr std::size_t kTried = 3;
   std::size_t pick_squares(const HullSide* sides, const Line* lines, const int* sense, int count, double hull_area,
                            std::array<InkSquare, kTried>& tries);
-  [[nodiscard]] bool ring_shows_cells(const std::array<Point2, 4>& outer) const;
   int fit_outer_side(Point2 a, Point2 b, double cell_px, std::initializer_list<int> signs, Line& line);
   Rejection read_ink_outline(const InkSquare& square, Detection& det);
   Rejection read_outer_square(const std::array<Point2, 4>& traced, const std::array<Line, 4>& lines, bool dark_ground,
@@ -230,6 +243,12 @@ class Frame8Detector final : public MarkerDetector {
   bool read_inset(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   bool read_on_ring_edges(const Homography& seen, CellSize cell_size, Detection& det, int& rotation, Homography& H);
   bool read_from_ring_edges(const Homography& start, CellSize cell_size, Detection& det, int& rotation, Homography& H);
+  // The two sides across a far turn searched for the clearest ring
+  // (ring_alignment.cpp).
+  bool read_by_ring_alignment(const std::array<Point2, 4>& inner, CellSize cell_size, Detection& det, int& rotation,
+                              Homography& H);
+  [[nodiscard]] double ring_separation(const Homography& H, bool across_u) const;
+  [[nodiscard]] bool line_seen(const Homography& H, int side) const;
   // Stage 2, a hole parted by a cover frame's fold (roll_fold.cpp); `quad`
   // in working-image pixels.
   bool read_hole_past_fold(const Component& hole, const std::array<Point2, 4>& quad, Detection& det);
@@ -254,6 +273,7 @@ class Frame8Detector final : public MarkerDetector {
     side_hidden,
     inset,
     ring_edges,
+    ring_alignment,
     model_check
   };
   static const char* read_name(Read how);
@@ -266,6 +286,16 @@ class Frame8Detector final : public MarkerDetector {
   };
   void note_attempt(Read how, Rejection why) {
     if (debug_ && !debug_candidates_.empty()) debug_candidates_.back().attempts.emplace_back(how, why);
+  }
+  // What became of the last candidate: `det` where it read.
+  void note_outcome(Rejection why, const Detection& det) {
+    if (!debug_ || debug_candidates_.empty()) return;
+    DebugCandidate& candidate = debug_candidates_.back();
+    candidate.why = why;
+    if (why == Rejection::none) {
+      candidate.id = det.id;
+      candidate.first_corner = det.corners[0];
+    }
   }
   void write_debug(const std::vector<Detection>& out);
 
@@ -307,6 +337,7 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::int32_t> row_first_;
   std::vector<Component> components_;
   std::vector<std::int32_t> roots_;
+  std::vector<std::int32_t> pieces_;  // stage 2d: the components that may be a parted hole's
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_, hull_twice_;
   // Stage 2b: the pixels outlines are traced on (kTraceScale working

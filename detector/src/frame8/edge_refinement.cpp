@@ -96,13 +96,15 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
     // Inward as far as the coarse quad may be off; outward past the line's
     // far side (half a cell) and its blur.
     // The quad is refined already (a mode past the first step, or a code read): a tight window.
-    const bool near = mode != EdgeMode::step || id.has_value();
+    const bool near = (mode != EdgeMode::step && mode != EdgeMode::step_wide) || id.has_value();
     const double reach_in = fitting ? kProfileReach + 1.0
                             : near  ? std::max(1.0, 0.5 * cell_px)
                                     : std::clamp(1.2 * cell_px, 1.5, 2.0 + decimate_);
     const double reach_out = fitting ? kProfileReach + 1.5 * side_cell + 0.5
                              : near  ? 0.75 * cell_px + 1.5
-                                     : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
+                             : mode == EdgeMode::step_wide
+                                 ? 2.0 * cell_px + 1.0 + 0.5 * decimate_
+                                 : std::clamp(1.1 * cell_px + 1.0 + 0.5 * decimate_, 1.5, 3.0 + decimate_);
     const int n_steps = std::min(static_cast<int>((reach_in + reach_out) / step) + 1, 64);
     if (!sample_profile(full_, {px, py}, {nx, ny}, -reach_in, step, n_steps, profile.data())) continue;
     if (fitting) {
@@ -287,10 +289,19 @@ Rejection Frame8Detector::refine_sides(const std::array<Point2, 4>& from, EdgeMo
                                        double cell_px, std::array<Point2, 4>& inner) {
   std::array<Line, 4> lines{};
   for (int side = 0; side < 4; ++side) {
-    if (const Rejection why = fit_side(from, side, mode, id, cell_px, lines[static_cast<std::size_t>(side)]);
-        why != Rejection::none) {
-      return why;
+    Line& line = lines[static_cast<std::size_t>(side)];
+    Rejection why = fit_side(from, side, mode, id, cell_px, line);
+    // A rounded frame's inner roll, turned towards the camera, shows as a
+    // band lighter than the hole between the hole's light component and
+    // the line, parted from it by the roll's shaded foot: the line lies up
+    // to two cells beyond the quad's side there, past the step's reach.
+    if ((why == Rejection::few_edge_points || why == Rejection::no_edge_line) && mode == EdgeMode::step && !id) {
+      if (fit_side(from, side, EdgeMode::step_wide, id, cell_px, line) == Rejection::none) {
+        why = Rejection::none;
+        reached_wide_ = true;
+      }
     }
+    if (why != Rejection::none) return why;
   }
   for (int i = 0; i < 4; ++i) {
     if (!intersect(lines[static_cast<std::size_t>((i + 3) % 4)], lines[static_cast<std::size_t>(i)],

@@ -129,8 +129,10 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
   const std::size_t traced = pick_squares(sides.data(), lines.data(), sense.data(), count, area_full, tries);
   // Most islands are clutter's dark shapes, dark all over where a ring
   // would be: a look at its cells costs less than measuring the sides.
-  if (std::none_of(tries.begin(), tries.begin() + static_cast<std::ptrdiff_t>(traced),
-                   [&](const InkSquare& square) { return ring_shows_cells(square.corners); })) {
+  if (std::none_of(tries.begin(), tries.begin() + static_cast<std::ptrdiff_t>(traced), [&](const InkSquare& square) {
+        Homography to_outer;
+        return Homography::from_unit_square(square.corners, to_outer) && ring_shows_cells(outer_grid_map(to_outer));
+      })) {
     return;
   }
   // Each side measured where the ink meets the light, along its stretch
@@ -181,45 +183,12 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
     if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
     Detection det;
     const Rejection why = read_ink_outline(square, det);
-    if (debug_) {
-      debug_candidates_.back().why = why;
-      if (why == Rejection::none) {
-        debug_candidates_.back().id = det.id;
-        debug_candidates_.back().first_corner = det.corners[0];
-      }
-    }
+    note_outcome(why, det);
     if (why == Rejection::none) {
       out.push_back(det);
       return;
     }
   }
-}
-
-// Whether the ring of a square found (outer corners, full-resolution
-// pixels) shows light and dark cells: a sample at each data cell's centre,
-// through the square's map. Every id but 0 and 255 has at least four of
-// each among the 32, but the square traced may be a pixel or two off, and
-// a cell's sample then grey.
-bool Frame8Detector::ring_shows_cells(const std::array<Point2, 4>& outer) const {
-  Homography to_outer;
-  if (!Homography::from_unit_square(outer, to_outer)) return false;
-  std::array<float, 32> v{};
-  std::size_t n = 0;
-  for (int side = 0; side < 4; ++side) {
-    for (int k = 1; k <= 8; ++k) {
-      const Point2 g = side_point(side, k + 0.5, 0.5);
-      const Point2 p = to_outer.map(g.x / frame8::grid, g.y / frame8::grid);
-      if (!sample(full_, p.x, p.y, v[n])) return false;
-      ++n;
-    }
-  }
-  const auto [lo, hi] = std::minmax_element(v.begin(), v.end());
-  constexpr float kMinContrast = 40;
-  if (*hi - *lo < kMinContrast) return false;
-  const float mid = 0.5F * (*lo + *hi);
-  const auto light = std::count_if(v.begin(), v.end(), [&](float x) { return x > mid; });
-  constexpr int kMinEach = 3;
-  return light >= kMinEach && static_cast<int>(v.size()) - light >= kMinEach;
 }
 
 // Four sides in the hull's order whose lines make a convex quad with

@@ -360,11 +360,7 @@ void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Det
     if (debug_) debug_candidates_.push_back({seen, Rejection::open_hole_unread, -1, {}, {}});
     Detection det;
     if (read_open_hole(seen, det) == Rejection::none) {
-      if (debug_) {
-        debug_candidates_.back().why = Rejection::none;
-        debug_candidates_.back().id = det.id;
-        debug_candidates_.back().first_corner = det.corners[0];
-      }
+      note_outcome(Rejection::none, det);
       out.push_back(det);
     }
   }

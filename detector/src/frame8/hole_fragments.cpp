@@ -1,0 +1,156 @@
+// Stage 2d, a hole parted by what it shows: a socket outlet's recess takes
+// 39 mm of the 56 mm opening, and where it comes within a pixel or two of
+// the line (the marker turned, or far, and blurred) the threshold joins
+// the two: the hole's light pixels are then pieces above and below the
+// recess, or beside it, none a quad of its own (or a quad whose refined
+// sides and cells are a piece's, not the hole's). After the quads, pairs
+// of such pieces lying one above the other or side by side are taken as
+// one component: the hull of both and its largest quad, read as any
+// quad's (stages 3 to 6). No near-uniform id is read so, nor a read that
+// outvoted a cell: two squares of a grid make such a pair too.
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "frame8/detector.hpp"
+
+namespace markerd::detector::frame8 {
+
+namespace {
+
+// The pieces' ends across the parting line up to this share of the span
+// (a marker turned in its plane by up to about 15 degrees), and the
+// pieces overlap along the parting by less than this share of the shorter
+// one's extent.
+constexpr double kEndsAlign = 0.25;
+constexpr double kMaxOverlap = 0.5;
+// What parts them takes at most this share of the hole along the
+// parting: the recess is 0.7 of the opening, and the pieces beside it
+// the rest.
+constexpr double kMaxGap = 0.75;
+// The pieces' light pixels take this share of their hull's quad at least:
+// the recess takes up to 0.4 of the hole, and its blurred rim a further
+// ring of a pixel or two.
+constexpr double kMinLightShare = 0.3;
+// The hull with rounded corners (quad_fit.cpp) falls short of its quad by
+// up to this share, and a staircase; two pieces of clutter lying apart
+// make a hull that the quad fills far less.
+constexpr double kMaxHullShortfall = 0.16;
+// A piece beside a round recess is concave: a disc of 0.56 of the hole
+// across or more (a Schuko outlet's is 0.7) leaves each piece filling at
+// most 1 - pi/4 * 0.56^2 = 0.75 of its box, less where the threshold takes
+// the recess's blurred rim too. Grid squares (window panes, tiles, keys)
+// and most of clutter's shapes fill theirs.
+constexpr double kMaxPieceFill = 0.75;
+
+double box_fill(const Component& c) {
+  return static_cast<double>(c.area) / (static_cast<double>(c.x1 - c.x0) * (c.y1 - c.y0 + 1));
+}
+
+}  // namespace
+
+void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
+  const double min_side = config_.frame8.min_hole_side_px / decimate_;
+  pieces_.clear();
+  for (const std::int32_t r : roots_) {
+    const Component& c = components_[static_cast<std::size_t>(r)];
+    if (c.read || c.touches_border) continue;
+    if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side) continue;
+    pieces_.push_back(r);
+  }
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    Component& a = components_[static_cast<std::size_t>(pieces_[i])];
+    for (std::size_t j = i + 1; j < pieces_.size() && !a.read; ++j) {
+      Component& b = components_[static_cast<std::size_t>(pieces_[j])];
+      if (b.read) continue;
+      const int x0 = std::min(a.x0, b.x0), x1 = std::max(a.x1, b.x1);
+      const int y0 = std::min(a.y0, b.y0), y1 = std::max(a.y1, b.y1);
+      if (std::min(x1 - x0, y1 - y0 + 1) < min_side) continue;
+      // The pieces span the hole across the parting: their ends line up
+      // there (the two pieces above and below a recess each reach from
+      // the hole's left side to its right). Along it, each piece takes
+      // some of the hole, the recess the rest (their boxes overlap where
+      // it is round). [a0, a1) and [b0, b1): the pieces across the
+      // parting; [c0, c1) and [d0, d1): along it.
+      auto pieces_of_one = [&](int a0, int a1, int b0, int b1, int c0, int c1, int d0, int d1) {
+        const double tolerance = kEndsAlign * (std::max(a1, b1) - std::min(a0, b0));
+        const int extent = std::max(c1, d1) - std::min(c0, d0);
+        const int gap = std::max(c0, d0) - std::min(c1, d1);  // negative where they overlap
+        return std::abs(a0 - b0) <= tolerance && std::abs(a1 - b1) <= tolerance && gap <= kMaxGap * extent &&
+               -gap < kMaxOverlap * std::min(c1 - c0, d1 - d0);
+      };
+      const bool stacked = pieces_of_one(a.x0, a.x1, b.x0, b.x1, a.y0, a.y1 + 1, b.y0, b.y1 + 1);
+      const bool beside = pieces_of_one(a.y0, a.y1 + 1, b.y0, b.y1 + 1, a.x0, a.x1, b.x0, b.x1);
+      if (!stacked && !beside) continue;
+      if (std::max(box_fill(a), box_fill(b)) > kMaxPieceFill) continue;
+      std::array<Point2, 4> quad{};
+      if (!fit_pieces_quad(a, b, quad)) continue;
+      for (auto& p : quad) p = to_full(p);
+      const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
+      if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) {
+        continue;
+      }
+      // Clutter's neighbouring shapes make most such pairs: a look at
+      // where the ring would be costs less than measuring the sides.
+      Homography H;
+      if (!Homography::from_unit_square(quad, H) || !ring_shows_cells(grid_map(H))) continue;
+      if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
+      Detection det;
+      Rejection why = refine_and_decode(quad, det);
+      // Two squares of a grid side by side (window panes, tiles, keys)
+      // make such a pair, with the grid's lines round them for a ring: one
+      // colour from end to end but for a cell or two, a near-uniform id.
+      // No such id is read so, nor any read that outvoted a cell.
+      if (why == Rejection::none && (near_uniform(det.id) || det.bits_corrected > 0)) why = Rejection::grid_like_read;
+      note_outcome(why, det);
+      if (why == Rejection::none) {
+        out.push_back(det);
+        a.settled = b.settled = a.read = b.read = true;
+      }
+    }
+  }
+}
+
+// The largest quad in the hull of two components (working image,
+// clockwise on screen), when the hull is nearly that quad and the pieces'
+// light pixels fill enough of it.
+bool Frame8Detector::fit_pieces_quad(const Component& a, const Component& b, std::array<Point2, 4>& quad) {
+  const int y0 = std::min(a.y0, b.y0), rows = std::max(a.y1, b.y1) - y0 + 1;
+  line_min_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::max());
+  line_max_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::min());
+  for (const Component* c : {&a, &b}) {
+    for (std::int32_t r = c->first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
+      const Run& run = runs_[static_cast<std::size_t>(r)];
+      const auto k = static_cast<std::size_t>(run.y - y0);
+      for (std::size_t kk = k; kk <= k + 1; ++kk) {
+        line_min_[kk] = std::min(line_min_[kk], run.x0);
+        line_max_[kk] = std::max(line_max_[kk], run.x1);
+      }
+    }
+  }
+  points_.clear();
+  for (int k = 0; k <= rows; ++k) {
+    const auto kk = static_cast<std::size_t>(k);
+    if (line_min_[kk] > line_max_[kk]) continue;  // a gap between the pieces
+    const double y = y0 + k - 0.5;
+    points_.push_back({line_min_[kk] - 0.5, y});
+    if (line_max_[kk] != line_min_[kk]) points_.push_back({line_max_[kk] - 0.5, y});
+  }
+  convex_hull();
+  if (!max_area_quad(quad)) return false;
+  double quad_area = twice_signed_area(quad.data(), quad.size());
+  if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
+  quad_area = std::abs(quad_area) / 2;
+  const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
+  double perimeter = 0;
+  for (std::size_t i = 0; i < 4; ++i) perimeter += distance(quad[i], quad[(i + 1) % 4]);
+  const double staircase = 0.35 * perimeter;
+  return hull_area - quad_area <= kMaxHullShortfall * hull_area + staircase &&
+         static_cast<double>(a.area + b.area) >= kMinLightShare * quad_area;
+}
+
+}  // namespace markerd::detector::frame8
