@@ -51,6 +51,32 @@ double box_fill(const Component& c) {
   return static_cast<double>(c.area) / (static_cast<double>(c.x1 - c.x0) * (c.y1 - c.y0 + 1));
 }
 
+// How far two components' ends fail to line up across the parting, as a
+// share of their span (the lesser of one above the other and side by side);
+// infinity where they are no pieces of one hole. The pieces span the hole
+// across the parting (the two pieces above and below a recess each reach
+// from the hole's left side to its right). Along it, each takes some of
+// the hole and the recess the rest (their boxes overlap where it is round).
+double pieces_mismatch(const Component& a, const Component& b, double min_side) {
+  constexpr double kNone = std::numeric_limits<double>::infinity();
+  const int x0 = std::min(a.x0, b.x0), x1 = std::max(a.x1, b.x1);
+  const int y0 = std::min(a.y0, b.y0), y1 = std::max(a.y1, b.y1);
+  if (std::min(x1 - x0, y1 - y0 + 1) < min_side) return kNone;
+  // [a0, a1) and [b0, b1): the pieces across the parting; [c0, c1) and
+  // [d0, d1): along it.
+  auto mismatch = [&](int a0, int a1, int b0, int b1, int c0, int c1, int d0, int d1) {
+    const double span = std::max(a1, b1) - std::min(a0, b0);
+    const double ends = std::max(std::abs(a0 - b0), std::abs(a1 - b1)) / span;
+    const int extent = std::max(c1, d1) - std::min(c0, d0);
+    const int gap = std::max(c0, d0) - std::min(c1, d1);  // negative where they overlap
+    const bool one_hole =
+        ends <= kEndsAlign && gap <= kMaxGap * extent && -gap < kMaxOverlap * std::min(c1 - c0, d1 - d0);
+    return one_hole ? ends : kNone;
+  };
+  return std::min(mismatch(a.x0, a.x1, b.x0, b.x1, a.y0, a.y1 + 1, b.y0, b.y1 + 1),
+                  mismatch(a.y0, a.y1 + 1, b.y0, b.y1 + 1, a.x0, a.x1, b.x0, b.x1));
+}
+
 }  // namespace
 
 void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
@@ -59,58 +85,49 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
   for (const std::int32_t r : roots_) {
     const Component& c = components_[static_cast<std::size_t>(r)];
     if (c.read || c.touches_border) continue;
-    if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side) continue;
+    if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side || box_fill(c) > kMaxPieceFill) continue;
     pieces_.push_back(r);
   }
+  // Each piece is paired with the one whose ends line up best with its
+  // own: the other piece of its hole, where it is one (clutter's pieces
+  // would pair with every neighbour, and each pair costs a read).
+  best_piece_.assign(pieces_.size(), {std::numeric_limits<double>::infinity(), 0});
   for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    const Component& a = components_[static_cast<std::size_t>(pieces_[i])];
+    for (std::size_t j = i + 1; j < pieces_.size(); ++j) {
+      const double mismatch = pieces_mismatch(a, components_[static_cast<std::size_t>(pieces_[j])], min_side);
+      if (mismatch < best_piece_[i].first) best_piece_[i] = {mismatch, j};
+      if (mismatch < best_piece_[j].first) best_piece_[j] = {mismatch, i};
+    }
+  }
+  for (std::size_t i = 0; i < pieces_.size(); ++i) {
+    const std::size_t j = best_piece_[i].second;
+    // Each pair once: a pair that is both pieces' best was read from the first.
+    if (!std::isfinite(best_piece_[i].first) || (j < i && best_piece_[j].second == i)) continue;
     Component& a = components_[static_cast<std::size_t>(pieces_[i])];
-    for (std::size_t j = i + 1; j < pieces_.size() && !a.read; ++j) {
-      Component& b = components_[static_cast<std::size_t>(pieces_[j])];
-      if (b.read) continue;
-      const int x0 = std::min(a.x0, b.x0), x1 = std::max(a.x1, b.x1);
-      const int y0 = std::min(a.y0, b.y0), y1 = std::max(a.y1, b.y1);
-      if (std::min(x1 - x0, y1 - y0 + 1) < min_side) continue;
-      // The pieces span the hole across the parting: their ends line up
-      // there (the two pieces above and below a recess each reach from
-      // the hole's left side to its right). Along it, each piece takes
-      // some of the hole, the recess the rest (their boxes overlap where
-      // it is round). [a0, a1) and [b0, b1): the pieces across the
-      // parting; [c0, c1) and [d0, d1): along it.
-      auto pieces_of_one = [&](int a0, int a1, int b0, int b1, int c0, int c1, int d0, int d1) {
-        const double tolerance = kEndsAlign * (std::max(a1, b1) - std::min(a0, b0));
-        const int extent = std::max(c1, d1) - std::min(c0, d0);
-        const int gap = std::max(c0, d0) - std::min(c1, d1);  // negative where they overlap
-        return std::abs(a0 - b0) <= tolerance && std::abs(a1 - b1) <= tolerance && gap <= kMaxGap * extent &&
-               -gap < kMaxOverlap * std::min(c1 - c0, d1 - d0);
-      };
-      const bool stacked = pieces_of_one(a.x0, a.x1, b.x0, b.x1, a.y0, a.y1 + 1, b.y0, b.y1 + 1);
-      const bool beside = pieces_of_one(a.y0, a.y1 + 1, b.y0, b.y1 + 1, a.x0, a.x1, b.x0, b.x1);
-      if (!stacked && !beside) continue;
-      if (std::max(box_fill(a), box_fill(b)) > kMaxPieceFill) continue;
-      std::array<Point2, 4> quad{};
-      if (!fit_pieces_quad(a, b, quad)) continue;
-      for (auto& p : quad) p = to_full(p);
-      const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
-      if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) {
-        continue;
-      }
-      // Clutter's neighbouring shapes make most such pairs: a look at
-      // where the ring would be costs less than measuring the sides.
-      Homography H;
-      if (!Homography::from_unit_square(quad, H) || !ring_shows_cells(grid_map(H))) continue;
-      if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
-      Detection det;
-      Rejection why = refine_and_decode(quad, det);
-      // Two squares of a grid side by side (window panes, tiles, keys)
-      // make such a pair, with the grid's lines round them for a ring: one
-      // colour from end to end but for a cell or two, a near-uniform id.
-      // No such id is read so, nor any read that outvoted a cell.
-      if (why == Rejection::none && (near_uniform(det.id) || det.bits_corrected > 0)) why = Rejection::grid_like_read;
-      note_outcome(why, det);
-      if (why == Rejection::none) {
-        out.push_back(det);
-        a.settled = b.settled = a.read = b.read = true;
-      }
+    Component& b = components_[static_cast<std::size_t>(pieces_[j])];
+    if (a.read || b.read) continue;
+    std::array<Point2, 4> quad{};
+    if (!fit_pieces_quad(a, b, quad)) continue;
+    for (auto& p : quad) p = to_full(p);
+    const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
+    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) continue;
+    // Clutter's neighbouring shapes make most such pairs: a look at where
+    // the ring would be costs less than measuring the sides.
+    Homography H;
+    if (!Homography::from_unit_square(quad, H) || !ring_shows_cells(grid_map(H))) continue;
+    if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
+    Detection det;
+    Rejection why = refine_and_decode(quad, det);
+    // Two squares of a grid side by side (window panes, tiles, keys) make
+    // such a pair, with the grid's lines round them for a ring: one colour
+    // from end to end but for a cell or two, a near-uniform id. No such id
+    // is read so, nor any read that outvoted a cell.
+    if (why == Rejection::none && (near_uniform(det.id) || det.bits_corrected > 0)) why = Rejection::grid_like_read;
+    note_outcome(why, det);
+    if (why == Rejection::none) {
+      out.push_back(det);
+      a.settled = b.settled = a.read = b.read = true;
     }
   }
 }
