@@ -12,6 +12,7 @@
 
 #include <Eigen/Core>
 
+#include "markerd/detector/detection.hpp"
 #include "markerd/detector/frame8.hpp"
 #include "markerd/detector/geometry.hpp"
 #include "markerd/detector/image.hpp"
@@ -63,10 +64,17 @@ inline Point2 grid_point(const Homography& H, double gx, double gy) {
 
 inline Point2 grid_point(const Homography& H, Point2 g) { return grid_point(H, g.x, g.y); }
 
-// The same map as a 3x3 matrix on homogeneous grid coordinates.
-inline Eigen::Matrix3d grid_map(const Homography& H) {
+// H as a 3x3 matrix on homogeneous coordinates of its unit square.
+inline Eigen::Matrix3d unit_map(const Homography& H) {
   Eigen::Matrix3d unit_to_image;
   unit_to_image << H.a, H.b, H.c, H.d, H.e, H.f, H.g, H.h, 1;
+  return unit_to_image;
+}
+
+// The map from grid coordinates to the image of a homography onto the
+// hole, as a 3x3 matrix on homogeneous grid coordinates.
+inline Eigen::Matrix3d grid_map(const Homography& H) {
+  const Eigen::Matrix3d unit_to_image = unit_map(H);
   Eigen::Matrix3d grid_to_unit;
   grid_to_unit << 1 / kInnerSide, 0, -kInnerLo / kInnerSide, 0, 1 / kInnerSide, -kInnerLo / kInnerSide, 0, 0, 1;
   return unit_to_image * grid_to_unit;
@@ -75,9 +83,7 @@ inline Eigen::Matrix3d grid_map(const Homography& H) {
 // The map from grid coordinates to the image of a homography onto the
 // marker's outer square.
 inline Eigen::Matrix3d outer_grid_map(const Homography& H) {
-  Eigen::Matrix3d unit_to_image;
-  unit_to_image << H.a, H.b, H.c, H.d, H.e, H.f, H.g, H.h, 1;
-  return unit_to_image * Eigen::Vector3d(1.0 / frame8::grid, 1.0 / frame8::grid, 1).asDiagonal();
+  return unit_map(H) * Eigen::Vector3d(1.0 / frame8::grid, 1.0 / frame8::grid, 1).asDiagonal();
 }
 
 inline Homography Homography::from_grid_map(const Eigen::Matrix3d& grid_to_image) {
@@ -108,6 +114,13 @@ inline Point2 side_point(int side, double along, double in) {
     default: return {in, frame8::grid - along};
   }
 }
+
+// A hole read beyond its own component (grown, moved onto edges, a side
+// found past the step's first reach, two pieces joined) may be a square of
+// a grid (tiles, keys, window panes) taken with the grid's lines round it
+// for a ring: one colour from end to end but for a cell or two, read as a
+// near-uniform id or with a cell outvoted. Those reads are refused there.
+inline bool reads_like_a_grid(const Detection& det) { return near_uniform(det.id) || det.bits_corrected > 0; }
 
 inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
 

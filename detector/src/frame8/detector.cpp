@@ -149,12 +149,8 @@ constexpr double kPatternCells = 1.0;
 Rejection Frame8Detector::refine_and_decode(const std::array<Point2, 4>& coarse, Detection& det) {
   reached_wide_ = false;
   const Rejection why = measure_and_read(coarse, det);
-  // A side found only past the step's first reach may be a grid's next
-  // line (window panes, tiles, keys): its squares' rings read as
-  // near-uniform ids, or with a cell outvoted. No such read is taken so.
-  if (why == Rejection::none && reached_wide_ && (near_uniform(det.id) || det.bits_corrected > 0)) {
-    return Rejection::grid_like_read;
-  }
+  // A side found only past the step's first reach may be a grid's next line.
+  if (why == Rejection::none && reached_wide_ && reads_like_a_grid(det)) return Rejection::grid_like_read;
   return why;
 }
 
@@ -351,10 +347,11 @@ bool Frame8Detector::read_by_profile_fit(const std::array<Point2, 4>& from, doub
 bool Frame8Detector::inside_detection(const Component& c, const std::vector<Detection>& found) const {
   const double d = decimate_;
   const Point2 centre{(c.x0 + c.x1 - 1) * 0.5 * d + (d - 1) / 2, (c.y0 + c.y1) * 0.5 * d + (d - 1) / 2};
-  for (const Detection& det : found) {
-    if (inside(det.corners, centre)) return true;
-  }
-  return false;
+  return inside_any(found, centre);
+}
+
+bool Frame8Detector::inside_any(const std::vector<Detection>& found, Point2 p) {
+  return std::any_of(found.begin(), found.end(), [&](const Detection& det) { return inside(det.corners, p); });
 }
 
 bool Frame8Detector::inside(const Quad& q, Point2 p) {

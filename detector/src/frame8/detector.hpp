@@ -64,8 +64,23 @@ class Frame8Detector final : public MarkerDetector {
 
   // Stage 2: quad fitting (quad_fit.cpp).
   Rejection fit_quad(Component& c, std::array<Point2, 4>& quad);
+  void outline_rows(std::initializer_list<const Component*> components, int y0, int rows);
+  bool largest_quad_of_rows(int y0, int rows, std::array<Point2, 4>& quad, double& quad_area, double& hull_area);
   void convex_hull();
   bool max_area_quad(std::array<Point2, 4>& quad);
+  static double quad_perimeter(const std::array<Point2, 4>& quad);
+  // Pixel staircases make a small hull bigger than the quad by up to about
+  // a third of a pixel along the perimeter.
+  static double hull_staircase(double perimeter) { return 0.35 * perimeter; }
+  // Glued on a cover frame, the hole's corners are rounded: its hull may
+  // exceed its largest quad by this share of the hull's area (quad_fit.cpp).
+  static constexpr double kRoundedShortfall = 0.16;
+  // The least share of its quad a hole's light pixels cover: a Schuko
+  // outlet's recess (39 mm across) in the 56 mm opening of a socket frame
+  // takes 0.38 of it, its pin holes a little more, and from about a metre,
+  // where the recess is 15 px across, the threshold takes its blurred rim
+  // too (at 0.5 the socket was lost from 1.0 m on).
+  static constexpr double kMinLightShare = 0.3;
 
   // Stage 3: edge refinement (edge_refinement.cpp).
   // How collect_edge_points() places each point: at the centroid of the
@@ -258,6 +273,8 @@ class Frame8Detector final : public MarkerDetector {
                            int& rotation, Homography& H, std::array<Point2, 4>& inner);
   [[nodiscard]] bool inside_detection(const Component& c, const std::vector<Detection>& found) const;
   static bool inside(const Quad& q, Point2 p);
+  // Whether `p` lies inside any detection's quad: a candidate there is part of it.
+  static bool inside_any(const std::vector<Detection>& found, Point2 p);
   static bool convex(const Quad& q);
   static void remove_nested(std::vector<Detection>& out);
 

@@ -32,14 +32,6 @@ constexpr double kMaxOverlap = 0.5;
 // parting: the recess is 0.7 of the opening, and the pieces beside it
 // the rest.
 constexpr double kMaxGap = 0.75;
-// The pieces' light pixels take this share of their hull's quad at least:
-// the recess takes up to 0.4 of the hole, and its blurred rim a further
-// ring of a pixel or two.
-constexpr double kMinLightShare = 0.3;
-// The hull with rounded corners (quad_fit.cpp) falls short of its quad by
-// up to this share, and a staircase; two pieces of clutter lying apart
-// make a hull that the quad fills far less.
-constexpr double kMaxHullShortfall = 0.16;
 // A piece beside a round recess is concave: a disc of 0.56 of the hole
 // across or more (a Schuko outlet's is 0.7) leaves each piece filling at
 // most 1 - pi/4 * 0.56^2 = 0.75 of its box, less where the threshold takes
@@ -111,7 +103,7 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
     if (!fit_pieces_quad(a, b, quad)) continue;
     for (auto& p : quad) p = to_full(p);
     const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
-    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) continue;
+    if (inside_any(out, centre)) continue;
     // Clutter's neighbouring shapes make most such pairs: a look at where
     // the ring would be costs less than measuring the sides.
     Homography H;
@@ -119,11 +111,8 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
     if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
     Detection det;
     Rejection why = refine_and_decode(quad, det);
-    // Two squares of a grid side by side (window panes, tiles, keys) make
-    // such a pair, with the grid's lines round them for a ring: one colour
-    // from end to end but for a cell or two, a near-uniform id. No such id
-    // is read so, nor any read that outvoted a cell.
-    if (why == Rejection::none && (near_uniform(det.id) || det.bits_corrected > 0)) why = Rejection::grid_like_read;
+    // Two squares of a grid side by side make such a pair.
+    if (why == Rejection::none && reads_like_a_grid(det)) why = Rejection::grid_like_read;
     note_outcome(why, det);
     if (why == Rejection::none) {
       out.push_back(det);
@@ -137,36 +126,13 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
 // light pixels fill enough of it.
 bool Frame8Detector::fit_pieces_quad(const Component& a, const Component& b, std::array<Point2, 4>& quad) {
   const int y0 = std::min(a.y0, b.y0), rows = std::max(a.y1, b.y1) - y0 + 1;
-  line_min_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::max());
-  line_max_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::min());
-  for (const Component* c : {&a, &b}) {
-    for (std::int32_t r = c->first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
-      const Run& run = runs_[static_cast<std::size_t>(r)];
-      const auto k = static_cast<std::size_t>(run.y - y0);
-      for (std::size_t kk = k; kk <= k + 1; ++kk) {
-        line_min_[kk] = std::min(line_min_[kk], run.x0);
-        line_max_[kk] = std::max(line_max_[kk], run.x1);
-      }
-    }
-  }
-  points_.clear();
-  for (int k = 0; k <= rows; ++k) {
-    const auto kk = static_cast<std::size_t>(k);
-    if (line_min_[kk] > line_max_[kk]) continue;  // a gap between the pieces
-    const double y = y0 + k - 0.5;
-    points_.push_back({line_min_[kk] - 0.5, y});
-    if (line_max_[kk] != line_min_[kk]) points_.push_back({line_max_[kk] - 0.5, y});
-  }
-  convex_hull();
-  if (!max_area_quad(quad)) return false;
-  double quad_area = twice_signed_area(quad.data(), quad.size());
-  if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
-  quad_area = std::abs(quad_area) / 2;
-  const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
-  double perimeter = 0;
-  for (std::size_t i = 0; i < 4; ++i) perimeter += distance(quad[i], quad[(i + 1) % 4]);
-  const double staircase = 0.35 * perimeter;
-  return hull_area - quad_area <= kMaxHullShortfall * hull_area + staircase &&
+  outline_rows({&a, &b}, y0, rows);
+  double quad_area = 0, hull_area = 0;
+  if (!largest_quad_of_rows(y0, rows, quad, quad_area, hull_area)) return false;
+  // As a hole's with rounded corners (quad_fit.cpp): two pieces of clutter
+  // lying apart make a hull that the quad fills far less. The pieces'
+  // light pixels, as a hole's round a recess.
+  return hull_area - quad_area <= kRoundedShortfall * hull_area + hull_staircase(quad_perimeter(quad)) &&
          static_cast<double>(a.area + b.area) >= kMinLightShare * quad_area;
 }
 

@@ -179,7 +179,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
       if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return;
     }
     const Point2 centre = 0.25 * (outer[0] + outer[1] + outer[2] + outer[3]);
-    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) return;
+    if (inside_any(out, centre)) return;
     if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
     Detection det;
     const Rejection why = read_ink_outline(square, det);

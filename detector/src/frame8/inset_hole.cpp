@@ -43,7 +43,7 @@ bool Frame8Detector::read_inset(const std::array<Point2, 4>& inner, CellSize cel
     // one colour from end to end but for its corners: no near-uniform id
     // is read so (a checkerboard read as 127 once the cells were sampled
     // clear of the ring's outer edge).
-    if (why != Rejection::none || read.bits_corrected > 0 || near_uniform(read.id)) continue;
+    if (why != Rejection::none || reads_like_a_grid(read)) continue;
     if (found && read.id != det.id) return false;
     ++reads;
     if (found && read.margin <= det.margin) continue;

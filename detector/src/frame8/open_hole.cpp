@@ -356,7 +356,7 @@ void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Det
     };
     if (!in_image(seen[1]) || !in_image(seen[2])) continue;
     const Point2 centre = 0.25 * (seen[0] + seen[1] + seen[2] + seen[3]);
-    if (std::any_of(out.begin(), out.end(), [&](const Detection& f) { return inside(f.corners, centre); })) continue;
+    if (inside_any(out, centre)) continue;
     if (debug_) debug_candidates_.push_back({seen, Rejection::open_hole_unread, -1, {}, {}});
     Detection det;
     if (read_open_hole(seen, det) == Rejection::none) {

@@ -7,17 +7,11 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <initializer_list>
 #include <limits>
 #include <vector>
 
 namespace markerd::detector::frame8 {
-
-// The least share of its quad a hole's light pixels cover: a Schuko
-// outlet's recess (39 mm across) in the 56 mm opening of a socket frame
-// takes 0.38 of it, its pin holes a little more, and from about a metre,
-// where the recess is 15 px across, the threshold takes its blurred rim
-// too (at 0.5 the socket was lost from 1.0 m on).
-constexpr double kMinLightShare = 0.3;
 
 // The quad of a light component, in working-image coordinates, clockwise on
 // screen; or why the component is none.
@@ -35,18 +29,7 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return Rejection::box_size;
   if (c.area < 0.2 * bw * bh) return Rejection::sparse_component;
 
-  // Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
-  // extreme boundary x of the rows touching it: the component's outline.
-  line_min_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::max());
-  line_max_.assign(static_cast<std::size_t>(bh) + 1, std::numeric_limits<std::int32_t>::min());
-  for (std::int32_t r = c.first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
-    const Run& run = runs_[static_cast<std::size_t>(r)];
-    const auto k = static_cast<std::size_t>(run.y - c.y0);
-    for (std::size_t kk = k; kk <= k + 1; ++kk) {
-      line_min_[kk] = std::min(line_min_[kk], run.x0);
-      line_max_[kk] = std::max(line_max_[kk], run.x1);
-    }
-  }
+  outline_rows({&c}, c.y0, bh);
   // The area the component's rows span, dark islands inside it included:
   // a hole may show something darker within it (a socket's recess and
   // pins, clutter behind a cut-out hole) and is whole all the same. Each
@@ -57,24 +40,10 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
     spanned += std::max(0, std::min(line_max_[a], line_max_[b]) - std::max(line_min_[a], line_min_[b]));
   }
   c.dark_inside = std::max<std::int64_t>(0, static_cast<std::int64_t>(spanned) - c.area);
-  // Andrew's monotone chain over points already sorted by (y, x).
-  hull_.clear();
-  points_.clear();
-  for (int k = 0; k <= bh; ++k) {
-    const double y = c.y0 + k - 0.5;
-    points_.push_back({line_min_[static_cast<std::size_t>(k)] - 0.5, y});
-    if (line_max_[static_cast<std::size_t>(k)] != line_min_[static_cast<std::size_t>(k)]) {
-      points_.push_back({line_max_[static_cast<std::size_t>(k)] - 0.5, y});
-    }
-  }
-  convex_hull();
-  if (!max_area_quad(quad)) return Rejection::not_a_quad;
+  double quad_area = 0, hull_area = 0;
+  if (!largest_quad_of_rows(c.y0, bh, quad, quad_area, hull_area)) return Rejection::not_a_quad;
 
   // The hull must be a quad, and the component must fill most of it.
-  const double hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
-  double quad_area = twice_signed_area(quad.data(), quad.size());
-  if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
-  quad_area = std::abs(quad_area) / 2;
   // Pixel staircases make a small hull bigger than the quad by up to about
   // a third of a pixel along the perimeter; beyond that it is not a quad,
   // unless its corners are rounded: glued onto a cover frame, the print's
@@ -90,11 +59,7 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   // deg from 0.72 m, the hull 0.13 to 0.165 over the quad). A part of
   // something else joined to the hole (clutter behind a cut-out hole)
   // sticks out of one side further, and would place the cells a cell off.
-  double perimeter = 0;
-  for (int i = 0; i < 4; ++i) {
-    perimeter += distance(quad[static_cast<std::size_t>(i)], quad[static_cast<std::size_t>((i + 1) % 4)]);
-  }
-  const double staircase = 0.35 * perimeter;
+  const double perimeter = quad_perimeter(quad), staircase = hull_staircase(perimeter);
   // Under 20 px a side (cells of 3 px) a bulge of a pixel or two is all a
   // misplaced quad shows: only larger holes may have rounded corners. The
   // blur rounds a far socket frame's corners further: its hole of 25 to
@@ -102,8 +67,7 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   constexpr double kRoundedMinSide = 20;
   if (hull_area - quad_area > 0.06 * hull_area + staircase) {
     if (perimeter / 4 < kRoundedMinSide) return Rejection::not_a_quad;
-    constexpr double kRoundedShortfall = 0.16;  // of the hull's area
-    constexpr double kRoundedBulge = 0.11;      // of the mean side, and a pixel of staircase
+    constexpr double kRoundedBulge = 0.11;  // of the mean side, and a pixel of staircase
     if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
     double bulge = 0;
     for (const Point2& p : hull_) {
@@ -129,6 +93,51 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
     if (std::abs(cosang) > 0.94) return Rejection::sharp_corner;
   }
   return Rejection::none;
+}
+
+// Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
+// extreme boundary x of the components' rows touching it: their outline.
+void Frame8Detector::outline_rows(std::initializer_list<const Component*> components, int y0, int rows) {
+  line_min_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::max());
+  line_max_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::min());
+  for (const Component* c : components) {
+    for (std::int32_t r = c->first; r >= 0; r = runs_[static_cast<std::size_t>(r)].next) {
+      const Run& run = runs_[static_cast<std::size_t>(r)];
+      const auto k = static_cast<std::size_t>(run.y - y0);
+      for (std::size_t kk = k; kk <= k + 1; ++kk) {
+        line_min_[kk] = std::min(line_min_[kk], run.x0);
+        line_max_[kk] = std::max(line_max_[kk], run.x1);
+      }
+    }
+  }
+}
+
+// The largest quad in the convex hull of the outline (outline_rows()),
+// clockwise on screen, and the two areas.
+bool Frame8Detector::largest_quad_of_rows(int y0, int rows, std::array<Point2, 4>& quad, double& quad_area,
+                                          double& hull_area) {
+  // Andrew's monotone chain over points already sorted by (y, x).
+  points_.clear();
+  for (int k = 0; k <= rows; ++k) {
+    const auto kk = static_cast<std::size_t>(k);
+    if (line_min_[kk] > line_max_[kk]) continue;  // between two components' rows
+    const double y = y0 + k - 0.5;
+    points_.push_back({line_min_[kk] - 0.5, y});
+    if (line_max_[kk] != line_min_[kk]) points_.push_back({line_max_[kk] - 0.5, y});
+  }
+  convex_hull();
+  if (!max_area_quad(quad)) return false;
+  hull_area = std::abs(twice_signed_area(hull_.data(), hull_.size())) / 2;
+  quad_area = twice_signed_area(quad.data(), quad.size());
+  if (quad_area < 0) std::swap(quad[1], quad[3]);  // clockwise on screen (y down)
+  quad_area = std::abs(quad_area) / 2;
+  return true;
+}
+
+double Frame8Detector::quad_perimeter(const std::array<Point2, 4>& quad) {
+  double perimeter = 0;
+  for (std::size_t i = 0; i < 4; ++i) perimeter += distance(quad[i], quad[(i + 1) % 4]);
+  return perimeter;
 }
 
 // Largest-area quadrilateral on the vertices of a convex polygon (hull_),

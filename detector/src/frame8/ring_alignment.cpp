@@ -167,9 +167,8 @@ bool Frame8Detector::read_by_ring_alignment(const std::array<Point2, 4>& inner, 
     if (p.separation <= 0 || !placed(p, at)) continue;
     const CellSize size = cell_size_of(at.quad());
     Rejection why = decode(at, size, det, rotation, nullptr);
-    // Moved onto a grid's lines, a square's ring reads as a near-uniform
-    // id (as of a hole inset all round, or fitted to the ring's edges).
-    if (why == Rejection::none && (near_uniform(det.id) || det.bits_corrected > 0)) why = Rejection::grid_like_read;
+    // Moved onto a grid's lines, a square's ring reads so.
+    if (why == Rejection::none && reads_like_a_grid(det)) why = Rejection::grid_like_read;
     note_attempt(Read::ring_alignment, why);
     if (why == Rejection::none) {
       H = at;

@@ -110,7 +110,7 @@ bool Frame8Detector::read_from_ring_edges(const Homography& start, CellSize cell
     // grid reads the ring of tiles round it as one colour from end to end
     // but for its corners: no near-uniform id, and no cell outvoted, is
     // read so (as of a hole inset all round).
-    if (why == Rejection::none && read.bits_corrected == 0 && !near_uniform(read.id)) {
+    if (why == Rejection::none && !reads_like_a_grid(read)) {
       det = read;
       rotation = read_rotation;
       H = fitted;
