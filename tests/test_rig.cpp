@@ -214,9 +214,12 @@ TEST(Rig, ASimulatedRigFromTheShippedConfigHomesMovesAndPublishesSnapshots) {
     std::this_thread::sleep_for(1ms);
   EXPECT_GT(rig->snapshot().sequence, before);
 
+  // The axes stop one after the other: a snapshot published between the
+  // two shows the rail faulted and the turntable not yet.
   rig->emergency_stop();
   const auto stop_deadline = std::chrono::steady_clock::now() + 10s;
-  while (!rig->snapshot().rail.fault && std::chrono::steady_clock::now() < stop_deadline)
+  while (!(rig->snapshot().rail.fault && rig->snapshot().turntable.fault) &&
+         std::chrono::steady_clock::now() < stop_deadline)
     std::this_thread::sleep_for(1ms);
   EXPECT_TRUE(rig->snapshot().rail.fault);
   EXPECT_TRUE(rig->snapshot().turntable.fault);
