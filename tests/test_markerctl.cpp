@@ -409,6 +409,36 @@ TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
   }
 }
 
+// The blur and noise models of bench_accuracy, for one frame: a disc
+// spreads an edge over twice the sigma a Gaussian does (its rim is sharp),
+// so the two images differ, and both are read.
+TEST_F(Markerctl, RenderTakesTheBenchsBlurAndNoiseModels) {
+  const std::vector<std::string> scene{"--dist", "0.6", "--noise", "2", "--blur", "1", "--seed", "3"};
+  auto with = [&](std::vector<std::string> extra) {
+    std::vector<std::string> args = scene;
+    args.insert(args.end(), extra.begin(), extra.end());
+    return args;
+  };
+  render("gaussian.png", scene);
+  render("disc.png", with({"--blur-model", "disc"}));
+  render("shot.png", with({"--noise-model", "shot"}));
+  const cv::Mat gaussian = cv::imread(path("gaussian.png"), cv::IMREAD_GRAYSCALE);
+  for (const char* name : {"disc.png", "shot.png"}) {
+    SCOPED_TRACE(name);
+    const cv::Mat other = cv::imread(path(name), cv::IMREAD_GRAYSCALE);
+    ASSERT_EQ(other.size(), gaussian.size());
+    EXPECT_GT(cv::norm(other, gaussian, cv::NORM_L1), 0.0);
+    const Outcome r = run({"detect", path(name)});
+    ASSERT_EQ(r.code, 0) << r.describe();
+    const auto lines = json_lines(r);
+    ASSERT_EQ(lines.size(), 1U) << r.describe();
+    EXPECT_EQ(lines[0]["id"], 165);
+  }
+  const Outcome bad = run({"render", "--dist", "0.6", "--blur-model", "box", "-o", path("box.png")});
+  EXPECT_EQ(bad.code, 2) << bad.describe();
+  EXPECT_NE(bad.err.find("--blur-model"), std::string::npos) << bad.describe();
+}
+
 // A dark object over the top side hides the white corner C1: the id is
 // found and its orientation reported as one of two; over the bottom side C1
 // is seen and the orientation is not in doubt.

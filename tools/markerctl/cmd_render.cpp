@@ -31,6 +31,8 @@ struct RenderOptions {
   std::string camera;
   double noise = 0;
   double blur = 0;
+  std::string blur_model = "gaussian";
+  std::string noise_model = "gaussian";
   double exposure = 1;
   int supersample = 4;
   bool no_clutter = false;
@@ -88,6 +90,11 @@ int run_render(const RenderOptions& o) {
   scene.exposure = o.exposure;
   scene.blur_sigma_px = o.blur;
   scene.noise_sigma = o.noise;
+  // CLI::IsMember has let only the models' names through.
+  scene.blur_model =
+      o.blur_model == "disc" ? markerd::detector::BlurModel::disc : markerd::detector::BlurModel::gaussian;
+  scene.noise_model =
+      o.noise_model == "shot" ? markerd::detector::NoiseModel::shot : markerd::detector::NoiseModel::gaussian;
   scene.supersample = o.supersample;
   scene.clutter = !o.no_clutter;
   // CLI::IsMember has let only the kinds' names through.
@@ -185,12 +192,19 @@ void add_render_command(CLI::App& parent, Commands& commands) {
   app->add_option("--camera", o->camera,
                   "Camera calibration (OpenCV's YAML or ROS camera_info); default: the thesis camera")
       ->type_name("FILE");
-  app->add_option("--noise", o->noise, "Gaussian noise, grey levels (sigma)")
+  app->add_option("--noise", o->noise, "Sensor noise, grey levels (sigma; with --noise-model shot, at mid-grey)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 255.0));
-  app->add_option("--blur", o->blur, "Gaussian blur, pixels (sigma)")
+  app->add_option("--noise-model", o->noise_model,
+                  "gaussian (the same sigma at every grey), or shot (shot noise on read noise)")
+      ->type_name("MODEL")
       ->capture_default_str()
-      ->check(CLI::Range(0.0, 100.0));
+      ->check(CLI::IsMember({"gaussian", "shot"}));
+  app->add_option("--blur", o->blur, "Lens blur, pixels (sigma)")->capture_default_str()->check(CLI::Range(0.0, 100.0));
+  app->add_option("--blur-model", o->blur_model, "gaussian, or disc (a lens out of focus: a disc of radius 2 sigma)")
+      ->type_name("MODEL")
+      ->capture_default_str()
+      ->check(CLI::IsMember({"gaussian", "disc"}));
   app->add_option("--exposure", o->exposure, "Brightness scale (1: paper at about 225)")
       ->capture_default_str()
       ->check(CLI::Range(0.01, 100.0));
