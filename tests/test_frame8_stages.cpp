@@ -340,12 +340,13 @@ TEST_F(Frame8StageTest, DecodingCorrectsOneEdgeAndRejectsTwo) {
   EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::bit_uncorrectable);
 }
 
-// A cover outvotes the cells of one edge, and at most the cell at each end
-// of the edges beside it; two cells outvoted on a second edge besides are a
-// second leniency, refused even where the code is the right one.
+// A cover outvotes the cells of one edge, and at most the cell next to each
+// of its corners on the edges beside it. Where cells are resolved, a cell
+// outvoted anywhere else is a second fault, refused even where the code is
+// the right one: clutter reads so, and so does a grid measured a cell off.
 TEST_F(Frame8StageTest, DecodingLetsACoverOutvoteOneEdgeButNotASecond) {
   constexpr int id = 165;  // 10100101: a dark cover outvotes its four white cells
-  static_assert(((id >> 3) & 1) == 0 && ((id >> 6) & 1) == 0);
+  static_assert(((id >> 3) & 1) == 0 && ((id >> 6) & 1) == 0 && (id & 1) == 1 && ((id >> 7) & 1) == 1);
   GreyImage covered = clean_marker(id);
   for (int bit = 0; bit < 8; ++bit) paint_cell(covered, 2, bit, 30);
   Detection det;
@@ -353,13 +354,36 @@ TEST_F(Frame8StageTest, DecodingLetsACoverOutvoteOneEdgeButNotASecond) {
   ASSERT_EQ(decode(covered, clean_inner(), 10, det, rotation), Rejection::none);
   EXPECT_EQ(det.id, id);
   EXPECT_EQ(det.bits_corrected, 4);
-  GreyImage img = covered;
-  flip_cell(img, id, 1, 3);  // one cell more, on the edge beside
+  GreyImage mid = covered;
+  flip_cell(mid, id, 1, 3);  // the middle of the edge beside: no cover of edge 2 reaches it
+  EXPECT_EQ(decode(mid, clean_inner(), 10, det, rotation), Rejection::outvoted_scattered);
+  flip_cell(mid, id, 1, 6);  // a second cell there
+  EXPECT_NE(decode(mid, clean_inner(), 10, det, rotation), Rejection::none);
+  // A cover over the corner edges 1 and 2 share: edge 2's first four
+  // cells, and edge 1's last cell next to them.
+  GreyImage corner = clean_marker(id);
+  for (int bit = 4; bit < 8; ++bit) paint_cell(corner, 2, bit, 30);
+  paint_cell(corner, 1, 0, 30);
+  ASSERT_EQ(decode(corner, clean_inner(), 10, det, rotation), Rejection::none);
+  EXPECT_EQ(det.id, id);
+  EXPECT_EQ(det.bits_corrected, 3);
+}
+
+// Two single cells outvoted on opposite edges: each bit still has three
+// votes to one, but no one cover explains both.
+TEST_F(Frame8StageTest, DecodingRefusesResolvedCellsOutvotedOnOppositeEdges) {
+  constexpr int id = 165;
+  GreyImage img = clean_marker(id);
+  flip_cell(img, id, 0, 4);
+  Detection det;
+  int rotation = 0;
   ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none);
   EXPECT_EQ(det.id, id);
-  EXPECT_EQ(det.bits_corrected, 5);
-  flip_cell(img, id, 1, 6);  // a second cell there
-  EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::covered_edge_unclear);
+  flip_cell(img, id, 0, 2);  // a second cell on the same edge: one cover
+  ASSERT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::none);
+  EXPECT_EQ(det.bits_corrected, 2);
+  flip_cell(img, id, 2, 5);  // and one on the opposite edge
+  EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::outvoted_scattered);
 }
 
 // Glued on a cover frame turned far, the far side's line lies on the inner

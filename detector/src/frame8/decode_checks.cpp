@@ -16,6 +16,24 @@ constexpr double kCheckedLineCells = 2.0;
 // How dark (soft level, -1 = black) the ring model must find the line.
 constexpr double kClearLine = 0.5;
 
+namespace {
+
+// Whether every outvoted cell lies under one cover: on one edge, or on the
+// edges beside it next to its corners. Edge e's bit 0 ends at the corner
+// it shares with edge e + 1, whose bit 7 begins there (the bits run
+// clockwise).
+bool outvoted_by_one_cover(const RingRead& r) {
+  constexpr std::uint8_t kFirstCell = 0x80, kLastCell = 0x01;
+  for (std::size_t e = 0; e < 4; ++e) {
+    const std::uint8_t next = r.outvoted_bits[(e + 1) % 4], opposite = r.outvoted_bits[(e + 2) % 4],
+                       prev = r.outvoted_bits[(e + 3) % 4];
+    if (opposite == 0 && (next & ~kFirstCell) == 0 && (prev & ~kLastCell) == 0) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
 Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_size,
                                           const frame8::RingModel::Levels* model, RingRead& r) const {
   // A code whose weakest bit is read this clearly (soft units) may lean on
@@ -38,6 +56,15 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
     for (auto e = r.outvoted.begin(); e != r.outvoted.end(); ++e) {
       if (e != most && *e >= 2) return Rejection::covered_edge_unclear;
     }
+  }
+  // Resolved cells are read wrong by a cover, not by noise: a cover over
+  // one edge outvotes that edge's cells, and at most the cell next to each
+  // of its corners on the edges beside it. Cells outvoted anywhere else
+  // are a second fault, from a ring that is not there: clutter (a quad of
+  // 36 x 84 px read as id 7 with three cells outvoted on three edges), or
+  // a grid measured a cell off.
+  if (cell_size.mean >= kResolvedCells && r.corrected > 0 && !outvoted_by_one_cover(r)) {
+    return Rejection::outvoted_scattered;
   }
   // A marker of about fifteen pixels with two bits or more outvoted is as
   // likely a dark blob in clutter whose unmixed ring (unmix_ring) shows a

@@ -54,6 +54,7 @@ Stage stage_of(Rejection r) {
     case Rejection::unconfirmed_correction: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
     case Rejection::grid_like_read: return Stage::structure;
+    case Rejection::outvoted_scattered: return Stage::structure;
     case Rejection::pattern_fit_failed: return Stage::pattern_fit;
     case Rejection::corners_not_convex:
     case Rejection::no_pose: return Stage::corners_and_pose;
@@ -121,6 +122,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_not_ink: return "line_not_ink";
     case Rejection::open_hole_unread: return "open_hole_unread";
     case Rejection::grid_like_read: return "grid_like_read";
+    case Rejection::outvoted_scattered: return "outvoted_scattered";
     case Rejection::ink_outline_unread: return "ink_outline_unread";
     case Rejection::ink_cells_unresolved: return "ink_cells_unresolved";
     case Rejection::ink_read_corrected: return "ink_read_corrected";

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdint>
 
 #include "frame8/common.hpp"
 
@@ -41,6 +42,7 @@ struct RingRead {
   // and the weakest bit's margin.
   int id = 0, corrected = 0, erased = 0, fewest_agreeing = 0;
   std::array<int, 4> outvoted{};
+  std::array<std::uint8_t, 4> outvoted_bits{};  // per edge, bit b set where its cell for bit b was outvoted
   double margin = 1.0;
 
   // A grey level on the ring's scale: -1 black, +1 white.
