@@ -65,10 +65,10 @@ std::array<Point2, 4> clean_inner(int cell = 10, int origin = 50) {
 }
 
 // Paints the data cell of `bit` on `edge` of clean_marker() one grey.
-void paint_cell(GreyImage& img, int edge, int bit, std::uint8_t grey) {
+void paint_cell(GreyImage& img, int edge, int bit, std::uint8_t grey, int cell = 10, int origin = 50) {
   const frame8::Cell c = frame8::data_cell(edge, bit);
-  for (int y = 50 + 10 * c.row; y < 60 + 10 * c.row; ++y) {
-    for (int x = 50 + 10 * c.col; x < 60 + 10 * c.col; ++x) img.row(y)[x] = grey;
+  for (int y = origin + cell * c.row; y < origin + cell * (c.row + 1); ++y) {
+    for (int x = origin + cell * c.col; x < origin + cell * (c.col + 1); ++x) img.row(y)[x] = grey;
   }
 }
 
@@ -384,6 +384,29 @@ TEST_F(Frame8StageTest, DecodingRefusesResolvedCellsOutvotedOnOppositeEdges) {
   EXPECT_EQ(det.bits_corrected, 2);
   flip_cell(img, id, 2, 5);  // and one on the opposite edge
   EXPECT_EQ(decode(img, clean_inner(), 10, det, rotation), Rejection::outvoted_scattered);
+}
+
+// The near-uniform ids are the rings of a grid's squares, and a square
+// beside a row of another colour reads as one with an edge outvoted: under
+// 3 px a cell, where the line and its corners are not checked, such a read
+// is refused; the same edge outvoted for another id is read.
+TEST_F(Frame8StageTest, DecodingRefusesANearUniformIdWithAnEdgeOutvotedUnderThreePixels) {
+  constexpr int cell = 2;
+  for (const int id : {126, 129, 165}) {
+    SCOPED_TRACE(id);
+    GreyImage img = clean_marker(id, cell);
+    for (int bit = 1; bit < 7; ++bit) paint_cell(img, 1, bit, ((id >> bit) & 1) ? 30 : 220, cell);
+    Detection det;
+    int rotation = 0;
+    const Rejection why = decode(img, clean_inner(cell), cell, det, rotation);
+    if (frame8::near_uniform(id)) {
+      EXPECT_EQ(why, Rejection::near_uniform_outvoted);
+    } else {
+      ASSERT_EQ(why, Rejection::none);
+      EXPECT_EQ(det.id, id);
+      EXPECT_GT(det.bits_corrected, 0);
+    }
+  }
 }
 
 // Glued on a cover frame turned far, the far side's line lies on the inner

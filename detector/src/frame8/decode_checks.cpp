@@ -60,9 +60,8 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // Resolved cells are read wrong by a cover, not by noise: a cover over
   // one edge outvotes that edge's cells, and at most the cell next to each
   // of its corners on the edges beside it. Cells outvoted anywhere else
-  // are a second fault, from a ring that is not there: clutter (a quad of
-  // 36 x 84 px read as id 7 with three cells outvoted on three edges), or
-  // a grid measured a cell off.
+  // are a second fault, from a ring that is not there: clutter, or a grid
+  // measured a cell off.
   if (cell_size.mean >= kResolvedCells && r.corrected > 0 && !outvoted_by_one_cover(r)) {
     return Rejection::outvoted_scattered;
   }
@@ -71,6 +70,15 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // light cell or two: measured, 3 false detections in 3000 cluttered
   // scenes without this check, 2 of 40 right reads at 3 m refused with it.
   if (cell_size.mean < kTinyCells && r.corrected >= 2) return Rejection::tiny_cells_corrected;
+  // The near-uniform ids are the rings of a grid's squares (frame8.hpp),
+  // and a square beside a row of another colour reads as one with an edge
+  // outvoted, as a marker with that edge covered would. Where cells are
+  // resolved, the line and its corners tell the two apart (below); under
+  // that, keyboards and window grids read so as 126 and 129 once the second
+  // pass had points enough to agree. Such a read is not taken there.
+  if (frame8::near_uniform(r.id) && r.corrected > 0 && cell_size.narrow < kResolvedCells) {
+    return Rejection::near_uniform_outvoted;
+  }
   // Ids 0 and 255 have no structure along the ring: a dark ring with one
   // light corner, or a light ring with three dark ones. Under about three
   // pixels a cell, the bowl of a printed letter looks exactly like that;

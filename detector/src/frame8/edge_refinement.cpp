@@ -16,6 +16,9 @@
 
 namespace markerd::detector::frame8 {
 
+// Edge points along a side, at the least, when the code is known: three
+// per cell over the 5.3 cells they span (t from 0.12 to 0.88 of 7 cells).
+constexpr int kIdEdgePoints = 16;
 // A side shorter than this fraction of its neighbours is a sliver's end.
 constexpr double kSliverEnd = 0.35;
 // The profile fit moves the measured edge at most this far (pixels): the
@@ -70,6 +73,12 @@ int Frame8Detector::collect_edge_points(const std::array<Point2, 4>& q, int side
   int used = 0;
   const bool fitting = mode == EdgeMode::fit_profile && !sliver_end;
   const double side_cell = 0.5 * (cell_a + cell_b);
+  // With the code known, points within 0.15 of a cell of a boundary
+  // between cells are left out (below). One point per 1.5 px leaves a side
+  // of 1.5 px cells six, half of them there, and the second pass then
+  // failed for want of points beyond 2.7 m: three per cell keep two. From
+  // 3 px a cell, one per 1.5 px is as many.
+  if (id && side_cell < kResolvedCells) count = std::max(count, kIdEdgePoints);
   int fit_steps = 0;
   double fit_reach_in = 0;
   if (fitting) {

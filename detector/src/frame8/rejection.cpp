@@ -37,6 +37,7 @@ Stage stage_of(Rejection r) {
     case Rejection::tiny_cells_corrected: return Stage::structure;
     case Rejection::uniform_id: return Stage::structure;
     case Rejection::near_uniform_unconfirmed: return Stage::structure;
+    case Rejection::near_uniform_outvoted: return Stage::structure;
     case Rejection::second_leniency: return Stage::structure;
     case Rejection::unclear_orientation_small: return Stage::structure;
     case Rejection::model_line_light: return Stage::structure;
@@ -52,6 +53,7 @@ Stage stage_of(Rejection r) {
     case Rejection::covered_side_small_cells: return Stage::structure;
     case Rejection::second_pass_disagrees: return Stage::structure;
     case Rejection::unconfirmed_correction: return Stage::structure;
+    case Rejection::unconfirmed_small_cells: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
     case Rejection::grid_like_read: return Stage::structure;
     case Rejection::outvoted_scattered: return Stage::structure;
@@ -113,6 +115,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::tiny_cells_corrected: return "tiny_cells_corrected";
     case Rejection::uniform_id: return "uniform_id";
     case Rejection::near_uniform_unconfirmed: return "near_uniform_unconfirmed";
+    case Rejection::near_uniform_outvoted: return "near_uniform_outvoted";
     case Rejection::second_leniency: return "second_leniency";
     case Rejection::unclear_orientation_small: return "unclear_orientation_small";
     case Rejection::model_line_light: return "model_line_light";
@@ -130,6 +133,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";
     case Rejection::unconfirmed_correction: return "unconfirmed_correction";
+    case Rejection::unconfirmed_small_cells: return "unconfirmed_small_cells";
     case Rejection::model_disagrees: return "model_disagrees";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
     case Rejection::corners_not_convex: return "corners_not_convex";

@@ -68,6 +68,7 @@ enum class Rejection : std::uint8_t {
   tiny_cells_corrected,       // cells under kTinyCells with two bits outvoted
   uniform_id,                 // id 0 or 255 without uniform_ids, or unverifiable
   near_uniform_unconfirmed,   // a near-uniform id (near_uniform) on unresolved cells, not confirmed by the second pass
+  near_uniform_outvoted,      // a near-uniform id with a cell outvoted: a grid square beside a row of another colour
   second_leniency,            // orientation unclear on top of a covered edge or a weak code
   unclear_orientation_small,  // orientation unclear and cells under kResolvedCells
   model_line_light,           // the ring model finds the line too light
@@ -79,6 +80,7 @@ enum class Rejection : std::uint8_t {
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
   second_pass_disagrees,      // the sides measured again knowing the code read another id
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
+  unconfirmed_small_cells,    // cells under 2.5 px read once, the second measurement reading nothing
   model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
   grid_like_read,
   outvoted_scattered,  // resolved cells outvoted where no one cover lies (clutter, or a misplaced grid)  // a
