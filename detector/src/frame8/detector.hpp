@@ -138,6 +138,7 @@ class Frame8Detector final : public MarkerDetector {
   static void weigh_edges(const Homography& H, RingRead& r);
   static Rejection vote_bits(RingRead& r);
   // 4e: structural checks (decode_checks.cpp).
+  bool hole_lighter_than_line(const Homography& H, const RingRead& r) const;
   Rejection check_structure(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
                             RingRead& r) const;
   bool fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const;

@@ -76,6 +76,7 @@ enum class Rejection : std::uint8_t {
   line_corner_light,          // a corner of the line is light
   line_not_dark,              // the line is not dark all around
   line_not_ink,               // the line is not the black cells' ink
+  hole_not_lighter,           // a cell outvoted, and the hole no lighter than its line on two sides or more
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
   second_pass_disagrees,      // the sides measured again knowing the code read another id
