@@ -91,12 +91,22 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // of its squares; one whose ring runs off the image has corner cells
   // sampled on whatever is left of them (a key at the image's top edge
   // read as 126): they are read only with the whole ring in the image.
-  if (near_uniform(r.id)) {
-    for (const Point2 g :
-         {Point2{0, 0}, Point2{frame8::grid, 0}, Point2{frame8::grid, frame8::grid}, Point2{0, frame8::grid}}) {
-      const Point2 p = grid_point(H, g);
-      if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return Rejection::corner_off_image;
-    }
+  static constexpr std::array<Point2, 4> kOuterCorners{
+      {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
+  auto off_image = [&](Point2 g) {
+    const Point2 p = grid_point(H, g);
+    return p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1;
+  };
+  if (near_uniform(r.id) && std::any_of(kOuterCorners.begin(), kOuterCorners.end(), off_image)) {
+    return Rejection::corner_off_image;
+  }
+  // A side read as hidden must lie in the image: beyond its edge nothing
+  // is seen to cover it, and three edges of clutter there agreed on a code
+  // (a square at the right edge of the image, read as 32 with its fourth
+  // side 6 px outside).
+  if (r.hidden.side >= 0 && (off_image(kOuterCorners[static_cast<std::size_t>(r.hidden.side)]) ||
+                             off_image(kOuterCorners[static_cast<std::size_t>((r.hidden.side + 1) % 4)]))) {
+    return Rejection::corner_off_image;
   }
   // A covered edge is one leniency already: it does not get a second.
   if (r.orientation_clarity < config_.frame8.min_margin && (r.margin < kClearCode || r.corrected >= 4))
