@@ -72,10 +72,11 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   if (cell_size.mean < kTinyCells && r.corrected >= 2) return Rejection::tiny_cells_corrected;
   // The near-uniform ids are the rings of a grid's squares (frame8.hpp),
   // and a square beside a row of another colour reads as one with an edge
-  // outvoted, as a marker with that edge covered would. Where cells are
-  // resolved, the line and its corners tell the two apart (below); under
-  // that, keyboards and window grids read so as 126 and 129 once the second
-  // pass had points enough to agree. Such a read is not taken there.
+  // outvoted, as a marker with that edge covered would. Under 3 px a cell
+  // such a read is not taken: keyboards and window grids read so as 126
+  // and 129 once the second pass had points enough to agree. From 3 px a
+  // marker with such an id and an edge covered is still read (ids 1 and
+  // 254 at 0.5 m), and a grid's square read so is left to the other checks.
   if (frame8::near_uniform(r.id) && r.corrected > 0 && cell_size.narrow < kResolvedCells) {
     return Rejection::near_uniform_outvoted;
   }
@@ -237,7 +238,7 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
 // ground is as dark as the line: the adaptive threshold takes its flat
 // middle for light, and its quad's sides lie on whatever edges are near.
 // Mostly those are the line's, and the code reads whole (the print with
-// its margin over black, 0.3 to 1.2 m: 85 to 100%); once in some 3000
+// its margin over black, 0.5 to 1.25 m: 78 to 100%); once in some 3000
 // frames they were the white cells' inner edges, a cell out, and 178 read
 // as 1 with a cell outvoted.
 bool Frame8Detector::hole_lighter_than_line(const Homography& H, const RingRead& r) const {
