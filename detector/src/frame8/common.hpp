@@ -106,6 +106,10 @@ inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
 // The grid point `in` cells in from the outer edge on a side (0 top, 1
 // right, 2 bottom, 3 left), `along` cells along it in the clockwise reading
 // order: one description of a position for all four sides.
+// The marker's outer corners in grid coordinates, clockwise from top left.
+inline constexpr std::array<Point2, 4> kOuterGridCorners{
+    {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
+
 inline Point2 side_point(int side, double along, double in) {
   switch (side) {
     case 0: return {along, in};
@@ -123,6 +127,12 @@ inline Point2 side_point(int side, double along, double in) {
 inline bool reads_like_a_grid(const Detection& det) { return near_uniform(det.id) || det.bits_corrected > 0; }
 
 inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
+
+// Whether a point lies on the image (within its first and last pixel
+// centres).
+inline bool in_image(const GreyView& img, Point2 p) {
+  return p.x >= 0 && p.y >= 0 && p.x <= img.width - 1 && p.y <= img.height - 1;
+}
 
 // Whether a bilinear sample at (x, y) lies inside the image; the samples
 // along a segment do when both its ends do.

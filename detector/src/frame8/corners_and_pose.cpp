@@ -34,15 +34,13 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
                                                      {frame8::grid - kInnerLo, kInnerLo},
                                                      {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
                                                      {kInnerLo, frame8::grid - kInnerLo}}};
-  static constexpr std::array<Point2, 4> kOuterGrid{
-      {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
   Quad in{}, outq{};
   std::array<Eigen::Vector2d, 4> model_order{};
   for (int j = 0; j < 4; ++j) {
     const auto q = static_cast<std::size_t>((j + rotation) % 4);
     const auto jj = static_cast<std::size_t>(j);
     const Point2 inner = map_grid(grid_to_image, kInnerGrid[q].x, kInnerGrid[q].y);
-    const Point2 outer = map_grid(grid_to_image, kOuterGrid[q].x, kOuterGrid[q].y);
+    const Point2 outer = map_grid(grid_to_image, kOuterGridCorners[q].x, kOuterGridCorners[q].y);
     model_order[jj] = {inner.x, inner.y};
     in[jj] = config_.camera ? config_.camera->normalized_to_pixel(inner) : inner;
     outq[jj] = config_.camera ? config_.camera->normalized_to_pixel(outer) : outer;

@@ -25,8 +25,8 @@ namespace {
 bool outvoted_by_one_cover(const RingRead& r) {
   constexpr std::uint8_t kFirstCell = 0x80, kLastCell = 0x01;
   for (std::size_t e = 0; e < 4; ++e) {
-    const std::uint8_t next = r.outvoted_bits[(e + 1) % 4], opposite = r.outvoted_bits[(e + 2) % 4],
-                       prev = r.outvoted_bits[(e + 3) % 4];
+    const std::uint8_t next = r.outvoted[(e + 1) % 4], opposite = r.outvoted[(e + 2) % 4],
+                       prev = r.outvoted[(e + 3) % 4];
     if (opposite == 0 && (next & ~kFirstCell) == 0 && (prev & ~kLastCell) == 0) return true;
   }
   return false;
@@ -52,9 +52,10 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // light bar in clutter beside a dark shape read so, as id 192, with six
   // cells of a barely resolved edge and two of a resolved one outvoted).
   if (r.corrected >= 4) {
-    const auto most = std::max_element(r.outvoted.begin(), r.outvoted.end());
-    for (auto e = r.outvoted.begin(); e != r.outvoted.end(); ++e) {
-      if (e != most && *e >= 2) return Rejection::covered_edge_unclear;
+    int most = 0;
+    for (int e = 1; e < 4; ++e) most = r.outvoted_cells(e) > r.outvoted_cells(most) ? e : most;
+    for (int e = 0; e < 4; ++e) {
+      if (e != most && r.outvoted_cells(e) >= 2) return Rejection::covered_edge_unclear;
     }
   }
   // Resolved cells are read wrong by a cover, not by noise: a cover over
@@ -92,21 +93,16 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   // of its squares; one whose ring runs off the image has corner cells
   // sampled on whatever is left of them (a key at the image's top edge
   // read as 126): they are read only with the whole ring in the image.
-  static constexpr std::array<Point2, 4> kOuterCorners{
-      {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
-  auto off_image = [&](Point2 g) {
-    const Point2 p = grid_point(H, g);
-    return p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1;
-  };
-  if (near_uniform(r.id) && std::any_of(kOuterCorners.begin(), kOuterCorners.end(), off_image)) {
+  auto off_image = [&](Point2 g) { return !in_image(full_, grid_point(H, g)); };
+  if (near_uniform(r.id) && std::any_of(kOuterGridCorners.begin(), kOuterGridCorners.end(), off_image)) {
     return Rejection::corner_off_image;
   }
   // A side read as hidden must lie in the image: beyond its edge nothing
   // is seen to cover it, and three edges of clutter there agreed on a code
   // (a square at the right edge of the image, read as 32 with its fourth
   // side 6 px outside).
-  if (r.hidden.side >= 0 && (off_image(kOuterCorners[static_cast<std::size_t>(r.hidden.side)]) ||
-                             off_image(kOuterCorners[static_cast<std::size_t>((r.hidden.side + 1) % 4)]))) {
+  if (r.hidden.side >= 0 && (off_image(kOuterGridCorners[static_cast<std::size_t>(r.hidden.side)]) ||
+                             off_image(kOuterGridCorners[static_cast<std::size_t>((r.hidden.side + 1) % 4)]))) {
     return Rejection::corner_off_image;
   }
   // A covered edge is one leniency already: it does not get a second.

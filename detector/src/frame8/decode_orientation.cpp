@@ -83,7 +83,7 @@ Rejection Frame8Detector::settle_orientation(const Homography& H, RingRead& r) c
   // A neighbour contradicts when its soft level is this far on the wrong side.
   constexpr double kContradiction = 0.3;
   auto covered = [&](int edge) {
-    if (r.outvoted[static_cast<std::size_t>(edge)] == 0) return false;
+    if (r.outvoted_cells(edge) == 0) return false;
     const auto& cells = r.cell[static_cast<std::size_t>(edge)];
     const bool light = r.soft(cells[0].mean) > 0;
     return std::all_of(cells.begin(), cells.end(),

@@ -44,7 +44,6 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
   r.corrected = 0;
   r.erased = 0;
   r.outvoted = {};
-  r.outvoted_bits = {};
   r.margin = 1.0;
   r.fewest_agreeing = 4;
   for (int b = 0; b < 8; ++b) {
@@ -70,8 +69,7 @@ Rejection Frame8Detector::vote_bits(RingRead& r) {
         ++agree;
       } else {
         ++dissent;
-        ++r.outvoted[static_cast<std::size_t>(e)];
-        r.outvoted_bits[static_cast<std::size_t>(e)] |= static_cast<std::uint8_t>(1U << b);
+        r.outvoted[static_cast<std::size_t>(e)] |= static_cast<std::uint8_t>(1U << b);
       }
     }
     // At most one wrong edge per bit position is correctable; a second is detected.

@@ -175,9 +175,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
         2 * std::sqrt(2.0) * kMinInkCells * frame8::grid) {
       return;
     }
-    for (const Point2& p : outer) {
-      if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return;
-    }
+    if (!std::all_of(outer.begin(), outer.end(), [&](Point2 p) { return in_image(full_, p); })) return;
     const Point2 centre = 0.25 * (outer[0] + outer[1] + outer[2] + outer[3]);
     if (inside_any(out, centre)) return;
     if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
@@ -354,7 +352,7 @@ Rejection Frame8Detector::read_outer_square(const std::array<Point2, 4>& traced,
     }
     // A square cut by the image's border (a key of a keyboard there read
     // as 126) is not read.
-    if (p.x < 0 || p.y < 0 || p.x > full_.width - 1 || p.y > full_.height - 1) return Rejection::corner_off_image;
+    if (!in_image(full_, p)) return Rejection::corner_off_image;
     if (corner_moved(outer[static_cast<std::size_t>(side)], traced[static_cast<std::size_t>(side)],
                      distance(traced[0], traced[2]) / (std::sqrt(2.0) * frame8::grid))) {
       return Rejection::corner_moved;

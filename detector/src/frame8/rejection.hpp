@@ -83,9 +83,8 @@ enum class Rejection : std::uint8_t {
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
   unconfirmed_small_cells,    // cells under 2.5 px read once, the second measurement reading nothing
   model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
-  grid_like_read,
-  outvoted_scattered,  // resolved cells outvoted where no one cover lies (clutter, or a misplaced grid)  // a
-                       // near-uniform id or a cell outvoted, on a hole measured past its first reach or of two pieces
+  grid_like_read,      // a near-uniform id or a cell outvoted, on a hole measured past its first reach or of two pieces
+  outvoted_scattered,  // resolved cells outvoted where no one cover lies (clutter, or a misplaced grid)
   // 5. the whole pattern, 6. corners and pose
   pattern_fit_failed,
   corners_not_convex,  // the outer or inner corners do not make a convex quad

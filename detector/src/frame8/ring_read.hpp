@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstdint>
 
 #include "frame8/common.hpp"
@@ -38,13 +39,15 @@ struct RingRead {
   bool orientation_ambiguous = false;
 
   // 4d: the code, its cell reads overruled and erased, per edge the cells
-  // the other edges outvoted, the fewest clear reads that agreed on a bit,
-  // and the weakest bit's margin.
+  // the other edges outvoted (bit b set where the edge's cell for bit b
+  // was), the fewest clear reads that agreed on a bit, and the weakest
+  // bit's margin.
   int id = 0, corrected = 0, erased = 0, fewest_agreeing = 0;
-  std::array<int, 4> outvoted{};
-  std::array<std::uint8_t, 4> outvoted_bits{};  // per edge, bit b set where its cell for bit b was outvoted
+  std::array<std::uint8_t, 4> outvoted{};
   double margin = 1.0;
 
+  // How many of edge e's cells the other edges outvoted.
+  [[nodiscard]] int outvoted_cells(int e) const { return std::popcount(outvoted[static_cast<std::size_t>(e)]); }
   // A grey level on the ring's scale: -1 black, +1 white.
   [[nodiscard]] double soft(double v) const { return std::clamp((v - thr) / (0.5 * contrast), -1.0, 1.0); }
   // A cell read clearly and, where resolved, one colour all over; otherwise
