@@ -577,6 +577,18 @@ TEST(Frame8, MarkerOnASocketFrameTurnedWithTheFarLineHidden) {
   EXPECT_EQ(r.wrong, 0);
 }
 
+// The socket frame turned 60 deg either way at 0.5 m: the outlet's face
+// round its recess and the insert's side wall beside it, parted by shaded
+// edges that meet the line, leave the hole in two or three pieces, which
+// are read as one (hole_fragments.cpp).
+TEST(Frame8, MarkerOnASocketFrameTurnedWithTheHoleInPieces) {
+  const SocketReads r = read_turned_socket({{0.5, -60}, {0.5, 60}}, 16, 570, 1.0);
+  // Measured: 23 of 32 (11 before boxes could overlap along the parting
+  // and a third piece complete a pair).
+  EXPECT_GE(r.detected, 19) << "of " << r.frames;
+  EXPECT_EQ(r.wrong, 0);
+}
+
 // The socket frame turned 40 deg at 0.95 m and 45 deg at 0.72 m, either
 // way: the hole seen is the line's inner edge on the inner roll, below the
 // ring's plane, and seen turned it lies 0.3 to 0.5 of a cell towards the

@@ -294,6 +294,56 @@ TEST_F(Frame8StageTest, AHolePartedInTwoIsReadAsOne) {
   }
 }
 
+// Turned far, an outlet's recess lies in its face and the insert's side
+// wall shows beside the face, parted from it by a shaded edge that meets
+// the line: the face is one piece, and the wall with the strip below the
+// face another, an L whose box holds the face's. The two are read as one.
+void wrap_hole(GreyImage& img) {
+  for (int y = 65; y < 135; ++y) {
+    for (int x = 65; x < 135; ++x) {
+      const double u = (x - 90.5) / 15.0, v = (y - 92.5) / 18.0;
+      const bool edge = (x >= 118 && x < 122 && y < 124) || (y >= 120 && y < 124 && x < 122);
+      if (edge || u * u + v * v <= 1) img.row(y)[x] = 30;
+    }
+  }
+}
+
+TEST_F(Frame8StageTest, AHoleWrappedByThePieceBesideItIsReadAsOne) {
+  GreyImage img = clean_marker(165);
+  wrap_hole(img);
+  const Quad outer{{{49.5, 49.5}, {149.5, 49.5}, {149.5, 149.5}, {49.5, 149.5}}};
+  std::vector<Detection> found;
+  detector_.detect(img.view(), found);
+  ASSERT_EQ(found.size(), 1U);
+  EXPECT_EQ(found[0].id, 165);
+  for (std::size_t k = 0; k < 4; ++k) EXPECT_LT(distance(found[0].corners[k], outer[k]), 0.5) << "corner " << k;
+}
+
+// Turned far, the face round the recess is parted by it into two pieces,
+// and the insert's side wall beside them is a third, a strip parted from
+// both by a shaded edge: the three are read as one.
+TEST_F(Frame8StageTest, AHoleInThreePiecesIsReadAsOne) {
+  GreyImage img = clean_marker(165);
+  for (int y = 65; y < 135; ++y) {
+    for (int x = 65; x < 135; ++x) {
+      const double u = (x - 91.0) / 26.5, v = (y - 99.5) / 25.0;
+      if ((x >= 117 && x < 119) || u * u + v * v <= 1) img.row(y)[x] = 30;
+    }
+  }
+  const Quad outer{{{49.5, 49.5}, {149.5, 49.5}, {149.5, 149.5}, {49.5, 149.5}}};
+  for (const GreyImage& view : {img, turned(img)}) {
+    std::vector<Detection> found;
+    detector_.detect(view.view(), found);
+    ASSERT_EQ(found.size(), 1U);
+    EXPECT_EQ(found[0].id, 165);
+    for (const Point2& corner : found[0].corners) {
+      const double nearest = std::min({distance(corner, outer[0]), distance(corner, outer[1]),
+                                       distance(corner, outer[2]), distance(corner, outer[3])});
+      EXPECT_LT(nearest, 0.5);
+    }
+  }
+}
+
 // Two squares of a grid side by side make the same pair, the grid's lines
 // round them a ring of one colour but for a cell or two: no near-uniform
 // id is read from two pieces.

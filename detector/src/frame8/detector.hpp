@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <initializer_list>
 #include <optional>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -64,7 +65,7 @@ class Frame8Detector final : public MarkerDetector {
 
   // Stage 2: quad fitting (quad_fit.cpp).
   Rejection fit_quad(Component& c, std::array<Point2, 4>& quad);
-  void outline_rows(std::initializer_list<const Component*> components, int y0, int rows);
+  void outline_rows(std::span<const Component* const> components, int y0, int rows);
   bool largest_quad_of_rows(int y0, int rows, std::array<Point2, 4>& quad, double& quad_area, double& hull_area);
   void convex_hull();
   bool max_area_quad(std::array<Point2, 4>& quad);
@@ -237,7 +238,8 @@ class Frame8Detector final : public MarkerDetector {
   // Stage 2d, a hole parted by its insert (hole_fragments.cpp), after every
   // quad: two pieces of a hole read as one quad.
   void read_hole_fragments(std::vector<Detection>& out);
-  bool fit_pieces_quad(const Component& a, const Component& b, std::array<Point2, 4>& quad);
+  bool read_pieces(std::initializer_list<Component*> pieces, std::vector<Detection>& out);
+  bool fit_pieces_quad(std::initializer_list<Component*> pieces, std::array<Point2, 4>& quad);
   void find_open_holes(std::vector<Detection>& out);
   void find_open_holes_on_outline(double min_side, std::vector<Detection>& out);
   Rejection read_open_hole(const std::array<Point2, 4>& coarse, Detection& det);

@@ -13,6 +13,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <initializer_list>
 #include <limits>
 #include <vector>
 
@@ -23,11 +24,16 @@ namespace markerd::detector::frame8 {
 namespace {
 
 // The pieces' ends across the parting line up to this share of the span
-// (a marker turned in its plane by up to about 15 degrees), and the
-// pieces overlap along the parting by less than this share of the shorter
-// one's extent.
+// (a marker turned in its plane by up to about 15 degrees). Along the
+// parting their boxes may overlap, even one hold the other: turned far,
+// an outlet's face is one piece, and the insert's side wall with the strip
+// below the face another, an L round it.
 constexpr double kEndsAlign = 0.25;
-constexpr double kMaxOverlap = 0.5;
+// A third piece, the insert's side wall, shares the parting edge with the
+// face the pair makes, along the hole's whole side: its ends line up with
+// the pair's as closely as the hole's side is measured.
+constexpr double kWallEndsAlign = 0.125;
+constexpr double kWallEdge = 0.05;
 // What parts them takes at most this share of the hole along the
 // parting: the recess is 0.7 of the opening, and the pieces beside it
 // the rest.
@@ -48,7 +54,8 @@ double box_fill(const Component& c) {
 // infinity where they are no pieces of one hole. The pieces span the hole
 // across the parting (the two pieces above and below a recess each reach
 // from the hole's left side to its right). Along it, each takes some of
-// the hole and the recess the rest (their boxes overlap where it is round).
+// the hole and the recess the rest (their boxes overlap where it is round,
+// or where one piece wraps the other).
 double pieces_mismatch(const Component& a, const Component& b, double min_side) {
   constexpr double kNone = std::numeric_limits<double>::infinity();
   const int x0 = std::min(a.x0, b.x0), x1 = std::max(a.x1, b.x1);
@@ -61,8 +68,7 @@ double pieces_mismatch(const Component& a, const Component& b, double min_side) 
     const double ends = std::max(std::abs(a0 - b0), std::abs(a1 - b1)) / span;
     const int extent = std::max(c1, d1) - std::min(c0, d0);
     const int gap = std::max(c0, d0) - std::min(c1, d1);  // negative where they overlap
-    const bool one_hole =
-        ends <= kEndsAlign && gap <= kMaxGap * extent && -gap < kMaxOverlap * std::min(c1 - c0, d1 - d0);
+    const bool one_hole = ends <= kEndsAlign && gap <= kMaxGap * extent;
     return one_hole ? ends : kNone;
   };
   return std::min(mismatch(a.x0, a.x1, b.x0, b.x1, a.y0, a.y1 + 1, b.y0, b.y1 + 1),
@@ -99,41 +105,83 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
     Component& a = components_[static_cast<std::size_t>(pieces_[i])];
     Component& b = components_[static_cast<std::size_t>(pieces_[j])];
     if (a.read || b.read) continue;
-    std::array<Point2, 4> quad{};
-    if (!fit_pieces_quad(a, b, quad)) continue;
-    for (auto& p : quad) p = to_full(p);
-    const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
-    if (inside_any(out, centre)) continue;
-    // Clutter's neighbouring shapes make most such pairs: a look at where
-    // the ring would be costs less than measuring the sides.
-    Homography H;
-    if (!Homography::from_unit_square(quad, H) || !ring_shows_cells(grid_map(H))) continue;
-    if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
-    Detection det;
-    Rejection why = refine_and_decode(quad, det);
-    // Two squares of a grid side by side make such a pair.
-    if (why == Rejection::none && reads_like_a_grid(det)) why = Rejection::grid_like_read;
-    note_outcome(why, det);
-    if (why == Rejection::none) {
-      out.push_back(det);
-      a.settled = b.settled = a.read = b.read = true;
+    if (read_pieces({&a, &b}, out)) continue;
+    // Turned far, the insert's side wall shows beside the face as a third
+    // piece, a strip parted from both by shaded edges: the pair is then
+    // the face round the recess, and the strip lies beside the pair's box
+    // as another piece would.
+    Component pair = a;
+    pair.x0 = std::min(a.x0, b.x0);
+    pair.x1 = std::max(a.x1, b.x1);
+    pair.y0 = std::min(a.y0, b.y0);
+    pair.y1 = std::max(a.y1, b.y1);
+    Component* third = nullptr;
+    double best = std::numeric_limits<double>::infinity();
+    for (const std::int32_t r : roots_) {
+      Component& c = components_[static_cast<std::size_t>(r)];
+      if (&c == &a || &c == &b || c.read || c.touches_border) continue;
+      if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side) continue;
+      // Only the parting's shaded edge lies between them: a pixel, or a
+      // twentieth of the hole where it is large.
+      const int apart = std::max(std::max(pair.x0, c.x0) - std::min(pair.x1, c.x1),
+                                 std::max(pair.y0, c.y0) - std::min(pair.y1, c.y1) - 1);
+      if (apart > std::max(1.0, kWallEdge * std::max(pair.x1 - pair.x0, pair.y1 - pair.y0 + 1))) continue;
+      const double mismatch = pieces_mismatch(pair, c, min_side);
+      if (mismatch < best) {
+        best = mismatch;
+        third = &c;
+      }
     }
+    if (third != nullptr && best <= kWallEndsAlign) read_pieces({&a, &b, third}, out);
   }
 }
 
-// The largest quad in the hull of two components (working image,
+// Reads the hull of a hole's pieces as any quad's; true when it read.
+bool Frame8Detector::read_pieces(std::initializer_list<Component*> pieces, std::vector<Detection>& out) {
+  std::array<Point2, 4> quad{};
+  if (!fit_pieces_quad(pieces, quad)) return false;
+  for (auto& p : quad) p = to_full(p);
+  const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
+  if (inside_any(out, centre)) return false;
+  // Clutter's neighbouring shapes make most such pairs: a look at where
+  // the ring would be costs less than measuring the sides.
+  Homography H;
+  if (!Homography::from_unit_square(quad, H) || !ring_shows_cells(grid_map(H))) return false;
+  if (debug_) debug_candidates_.push_back({quad, Rejection::none, -1, {}, {}});
+  Detection det;
+  Rejection why = refine_and_decode(quad, det);
+  // Two squares of a grid side by side make such a pair.
+  if (why == Rejection::none && reads_like_a_grid(det)) why = Rejection::grid_like_read;
+  note_outcome(why, det);
+  if (why != Rejection::none) return false;
+  out.push_back(det);
+  for (Component* c : pieces) c->settled = c->read = true;
+  return true;
+}
+
+// The largest quad in the hull of a hole's pieces (working image,
 // clockwise on screen), when the hull is nearly that quad and the pieces'
 // light pixels fill enough of it.
-bool Frame8Detector::fit_pieces_quad(const Component& a, const Component& b, std::array<Point2, 4>& quad) {
-  const int y0 = std::min(a.y0, b.y0), rows = std::max(a.y1, b.y1) - y0 + 1;
-  outline_rows({&a, &b}, y0, rows);
+bool Frame8Detector::fit_pieces_quad(std::initializer_list<Component*> pieces, std::array<Point2, 4>& quad) {
+  std::array<const Component*, 3> list{};
+  std::size_t n = 0;
+  int y0 = std::numeric_limits<int>::max(), y1 = std::numeric_limits<int>::min();
+  std::int64_t area = 0;
+  for (const Component* c : pieces) {
+    list.at(n++) = c;
+    y0 = std::min(y0, c->y0);
+    y1 = std::max(y1, c->y1);
+    area += c->area;
+  }
+  const int rows = y1 - y0 + 1;
+  outline_rows({list.data(), n}, y0, rows);
   double quad_area = 0, hull_area = 0;
   if (!largest_quad_of_rows(y0, rows, quad, quad_area, hull_area)) return false;
-  // As a hole's with rounded corners (quad_fit.cpp): two pieces of clutter
+  // As a hole's with rounded corners (quad_fit.cpp): pieces of clutter
   // lying apart make a hull that the quad fills far less. The pieces'
   // light pixels, as a hole's round a recess.
   return hull_area - quad_area <= kRoundedShortfall * hull_area + hull_staircase(quad_perimeter(quad)) &&
-         static_cast<double>(a.area + b.area) >= kMinLightShare * quad_area;
+         static_cast<double>(area) >= kMinLightShare * quad_area;
 }
 
 }  // namespace markerd::detector::frame8

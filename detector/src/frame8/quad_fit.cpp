@@ -7,8 +7,8 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
-#include <initializer_list>
 #include <limits>
+#include <span>
 #include <vector>
 
 namespace markerd::detector::frame8 {
@@ -29,7 +29,8 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   if (bw > work_.width * 0.95 || bh > work_.height * 0.95) return Rejection::box_size;
   if (c.area < 0.2 * bw * bh) return Rejection::sparse_component;
 
-  outline_rows({&c}, c.y0, bh);
+  const Component* const whole = &c;
+  outline_rows({&whole, 1}, c.y0, bh);
   // The area the component's rows span, dark islands inside it included:
   // a hole may show something darker within it (a socket's recess and
   // pins, clutter behind a cut-out hole) and is whole all the same. Each
@@ -97,7 +98,7 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
 
 // Per horizontal pixel-edge line k (between rows y0-1+k and y0+k), the
 // extreme boundary x of the components' rows touching it: their outline.
-void Frame8Detector::outline_rows(std::initializer_list<const Component*> components, int y0, int rows) {
+void Frame8Detector::outline_rows(std::span<const Component* const> components, int y0, int rows) {
   line_min_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::max());
   line_max_.assign(static_cast<std::size_t>(rows) + 1, std::numeric_limits<std::int32_t>::min());
   for (const Component* c : components) {
