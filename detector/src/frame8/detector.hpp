@@ -359,7 +359,7 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::int32_t> roots_;
   // Stage 2d: the components that may be a parted hole's, and each one's
   // best match among them (how far their ends fail to line up, its index).
-  std::vector<std::int32_t> pieces_;
+  std::vector<std::int32_t> sized_pieces_, pieces_;
   std::vector<std::pair<double, std::size_t>> best_piece_;
   std::vector<std::int32_t> line_min_, line_max_;
   std::vector<Point2> points_, hull_, hull_twice_;

@@ -79,12 +79,15 @@ double pieces_mismatch(const Component& a, const Component& b, double min_side) 
 
 void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
   const double min_side = config_.frame8.min_hole_side_px / decimate_;
+  // Components large enough to be a piece of a hole; the concave ones
+  // among them are paired, any of them may be a third.
+  sized_pieces_.clear();
   pieces_.clear();
   for (const std::int32_t r : roots_) {
     const Component& c = components_[static_cast<std::size_t>(r)];
-    if (c.read || c.touches_border) continue;
-    if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side || box_fill(c) > kMaxPieceFill) continue;
-    pieces_.push_back(r);
+    if (c.read || c.touches_border || std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side) continue;
+    sized_pieces_.push_back(r);
+    if (box_fill(c) <= kMaxPieceFill) pieces_.push_back(r);
   }
   // Each piece is paired with the one whose ends line up best with its
   // own: the other piece of its hole, where it is one (clutter's pieces
@@ -117,10 +120,9 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
     pair.y1 = std::max(a.y1, b.y1);
     Component* third = nullptr;
     double best = std::numeric_limits<double>::infinity();
-    for (const std::int32_t r : roots_) {
+    for (const std::int32_t r : sized_pieces_) {
       Component& c = components_[static_cast<std::size_t>(r)];
-      if (&c == &a || &c == &b || c.read || c.touches_border) continue;
-      if (std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < 0.5 * min_side) continue;
+      if (&c == &a || &c == &b || c.read) continue;
       // Only the parting's shaded edge lies between them: a pixel, or a
       // twentieth of the hole where it is large.
       const int apart = std::max(std::max(pair.x0, c.x0) - std::min(pair.x1, c.x1),
