@@ -583,9 +583,11 @@ TEST(Frame8, MarkerOnASocketFrameTurnedWithTheFarLineHidden) {
 // are read as one (hole_fragments.cpp).
 TEST(Frame8, MarkerOnASocketFrameTurnedWithTheHoleInPieces) {
   const SocketReads r = read_turned_socket({{0.5, -60}, {0.5, 60}}, 16, 570, 1.0);
-  // Measured: 23 of 32 (11 before boxes could overlap along the parting
-  // and a third piece complete a pair).
-  EXPECT_GE(r.detected, 19) << "of " << r.frames;
+  // Measured: 27 of 32 (23 while the ring-edge fit started from the hole
+  // moved back 0.6 of a cell times the turn's tangent, ring_edges.cpp; 11
+  // before boxes could overlap along the parting and a third piece
+  // complete a pair).
+  EXPECT_GE(r.detected, 25) << "of " << r.frames;
   EXPECT_EQ(r.wrong, 0);
 }
 

@@ -22,13 +22,16 @@ constexpr int kRounds = 2;
 
 // The hole seen on a cover frame is the line's inner edge on the inner
 // roll, below the plane of the ring: turned by an angle t, it is displaced
-// towards the far side by that depth times tan t, the same for all its
-// sides (measured at 40 deg from 0.95 m: 0.3 to 0.5 of a cell). The depth
-// is about this many cells (the roll's radius is 0.75 of a cell on a
-// socket frame and less on a switch's); 0.4 to 0.8 found the same markers.
-constexpr double kRollDepthCells = 0.6;
-// Turned less than this (tan 27 deg), the displacement is under a third
-// of a cell and the fit to the ring's edges undoes it from the hole seen.
+// towards the far side, the same for all its sides, by about this many
+// cells times tan t. The displacement grows more slowly than tan t, as the
+// edge seen moves round the roll: 0.3 to 0.5 of a cell at 40 deg from
+// 0.95 m, about half a cell at 60 deg from 0.5 m (the quad there lay 2 px
+// off with cells of 3.9). The fit to the ring's edges pulls a start within
+// about a third of a cell in: a depth of 0.6 started 1.04 cells off at 60
+// deg, and those markers did not read (0.5 m, 60 deg: 86% then, 90% now).
+constexpr double kRollDepthCells = 0.3;
+// Turned less than this (tan 27 deg), the fit to the ring's edges undoes
+// the displacement from the hole seen.
 constexpr double kMinTurnTan = 0.5;
 
 namespace {
