@@ -980,15 +980,20 @@ TEST(Frame8, CutHoleMarkerWithItsPaperMarginIsFoundOverDarkAndClutteredGrounds) 
 // read 178 as 1 with a cell outvoted (bench_accuracy --mount cut-hole
 // --margin 10 --background 15 --seed 4, the 50 frames at 0.75 m). A read
 // that outvoted a cell must have its hole lighter than its line.
-TEST(Frame8, CutHoleOverADarkGroundGivesNoWrongIdFromAHoleAsDarkAsItsLine) {
-  auto det = make_detector(posed_config());
+// The print with its 10 mm margin, its hole cut out, over a plain ground.
+EvalSettings cut_hole_over(double grey, std::uint64_t seed) {
   EvalSettings settings = benchmark_settings();
   settings.scene.cut_hole = true;
   settings.scene.paper_margin_m = 0.010;
   settings.scene.clutter = false;
-  settings.scene.background_grey = 15;
-  settings.seed = 4;
-  const Tally t = evaluate_facing(*det, settings, {0.75});
+  settings.scene.background_grey = grey;
+  settings.seed = seed;
+  return settings;
+}
+
+TEST(Frame8, CutHoleOverADarkGroundGivesNoWrongIdFromAHoleAsDarkAsItsLine) {
+  auto det = make_detector(posed_config());
+  const Tally t = evaluate_facing(*det, cut_hole_over(15, 4), {0.75});
   EXPECT_EQ(t.wrong, 0);
   // Measured: 50 of 50 (49 and the wrong id without the rule).
   EXPECT_GE(t.detected, 48) << "of " << t.frames;
@@ -1000,13 +1005,7 @@ TEST(Frame8, CutHoleOverADarkGroundGivesNoWrongIdFromAHoleAsDarkAsItsLine) {
 // the ink it encloses is measured all the same (stage 2c).
 TEST(Frame8, CutHoleOverBlackIsFoundWithinAThinMargin) {
   auto det = make_detector(posed_config());
-  EvalSettings settings = benchmark_settings();
-  settings.scene.cut_hole = true;
-  settings.scene.paper_margin_m = 0.010;
-  settings.scene.clutter = false;
-  settings.scene.background_grey = 0;
-  settings.seed = 12;
-  const Tally t = evaluate_facing(*det, settings, {1.5});
+  const Tally t = evaluate_facing(*det, cut_hole_over(0, 12), {1.5});
   EXPECT_EQ(t.wrong, 0);
   // Measured: 39 of 50 (30 before).
   EXPECT_GE(t.detected, 35) << "of " << t.frames;
