@@ -817,6 +817,15 @@ TEST(Frame8, FarMarkersPrintedWithAPaperMarginGiveNoWrongId) {
   EXPECT_GE(t.detected, 660) << "of " << t.frames;
 }
 
+// The print with its 10 mm margin under a lens out of focus, 300 frames a point.
+EvalSettings print_under_a_defocus_disc() {
+  EvalSettings settings = benchmark_settings();
+  settings.scene.paper_margin_m = 0.010;
+  settings.scene.blur_model = BlurModel::disc;
+  settings.frames_per_point = 300;
+  return settings;
+}
+
 // Beyond 2.7 m (cells of 1.5 px and less) under a lens out of focus (a
 // disc of 1.2 px), the sides' first measurement comes out up to a tenth
 // of the marker small, and a grid so placed reads each edge's end cells
@@ -825,11 +834,7 @@ TEST(Frame8, FarMarkersPrintedWithAPaperMarginGiveNoWrongId) {
 // 300 frames a point: 4 wrong ids without it.
 TEST(Frame8, FarMarkersUnderADefocusDiscGiveNoWrongId) {
   auto det = make_detector(posed_config());
-  EvalSettings settings = benchmark_settings();
-  settings.scene.paper_margin_m = 0.010;
-  settings.scene.blur_model = BlurModel::disc;
-  settings.frames_per_point = 300;
-  const Tally t = evaluate_facing(*det, settings, {2.7, 2.9, 3.0});
+  const Tally t = evaluate_facing(*det, print_under_a_defocus_disc(), {2.7, 2.9, 3.0});
   EXPECT_EQ(t.wrong, 0);
   // Measured: 204 of 900 (285 and 4 wrong ids without the confirmation).
   EXPECT_GE(t.detected, 180) << "of " << t.frames;
@@ -1017,10 +1022,7 @@ TEST(Frame8, CutHoleOverBlackIsFoundWithinAThinMargin) {
 // beyond the image is not seen to be covered, and is not read as hidden.
 TEST(Frame8, NoSideIsReadAsHiddenBeyondTheImagesEdge) {
   auto det = make_detector(posed_config());
-  EvalSettings settings = benchmark_settings();
-  settings.scene.paper_margin_m = 0.010;
-  settings.scene.blur_model = BlurModel::disc;
-  settings.frames_per_point = 300;
+  EvalSettings settings = print_under_a_defocus_disc();
   settings.seed = 4;
   const Tally t = evaluate_facing(*det, settings, {2.2});
   EXPECT_EQ(t.wrong, 0);

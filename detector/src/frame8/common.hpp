@@ -103,13 +103,13 @@ inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
   return {q(0) / q(2), q(1) / q(2)};
 }
 
-// The grid point `in` cells in from the outer edge on a side (0 top, 1
-// right, 2 bottom, 3 left), `along` cells along it in the clockwise reading
-// order: one description of a position for all four sides.
 // The marker's outer corners in grid coordinates, clockwise from top left.
 inline constexpr std::array<Point2, 4> kOuterGridCorners{
     {{0, 0}, {frame8::grid, 0}, {frame8::grid, frame8::grid}, {0, frame8::grid}}};
 
+// The grid point `in` cells in from the outer edge on a side (0 top, 1
+// right, 2 bottom, 3 left), `along` cells along it in the clockwise reading
+// order: one description of a position for all four sides.
 inline Point2 side_point(int side, double along, double in) {
   switch (side) {
     case 0: return {along, in};

@@ -33,6 +33,8 @@ constexpr double kEndsAlign = 0.25;
 // face the pair makes, along the hole's whole side: its ends line up with
 // the pair's as closely as the hole's side is measured.
 constexpr double kWallEndsAlign = 0.125;
+// The shaded edge between the wall and the face: at most a pixel, or this
+// share of the hole where the hole is large.
 constexpr double kWallEdge = 0.05;
 // What parts them takes at most this share of the hole along the
 // parting: the recess is 0.7 of the opening, and the pieces beside it
@@ -123,8 +125,7 @@ void Frame8Detector::read_hole_fragments(std::vector<Detection>& out) {
     for (const std::int32_t r : sized_pieces_) {
       Component& c = components_[static_cast<std::size_t>(r)];
       if (&c == &a || &c == &b || c.read) continue;
-      // Only the parting's shaded edge lies between them: a pixel, or a
-      // twentieth of the hole where it is large.
+      // Only the parting's shaded edge lies between them.
       const int apart = std::max(std::max(pair.x0, c.x0) - std::min(pair.x1, c.x1),
                                  std::max(pair.y0, c.y0) - std::min(pair.y1, c.y1) - 1);
       if (apart > std::max(1.0, kWallEdge * std::max(pair.x1 - pair.x0, pair.y1 - pair.y0 + 1))) continue;
