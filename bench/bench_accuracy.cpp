@@ -5,7 +5,8 @@
 //
 //   bench_accuracy --family all --frames 50 --dist 0.3:3.0:0.1
 //                  --yaw-at 0.5,0.95 --yaw 0:85:5 [--camera calib.yaml]
-//                  [--mount paper|cut-hole|socket|switch] [--insert none|socket|rocker]
+//                  [--mount paper|cut-hole|socket|switch] [--tell-mounting]
+//                  [--insert none|socket|rocker]
 //                  [--background KIND|all|GREY] [--cover top|right|bottom|left|each]
 //                  [--margin MM] [--false-positives N] [--blur-model gaussian|disc]
 //                  [--noise-model gaussian|shot] [--jpeg Q] [--supersample N] [--no-distort]
@@ -286,6 +287,11 @@ int main(int argc, char** argv) {
                  "switch (glued on a rounded cover frame, the outlet or rocker in the opening)")
       ->check(CLI::IsMember({"paper", "cut-hole", "socket", "switch"}))
       ->capture_default_str();
+  bool tell_mounting = false;
+  app.add_flag("--tell-mounting", tell_mounting,
+               "frame8: tell the detector the mount, as markerd does when [marker] mounting says it (it then "
+               "searches for that mounting's holes alone); without it the detector is not told, as a new user runs "
+               "markerctl detect");
   std::string insert_name;
   app.add_option("--insert", insert_name,
                  "what the opening shows: none (the background), socket, rocker (default: the mount's)")
@@ -474,6 +480,7 @@ int main(int argc, char** argv) {
     fmt::print("- covered: {} side{}, {:.2f} of the size in from the outer edge, reflectance {:.2f}, 3 cm in front\n",
                cover, cover == "each" ? " in turn" : "", cover_depth, cover_grey);
   }
+  if (tell_mounting) fmt::print("- frame8 is told the mount\n");
   if (model_small_cells) {
     fmt::print("- frame8 reads cells under 3 px with the ring model, told the blur sigma above\n");
   }
@@ -505,6 +512,12 @@ int main(int argc, char** argv) {
       config.marker_size_m = size_m;
       config.frame8.model_small_cells = model_small_cells;
       config.frame8.blur_sigma_px = blur;
+      if (tell_mounting) {
+        using markerd::detector::Mounting;
+        config.frame8.mounting = mount == "paper"      ? Mounting::paper
+                                 : mount == "cut-hole" ? Mounting::cut_hole
+                                                       : Mounting::cover_frame;
+      }
       auto detector = markerd::detector::make_detector(config);
       if (!dump_wrong.empty()) {
         settings.on_wrong_id = [&](const markerd::detector::GreyImage& image, const markerd::detector::Scene& scene,

@@ -273,6 +273,21 @@ TEST_F(DaemonTest, TheShippedSocketConfigMountsTheMarkerOnASocketFrame) {
   EXPECT_EQ(sim.clutter, paper_sim.clutter);
 }
 
+// The detector is told the mounting only where the config says it: then it
+// searches for that mounting's holes alone; not said, for every kind.
+TEST_F(DaemonTest, TheDetectorIsToldTheMountingTheConfigStates) {
+  const auto told = [&](const std::string& marker) {
+    return detector_config(config_with("size_m = 0.08", "size_m = 0.08" + marker)).frame8.mounting;
+  };
+  EXPECT_EQ(told(""), detector::Mounting::any);
+  EXPECT_EQ(told("\nmounting = \"paper\""), detector::Mounting::paper);
+  EXPECT_EQ(told("\nmounting = \"socket\""), detector::Mounting::cover_frame);
+  EXPECT_EQ(told("\nmounting = \"switch\""), detector::Mounting::cover_frame);
+  EXPECT_EQ(told("\nmounting = \"cut_hole\""), detector::Mounting::cut_hole);
+  EXPECT_EQ(told("\ncut_hole = true"), detector::Mounting::cut_hole);
+  EXPECT_EQ(told("\ncut_hole = false"), detector::Mounting::paper);
+}
+
 TEST_F(DaemonTest, TheMarkersMountingGivesTheSimulatedCameraItsFrameInsertAndMargin) {
   {
     const DaemonConfig c = config_with("size_m = 0.08", "size_m = 0.08");

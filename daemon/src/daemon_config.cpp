@@ -95,13 +95,15 @@ MarkerSettings parse_marker(const ConfigTable& t) {
       t.fail("mounting", fmt::format(R"(must be "paper", "socket", "switch" or "cut_hole", got "{}")", *name));
     }
     m.mounting = *mounting;
+    m.mounting_stated = true;
     if (cut_hole && *cut_hole != m.cut_hole()) {
       t.fail("cut_hole",
              fmt::format("= {} contradicts {} = \"{}\", whose hole is {} (remove cut_hole: mounting says it)",
                          *cut_hole, key_at(t, "mounting"), *name, m.cut_hole() ? "cut out" : "printed white"));
     }
-  } else if (cut_hole && *cut_hole) {
-    m.mounting = sweep::Mounting::cut_hole;
+  } else if (cut_hole) {
+    m.mounting = *cut_hole ? sweep::Mounting::cut_hole : sweep::Mounting::paper;
+    m.mounting_stated = true;
   }
   const bool on_frame = m.mounting == sweep::Mounting::socket || m.mounting == sweep::Mounting::light_switch;
   if (auto frame = t.maybe_table("frame")) {
@@ -408,6 +410,7 @@ detector::DetectorConfig detector_config(const DaemonConfig& config) {
   detector::DetectorConfig d;
   d.family = config.marker.family;
   d.frame8 = config.detector.frame8;
+  if (config.marker.mounting_stated) d.frame8.mounting = sweep::detector_mounting(config.marker.mounting);
   d.camera = config.camera.model;
   // Without a camera model there is no pose (docs/daemon.md): the detector
   // takes a marker size only together with a model.

@@ -338,6 +338,16 @@ std::string_view mounting_text(Mounting mounting) {
   return "?";
 }
 
+detector::Mounting detector_mounting(Mounting mounting) {
+  switch (mounting) {
+    case Mounting::paper: return detector::Mounting::paper;
+    case Mounting::socket:
+    case Mounting::light_switch: return detector::Mounting::cover_frame;
+    case Mounting::cut_hole: return detector::Mounting::cut_hole;
+  }
+  return detector::Mounting::any;
+}
+
 SweepPlan parse_plan(std::string_view text, std::string source) {
   if (text.size() > kMaxPlanBytes) throw ConfigError(plan_too_large(source, text.size()));
   const ConfigTable root = ConfigTable::parse(text, source);

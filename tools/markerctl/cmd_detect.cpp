@@ -14,6 +14,7 @@
 #include "common.hpp"
 #include "markerd/daemon/capture/image_file.hpp"
 #include "markerd/detector/detector.hpp"
+#include "markerd/sweep/plan.hpp"
 
 namespace markerctl {
 namespace {
@@ -27,6 +28,7 @@ struct DetectOptions {
   double min_margin = markerd::detector::Frame8Options{}.min_margin;
   bool uniform_ids = false;
   double blur_sigma_px = markerd::detector::Frame8Options{}.blur_sigma_px;
+  std::string mounting;
   std::string debug_dir;
   bool verbose = false;
   std::vector<std::string> images;
@@ -78,6 +80,9 @@ int run_detect(const DetectOptions& o) {
   config.frame8.min_margin = o.min_margin;
   config.frame8.uniform_ids = o.uniform_ids;
   config.frame8.blur_sigma_px = o.blur_sigma_px;
+  if (!o.mounting.empty()) {
+    config.frame8.mounting = markerd::sweep::detector_mounting(*markerd::sweep::mounting_from_name(o.mounting));
+  }
   if (!o.debug_dir.empty() && family != markerd::detector::Family::frame8) {
     throw usage_error("--debug", "only the frame8 detector has a debug output");
   }
@@ -188,6 +193,11 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
          "frame8: the camera's blur, pixels (sigma), for reading small cells ([detector.frame8] blur_sigma_px)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, markerd::detector::Frame8Options::kMaxBlurSigmaPx));
+  app->add_option("--mounting", o->mounting,
+                  "frame8: what the print is mounted on (paper, socket, switch, cut_hole: [marker] mounting); "
+                  "the detector then searches only for the holes it can show. Not given: every kind")
+      ->type_name("NAME")
+      ->check(CLI::IsMember({"paper", "socket", "switch", "cut_hole"}));
   app->add_flag("--uniform-ids", o->uniform_ids,
                 "frame8: also report ids 0 and 255 (rings without structure, easily mimicked by clutter)");
   app->add_option("--debug", o->debug_dir,

@@ -48,6 +48,9 @@ Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
     }
     debug_ = true;
   }
+  const Mounting mounting = config_.frame8.mounting;
+  seeks_reshaped_hole_ = mounting != Mounting::paper;
+  seeks_ink_outline_ = mounting == Mounting::any || mounting == Mounting::cut_hole;
   profile_sigma_ = std::sqrt(config_.frame8.blur_sigma_px * config_.frame8.blur_sigma_px + 1.0 / 12 + 1.0 / 8);
 }
 
@@ -87,7 +90,7 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   }
   // Then the holes no quad was: parted in two (2d), open on one side (2b),
   // or no lighter than the line (2c).
-  read_hole_fragments(out);
+  if (seeks_reshaped_hole_) read_hole_fragments(out);
   find_open_holes(out);
   remove_nested(out);
   if (debug_) write_debug(out);
@@ -111,15 +114,19 @@ void Frame8Detector::consider_component(std::int32_t root, std::vector<Detection
   // marker's ink among the dark islands of what is left and of the quads
   // not read (a cut-out hole's marker glued on light paper or plastic: the
   // surround is a quad whose island is the marker). A component too small
-  // to hold either is left alone.
+  // to hold either is left alone, and so is a quad whose islands are not
+  // searched or hold too little ink.
   const double min_side = min_open_hole_side();
   c.quad = shape == Rejection::none;
-  c.settled = std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side ||
-              (c.quad && static_cast<double>(c.dark_inside) < kMinInkShare * min_side * min_side);
+  c.settled =
+      std::max(c.x1 - c.x0, c.y1 - c.y0 + 1) < min_side ||
+      (c.quad && (!seeks_ink_outline_ || static_cast<double>(c.dark_inside) < kMinInkShare * min_side * min_side));
   if (shape != Rejection::none) return;
   Detection det;
   Rejection why = refine_and_decode(quad, det);
-  if (why != Rejection::none && read_hole_past_fold(c, working_quad, det)) why = Rejection::none;
+  if (why != Rejection::none && seeks_reshaped_hole_ && read_hole_past_fold(c, working_quad, det)) {
+    why = Rejection::none;
+  }
   note_outcome(why, det);
   if (why == Rejection::none) {
     out.push_back(det);
@@ -239,14 +246,17 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
     if (!read && worth_it && read_with_side_hidden(inner, det, rotation, hidden, H)) {
       return finish_from_hole(H, hidden, rotation, cell_px, det);
     }
-    if (!read && worth_it && read_inset(inner, cell_size, det, rotation, H)) {
+    // Then the reads of a hole the mounting may have reshaped: displaced by
+    // a frame's roll, inset by a switch's rocker.
+    const bool reshaped = !read && worth_it && seeks_reshaped_hole_;
+    if (reshaped && read_inset(inner, cell_size, det, rotation, H)) {
       return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
-    if (!read && worth_it && read_on_ring_edges(H, cell_size, det, rotation, H)) {
+    if (reshaped && read_on_ring_edges(H, cell_size, det, rotation, H)) {
       read = true;
       inner = H.quad();
     }
-    if (!read && worth_it && read_by_ring_alignment(inner, cell_size, det, rotation, H)) {
+    if (reshaped && !read && read_by_ring_alignment(inner, cell_size, det, rotation, H)) {
       read = true;
       inner = H.quad();
     }

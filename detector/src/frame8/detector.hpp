@@ -335,6 +335,13 @@ class Frame8Detector final : public MarkerDetector {
   static constexpr int kMaxPatternEdges = 384;
 
   DetectorConfig config_;
+  // What the mounting told (Frame8Options::mounting) can show. A hole
+  // reshaped: displaced by a frame's roll, parted by what shows through a
+  // cut-out hole, inset by a switch's rocker (the fold, stage 2d, the
+  // inset, the ring's edges and the ring's alignment search for those). An
+  // ink outline: a cut-out hole no lighter than the line (stage 2c).
+  bool seeks_reshaped_hole_ = true;
+  bool seeks_ink_outline_ = true;
   // The blur an edge profile sees: the lens, the pixel's area and the
   // bilinear sampling of the profile (a quarter pixel squared on average).
   double profile_sigma_ = 0.7;

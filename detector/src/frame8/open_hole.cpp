@@ -246,7 +246,7 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
   make_traced_bits();
   const int s = kTraceScale;
   const double min_side = min_open_hole_side();
-  find_ink_islands_unhalved(min_side, out);
+  if (seeks_ink_outline_) find_ink_islands_unhalved(min_side, out);
   const TraceBits halved{traced_bits_.data(), traced_.data(), trace_stride_, trace_w_, trace_h_, kTraceScale};
   for (int y = 0; y < trace_h_; ++y) {
     const std::uint64_t* row = traced_bits_.data() + trace_stride_ * static_cast<std::size_t>(y);
@@ -270,7 +270,7 @@ void Frame8Detector::find_open_holes(std::vector<Detection>& out) {
         // Clockwise round the component itself, anticlockwise round an
         // island within it.
         const bool island = twice_signed_area(outline_.data(), outline_.size()) < 0;
-        if (island && !unhalved_islands(*c)) find_marker_on_ink_outline(kTraceScale, out);
+        if (island && seeks_ink_outline_ && !unhalved_islands(*c)) find_marker_on_ink_outline(kTraceScale, out);
         // A quad's outline and its islands' have been measured as a
         // quad's already.
         if (c->quad) continue;

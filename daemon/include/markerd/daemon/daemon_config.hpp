@@ -36,6 +36,9 @@ struct MarkerSettings {
   int id = 165;  // what the simulated camera shows
   double size_m = 0.08;
   sweep::Mounting mounting = sweep::Mounting::paper;
+  // Whether the config says it (`mounting`, or `cut_hole`): only then is the
+  // detector told it, and searches for that mounting's holes alone.
+  bool mounting_stated = false;
   // socket, switch: the cover frame (the preset with [marker.frame]'s overrides).
   std::optional<detector::CoverFrame> frame;
   detector::Insert insert = detector::Insert::none;  // what the hole shows, when it is cut out

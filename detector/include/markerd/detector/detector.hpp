@@ -4,6 +4,7 @@
 // output vector keeps its capacity). A detector is not thread-safe; run one
 // per worker thread.
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -20,6 +21,17 @@ namespace markerd::detector {
 class DetectorError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
+};
+
+// What a frame8 print is mounted on, as far as finding it goes: each
+// mounting shows the hole its own way, and the detector searches only for
+// the ways the mounting it is told can (docs/architecture.md, "What each
+// mounting is searched for"). Not told, it searches for all of them.
+enum class Mounting : std::uint8_t {
+  any,          // every search: the mounting is not known
+  paper,        // flat, the hole printed white: a light quad enclosed by the line
+  cover_frame,  // cut out and glued onto a socket's or a switch's rounded frame
+  cut_hole,     // flat, the hole cut out: whatever lies behind shows through
 };
 
 struct Frame8Options {
@@ -56,6 +68,11 @@ struct Frame8Options {
   // The camera's blur as a Gaussian sigma in pixels, on top of each pixel's
   // own area, for that model; a focused lens is about 0.5 to 1.
   double blur_sigma_px = 0.6;
+  // What the print is mounted on. Told `paper`, the detector leaves out the
+  // searches for a hole displaced by a frame's roll, parted by what shows
+  // through it, or no lighter than the line: on bench_detect's flat
+  // markers in clutter, half its time.
+  Mounting mounting = Mounting::any;
   // Debug output, for when a marker is not found: empty is off. Otherwise a
   // directory (created if missing) into which every detect() call n (from 0)
   // writes NNNN-threshold.png (the working image's light pixels, white),

@@ -54,6 +54,9 @@ enum class Mounting : std::uint8_t {
 [[nodiscard]] std::optional<Mounting> mounting_from_name(std::string_view name);
 // "on paper", "on a socket frame", ...: for the report's marker cells.
 [[nodiscard]] std::string_view mounting_text(Mounting mounting);
+// What the detector is told of it: socket and switch frames are both
+// rounded cover frames.
+[[nodiscard]] detector::Mounting detector_mounting(Mounting mounting);
 
 struct PlanMarker {
   detector::Family family = detector::Family::frame8;
