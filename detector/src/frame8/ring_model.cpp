@@ -30,8 +30,14 @@ constexpr double kMaxOutside = 0.5;
 constexpr double kRidge = 0.02;
 // How far (in footprint widths) a grid line still counts for a pixel.
 constexpr double kReach = 3.5;
-// Steps of the map per alignment; it converges in three or four.
+// Steps of the map per alignment, and the step (largest corner
+// displacement, pixels) under which it has converged: the alignment places
+// cells for their levels, and a twentieth of a pixel is a fortieth of the
+// smallest cell it reads. From the pattern's map a fit stopped at 0.01 px
+// took 3.4 steps on average; at 0.05, 2.1 (bench_detect's frames), with the
+// same reads on the fixed-seed sets to 3 m.
 constexpr int kAlignIterations = 4;
+constexpr double kAlignConverged = 0.05;
 
 // The lines of the printed pattern along each grid axis, between -inf and
 // +inf: every region is a rectangle between two of them on each axis.
@@ -397,7 +403,7 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
     for (int iter = 0; iter < kAlignIterations; ++iter) {
       double moved = 0;
       if (!align_step(image, moved)) return false;
-      if (moved < 0.01) break;
+      if (moved < kAlignConverged) break;
     }
     if (!solve_levels(image)) return false;
     if (rms_ > start_rms) {
