@@ -459,6 +459,24 @@ TEST(Frame8, MarkerOnASocketFrameFacing) {
   EXPECT_EQ(wrong, 0);
 }
 
+// The socket frame facing from 2.0 and 2.2 m: the hole, 14 px across, is
+// the outlet's face round its dark recess, a light ridge two or three
+// pixels wide that the first look's threshold thins to its crest and
+// breaks; the second look keeps it whole (segmentation.cpp, the valley
+// rule).
+TEST(Frame8, MarkerOnASocketFrameFromTwoMetres) {
+  auto det = make_detector(posed_config());
+  EvalSettings settings = benchmark_settings();
+  settings.scene.frame = socket_frame();
+  settings.scene.insert = Insert::socket;
+  settings.frames_per_point = 20;
+  settings.seed = 21;
+  const Tally t = evaluate_facing(*det, settings, {2.0, 2.2});
+  EXPECT_EQ(t.wrong, 0);
+  // Measured: 38 of 40 (17 with the first look alone).
+  EXPECT_GE(t.detected, 34) << "of " << t.frames;
+}
+
 // The print on a light switch's frame (issue 18), near: the rocker, lighter
 // than the frame's roll and parted from the line by its shadow, is the hole's
 // light component, a fraction of a cell inside the line all round; read
@@ -1064,6 +1082,31 @@ TEST(Frame8, ToldItsMountingTheDetectorFindsWhatItFindsUntold) {
   const Tally all = evaluate_facing(*untold, cut_hole_over(0, 12), {1.5});
   EXPECT_EQ(evaluate_facing(*cut, cut_hole_over(0, 12), {1.5}).detected, all.detected);
   EXPECT_LT(evaluate_facing(*paper, cut_hole_over(0, 12), {1.5}).detected, all.detected / 2);
+}
+
+// A cut-out hole over black from 1.8 m: the print's 10 mm margin is a
+// light ring three pixels wide round the marker's ink, broken by the first
+// look's threshold and whole in the second's.
+TEST(Frame8, CutHoleOverBlackIsFoundFromOnePointEightMetres) {
+  auto det = make_detector(posed_config());
+  const Tally t = evaluate_facing(*det, cut_hole_over(0, 14), {1.8});
+  EXPECT_EQ(t.wrong, 0);
+  // Measured: 38 of 50 (1 with the first look alone).
+  EXPECT_GE(t.detected, 33) << "of " << t.frames;
+}
+
+// A cut-out hole over a ground as dark as the ink (grey 30) at 1.6 m: a
+// quad inside the hole, with no edge where its sides were measured, read
+// 194 as 195 with one pass and the second failing. A read whose hole is
+// as dark as the ink must be measured twice alike.
+TEST(Frame8, CutHoleOverAGroundAsDarkAsInkIsReadOnlyWhenMeasuredTwiceAlike) {
+  auto det = make_detector(posed_config());
+  EvalSettings settings = cut_hole_over(30, 7);
+  settings.frames_per_point = 200;
+  const Tally t = evaluate_facing(*det, settings, {1.6});
+  EXPECT_EQ(t.wrong, 0);
+  // Measured: 176 of 200, as with the wrong read.
+  EXPECT_GE(t.detected, 165) << "of " << t.frames;
 }
 
 // A square of clutter at the image's right edge, its fourth side 6 px

@@ -110,6 +110,28 @@ class Frame8StageTest : public ::testing::Test {
     return detector_.read_by_ring_alignment(seen, size, det, rotation, H);
   }
 
+  // The light pixels of row y under the first local rule, or the valley rule (stage 1).
+  std::vector<bool> light_row(const GreyImage& img, bool valley, int y) {
+    detector_.full_ = img.view();
+    detector_.make_working_image();
+    detector_.threshold_tiles();
+    detector_.light_pixels_and_runs(valley ? Frame8Detector::LocalRule::valley
+                                           : Frame8Detector::LocalRule::brightest_neighbour);
+    std::vector<bool> light(static_cast<std::size_t>(img.width()));
+    const std::uint64_t* bits = detector_.light_bits_.data() + detector_.light_stride_ * static_cast<std::size_t>(y);
+    for (int x = 0; x < img.width(); ++x) light[static_cast<std::size_t>(x)] = (bits[x >> 6] >> (x & 63)) & 1U;
+    return light;
+  }
+
+  // The valley rule's floor for row y (what a pixel must reach besides the mean).
+  std::vector<int> valley_floor(const GreyImage& img, int y) {
+    detector_.full_ = img.view();
+    detector_.make_working_image();
+    detector_.local_floor_.resize(static_cast<std::size_t>(img.width()));
+    detector_.valley_row(y);
+    return {detector_.local_floor_.begin(), detector_.local_floor_.end()};
+  }
+
   // convex_hull() then max_area_quad() on contour points sorted by (y, x).
   bool quad_of(const std::vector<Point2>& points, std::array<Point2, 4>& quad, double& hull_area) {
     detector_.points_ = points;
@@ -151,6 +173,70 @@ std::vector<Point2> regular_polygon(int corners, double radius, double turn_deg)
     out.push_back({100 + radius * std::cos(a), 100 + radius * std::sin(a)});
   }
   return out;
+}
+
+// A light ridge four pixels wide on a dark ground (a socket's face between
+// the line and its recess, blurred), beside a line one pixel and a line two
+// pixels wide between light areas (a far marker's line between the hole and
+// a white cell). The first rule leaves the ridge its crest alone; the
+// valley rule keeps it whole; both keep the lines dark.
+TEST_F(Frame8StageTest, SegmentationsValleyRuleKeepsARidgeWholeAndLinesDark) {
+  constexpr std::array<std::uint8_t, 28> kProfile{60,  60,  60,  60,  120, 205, 220, 208, 60,  60,  60,  200, 200, 200,
+                                                  150, 190, 190, 190, 60,  60,  200, 200, 160, 150, 190, 190, 60,  60};
+  GreyImage img(static_cast<int>(kProfile.size()) * 2, 48);
+  for (int y = 0; y < img.height(); ++y) {
+    for (int x = 0; x < img.width(); ++x) img.at(x, y) = kProfile[static_cast<std::size_t>(x) % kProfile.size()];
+  }
+  const int y = 24;
+  const auto crest = light_row(img, false, y);
+  const auto valley = light_row(img, true, y);
+  const auto count = [&](const std::vector<bool>& light, int from, int to) {
+    int n = 0;
+    for (int x = from; x < to; ++x) n += light[static_cast<std::size_t>(x)] ? 1 : 0;
+    return n;
+  };
+  // The ridge: columns 4 to 7.
+  EXPECT_EQ(count(crest, 4, 8), 2);
+  EXPECT_EQ(count(valley, 4, 8), 4);
+  // The lines: column 14, columns 22 and 23.
+  for (const auto* light : {&crest, &valley}) {
+    EXPECT_FALSE((*light)[14]);
+    EXPECT_FALSE((*light)[22]);
+    EXPECT_FALSE((*light)[23]);
+    EXPECT_TRUE((*light)[13]);
+    EXPECT_TRUE((*light)[15]);
+  }
+}
+
+// The valley rule's floor, sixteen pixels at a time, is its definition
+// pixel by pixel: on noise, at every column, the borders included.
+TEST_F(Frame8StageTest, SegmentationsValleyFloorIsTheRulesDefinition) {
+  GreyImage img(83, 9);
+  std::uint32_t state = 12345;
+  for (int y = 0; y < img.height(); ++y) {
+    for (int x = 0; x < img.width(); ++x) {
+      state = state * 1664525U + 1013904223U;
+      img.at(x, y) = static_cast<std::uint8_t>(state >> 24);
+    }
+  }
+  const int step = 2 * DetectorConfig{}.frame8.threshold_offset;
+  for (const int y : {0, 1, 4, 7, 8}) {
+    const std::vector<int> floor = valley_floor(img, y);
+    auto at = [&](int dy, int x) {
+      return static_cast<int>(img.at(std::clamp(x, 0, img.width() - 1), std::clamp(y + dy, 0, img.height() - 1)));
+    };
+    for (int x = 0; x < img.width(); ++x) {
+      // Along the row, the column and the two diagonals: the darker of
+      // the brightest within two on either side.
+      int best = 0;
+      for (const auto& [dx, dy] : {std::pair{1, 0}, std::pair{0, 1}, std::pair{1, 1}, std::pair{-1, 1}}) {
+        const int before = std::max(at(-dy, x - dx), at(-2 * dy, x - 2 * dx));
+        const int after = std::max(at(dy, x + dx), at(2 * dy, x + 2 * dx));
+        best = std::max(best, std::min(before, after));
+      }
+      EXPECT_EQ(floor[static_cast<std::size_t>(x)], std::max(0, best - step)) << "x " << x << ", y " << y;
+    }
+  }
 }
 
 TEST_F(Frame8StageTest, QuadFitFindsTheCornersOfATurnedSquare) {

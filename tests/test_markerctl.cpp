@@ -608,6 +608,21 @@ TEST_F(Markerctl, DebugWritesTheThresholdTheCandidatesAndWhyEachWasRejected) {
   EXPECT_EQ(detected, 1) << report.dump();
   EXPECT_GT(rejected, 0) << report.dump();
   EXPECT_GT(stages.size(), 1u) << report.dump();
+  // The first look found the marker: no second.
+  for (const json& c : report["candidates"]) EXPECT_EQ(c["look"], "first") << c.dump();
+  EXPECT_FALSE(fs::exists(path("debug/0000-threshold-second.png")));
+
+  // Too far to be found: the image is segmented again, and the second
+  // look's candidates say so.
+  render("far.png", {"--id", "77", "--dist", "9", "--noise", "2", "--blur", "0.6"});
+  const Outcome far = run({"detect", "--debug", path("far-debug"), path("far.png")});
+  ASSERT_EQ(far.code, 0) << far.describe();
+  EXPECT_TRUE(json_lines(far).empty()) << far.describe();
+  EXPECT_EQ(png_size(path("far-debug/0000-threshold-second.png")), std::make_pair(640, 480));
+  const json far_report = json::parse(read_file(path("far-debug/0000-candidates.json")));
+  std::set<std::string> looks;
+  for (const json& c : far_report["candidates"]) looks.insert(c["look"].get<std::string>());
+  EXPECT_EQ(looks, (std::set<std::string>{"first", "second"})) << far_report.dump();
 
   const Outcome aruco = run({"detect", "--family", "aruco4x4_50", "--debug", path("debug"), path("scene.png")});
   EXPECT_EQ(aruco.code, 2) << aruco.describe();

@@ -52,16 +52,22 @@ void write_text(const std::string& path, const std::string& text) {
 
 }  // namespace
 
-void Frame8Detector::write_debug(const std::vector<Detection>& out) {
-  const std::string prefix = fmt::format("{}/{:04}-", config_.frame8.debug_dir, debug_frame_++);
-
-  // The light pixels of the working image: what segmentation saw.
+// The light pixels of the working image: what the look under way's
+// segmentation saw (threshold.png, and threshold-second.png for the second
+// look).
+void Frame8Detector::write_debug_threshold() const {
   cv::Mat threshold(work_.height, work_.width, CV_8UC1, cv::Scalar(0));
   for (const Run& run : runs_) {
     std::uint8_t* row = threshold.ptr<std::uint8_t>(run.y);
     std::fill(row + run.x0, row + run.x1, std::uint8_t{255});
   }
-  write_image(prefix + "threshold.png", threshold);
+  write_image(fmt::format("{}/{:04}-threshold{}.png", config_.frame8.debug_dir, debug_frame_,
+                          rule_ == LocalRule::valley ? "-second" : ""),
+              threshold);
+}
+
+void Frame8Detector::write_debug(const std::vector<Detection>& out) {
+  const std::string prefix = fmt::format("{}/{:04}-", config_.frame8.debug_dir, debug_frame_++);
 
   // A candidate read and then dropped as part of a larger marker is no
   // longer among the detections.
@@ -91,7 +97,8 @@ void Frame8Detector::write_debug(const std::vector<Detection>& out) {
                 cv::Point(static_cast<int>(std::lround(c.quad[0].x)), static_cast<int>(std::lround(c.quad[0].y)) - 2),
                 cv::FONT_HERSHEY_PLAIN, 0.8, colour, 1, cv::LINE_AA);
 
-    json += fmt::format(R"({}{{"index": {}, "corners": [)", i ? ", " : "", i);
+    json += fmt::format(R"({}{{"index": {}, "look": "{}", "corners": [)", i ? ", " : "", i,
+                        i < debug_second_look_from_ ? "first" : "second");
     for (std::size_t k = 0; k < 4; ++k) {
       json += fmt::format("{}[{:.2f}, {:.2f}]", k ? ", " : "", c.quad[k].x, c.quad[k].y);
     }

@@ -261,4 +261,25 @@ bool Frame8Detector::hole_lighter_than_line(const Homography& H, const RingRead&
   return lighter >= std::min(sides, 3);
 }
 
+// Whether the hole, half a cell in from its sides, is as dark as the ring's
+// black cells (within a quarter of the ring's contrast, in the median): a
+// cut-out hole over a dark ground. Its ring read again through H.
+bool Frame8Detector::hole_as_dark_as_ink(const Homography& H, CellSize cell_size) const {
+  constexpr double kInkShare = 0.25;
+  RingRead r;
+  if (read_code(H, cell_size, nullptr, r) != Rejection::none) return false;
+  std::array<float, 28> hole{};
+  std::size_t n = 0;
+  for (int side = 0; side < 4; ++side) {
+    for (int k = 0; k < 7; ++k) {
+      const Point2 p = grid_point(H, side_point(side, kInnerLo + 0.5 + k, kInnerLo + 0.5));
+      if (sample(full_, p.x, p.y, hole[n])) ++n;
+    }
+  }
+  if (n == 0) return false;
+  std::nth_element(hole.begin(), hole.begin() + static_cast<std::ptrdiff_t>(n / 2),
+                   hole.begin() + static_cast<std::ptrdiff_t>(n));
+  return hole[n / 2] <= r.black + kInkShare * r.contrast;
+}
+
 }  // namespace markerd::detector::frame8

@@ -55,8 +55,20 @@ class Frame8Detector final : public MarkerDetector {
   // Stage 1: segmentation (segmentation.cpp).
   void make_working_image();
   void sum_tiles(int tw, int th);
-  void threshold_and_runs();
-  void local_max_row(int y);
+  // The two local rules a pixel is held to besides its neighbourhood's
+  // mean (segmentation.cpp): the first look at a frame takes the first,
+  // the second look the other.
+  enum class LocalRule : std::uint8_t { brightest_neighbour, valley };
+  void threshold_tiles();
+  void light_pixels_and_runs(LocalRule rule);
+  void brightest_neighbour_row(int y);
+  void valley_row(int y);
+  // Segmentation under `rule`, then stages 2 to 6 (detector.cpp).
+  void look(LocalRule rule, std::vector<Detection>& out);
+  // How far a quad's corners from the valley rule's pixels are moved in
+  // (working pixels) before its sides are searched: about the half width
+  // of the edges' blur, which the first rule takes off a hole's outline.
+  static constexpr double kValleyInset = 1.0;
   void light_row_bits(const std::uint8_t* row, int w, std::uint64_t* bits);
   void extract_runs(int y, int w, int words);
   std::int32_t find(std::int32_t r);
@@ -140,6 +152,7 @@ class Frame8Detector final : public MarkerDetector {
   static Rejection vote_bits(RingRead& r);
   // 4e: structural checks (decode_checks.cpp).
   bool hole_lighter_than_line(const Homography& H, const RingRead& r) const;
+  bool hole_as_dark_as_ink(const Homography& H, CellSize cell_size) const;
   Rejection check_structure(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
                             RingRead& r) const;
   bool fit_short_edge(const Homography& H, int side, int id, double black, double white, ShortEdgeFit& fit) const;
@@ -318,6 +331,7 @@ class Frame8Detector final : public MarkerDetector {
     }
   }
   void write_debug(const std::vector<Detection>& out);
+  void write_debug_threshold() const;
 
   // Edge points per side: about one per 1.5 px along a side of up to 72 px;
   // longer sides need no more to place a line.
@@ -341,6 +355,7 @@ class Frame8Detector final : public MarkerDetector {
   // inset, the ring's edges and the ring's alignment search for those). An
   // ink outline: a cut-out hole no lighter than the line (stage 2c).
   bool seeks_reshaped_hole_ = true;
+  LocalRule rule_ = LocalRule::brightest_neighbour;  // the look under way
   bool seeks_ink_outline_ = true;
   // The blur an edge profile sees: the lens, the pixel's area and the
   // bilinear sampling of the profile (a quarter pixel squared on average).
@@ -354,7 +369,7 @@ class Frame8Detector final : public MarkerDetector {
   std::vector<std::uint32_t> tile_span_x_;   // per tile column, the pixels its 3x3 neighbourhood spans
   std::vector<std::uint8_t> tile_threshold_;
   std::vector<std::uint8_t> pixel_threshold_;
-  std::vector<std::uint8_t> column_max_, local_max_;
+  std::vector<std::uint8_t> column_max_, local_floor_;
   std::vector<std::uint64_t> light_bits_;  // a bit per pixel of the working image, light_stride_ words a row
   std::size_t light_stride_ = 0;
   std::array<std::array<float, 64>, kProfileSegments> segment_profile_{};
@@ -392,6 +407,7 @@ class Frame8Detector final : public MarkerDetector {
   bool debug_ = false;
   int debug_frame_ = 0;
   std::vector<DebugCandidate> debug_candidates_;
+  std::size_t debug_second_look_from_ = 0;  // the second look's first candidate
 };
 
 }  // namespace markerd::detector::frame8

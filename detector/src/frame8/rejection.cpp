@@ -55,6 +55,7 @@ Stage stage_of(Rejection r) {
     case Rejection::second_pass_disagrees: return Stage::structure;
     case Rejection::unconfirmed_correction: return Stage::structure;
     case Rejection::unconfirmed_small_cells: return Stage::structure;
+    case Rejection::unconfirmed_dark_hole: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
     case Rejection::grid_like_read: return Stage::structure;
     case Rejection::outvoted_scattered: return Stage::structure;
@@ -136,6 +137,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";
     case Rejection::unconfirmed_correction: return "unconfirmed_correction";
     case Rejection::unconfirmed_small_cells: return "unconfirmed_small_cells";
+    case Rejection::unconfirmed_dark_hole: return "unconfirmed_dark_hole";
     case Rejection::model_disagrees: return "model_disagrees";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
     case Rejection::corners_not_convex: return "corners_not_convex";

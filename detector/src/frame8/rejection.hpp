@@ -82,6 +82,7 @@ enum class Rejection : std::uint8_t {
   second_pass_disagrees,      // the sides measured again knowing the code read another id
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
   unconfirmed_small_cells,    // cells under 2.5 px read once, the second measurement reading nothing
+  unconfirmed_dark_hole,      // a hole as dark as the ink read once, the second measurement reading nothing
   model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
   grid_like_read,      // a near-uniform id or a cell outvoted, on a hole measured past its first reach or of two pieces
   outvoted_scattered,  // resolved cells outvoted where no one cover lies (clutter, or a misplaced grid)

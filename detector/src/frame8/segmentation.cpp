@@ -102,7 +102,7 @@ void Frame8Detector::sum_tiles(int tw, int th) {
   }
 }
 
-void Frame8Detector::threshold_and_runs() {
+void Frame8Detector::threshold_tiles() {
   const int w = work_.width, h = work_.height;
   const int tw = (w + kTile - 1) / kTile, th = (h + kTile - 1) / kTile;
   tile_sum_.assign(static_cast<std::size_t>(tw) * th, 0);
@@ -144,12 +144,16 @@ void Frame8Detector::threshold_and_runs() {
       out[tx] = static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
     }
   }
+}
 
+void Frame8Detector::light_pixels_and_runs(LocalRule rule) {
+  const int w = work_.width, h = work_.height;
+  const int tw = (w + kTile - 1) / kTile;
   runs_.clear();
   row_first_.resize(static_cast<std::size_t>(h) + 1);
   pixel_threshold_.resize(static_cast<std::size_t>(w) + 16);
   column_max_.resize(static_cast<std::size_t>(w) + 2);
-  local_max_.resize(static_cast<std::size_t>(w));
+  local_floor_.resize(static_cast<std::size_t>(w));
   const int words = (w + 63) / 64;
   // Every row's bits are kept: the outlines of components that are no
   // quad are traced on them (open_hole.cpp).
@@ -165,18 +169,30 @@ void Frame8Detector::threshold_and_runs() {
       }
     }
     row_first_[static_cast<std::size_t>(y)] = static_cast<std::int32_t>(runs_.size());
-    local_max_row(y);
+    if (rule == LocalRule::brightest_neighbour) {
+      brightest_neighbour_row(y);
+    } else {
+      valley_row(y);
+    }
     light_row_bits(work_.row(y), w, light_bits_.data() + light_stride_ * static_cast<std::size_t>(y));
     extract_runs(y, w, words);
   }
   row_first_[static_cast<std::size_t>(h)] = static_cast<std::int32_t>(runs_.size());
 }
 
-// local_max_[x] = (brightest pixel of the 3x3 neighbourhood of (x, y)) - step,
-// saturated at 0. A pixel under it sits on the dark side of a sharp edge: a
+// The local rules (docs/architecture.md, stage 1): local_floor_[x], the
+// level pixel (x, y) of the row must reach, besides its neighbourhood's
+// mean, to be light.
+//
+// brightest_neighbour: the brightest pixel of the 3x3 neighbourhood less
+// the step. A pixel under it sits on the dark side of a sharp edge: a
 // marker's line one pixel thin, which the wide mean misses when the
-// background around a small marker drags the mean down.
-void Frame8Detector::local_max_row(int y) {
+// background around a small marker drags the mean down. It also takes the
+// shoulders of a light ridge, and leaves a ridge two or three pixels wide
+// (a socket's face between the line and its recess at 2 m, a print's
+// margin round a cut-out hole over a dark ground) its crest alone, a
+// pixel wide, which noise and the crest's own wander break.
+void Frame8Detector::brightest_neighbour_row(int y) {
   const int w = work_.width;
   const std::uint8_t* above = work_.row(std::max(0, y - 1));
   const std::uint8_t* here = work_.row(y);
@@ -195,7 +211,7 @@ void Frame8Detector::local_max_row(int y) {
   colmax[-1] = colmax[0];
   colmax[w] = colmax[w - 1];
   const auto step = static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
-  std::uint8_t* out = local_max_.data();
+  std::uint8_t* out = local_floor_.data();
   x = 0;
 #if defined(__SSE2__)
   const __m128i vstep = _mm_set1_epi8(static_cast<char>(step));
@@ -212,13 +228,55 @@ void Frame8Detector::local_max_row(int y) {
   }
 }
 
+// valley: the darker of the brightest pixels within two on either side,
+// along the row, the column or a diagonal, whichever is brightest, less
+// the step: a pixel is dark by it only in a valley, brighter on both
+// sides, as a line between two light areas is; a ridge's shoulders, on a
+// slope, are not.
+void Frame8Detector::valley_row(int y) {
+  const int w = work_.width, h = work_.height;
+  std::array<const std::uint8_t*, 5> r{};
+  for (int k = 0; k < 5; ++k) r[static_cast<std::size_t>(k)] = work_.row(std::clamp(y - 2 + k, 0, h - 1));
+  const auto step = static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
+  std::uint8_t* out = local_floor_.data();
+  auto at = [&](int k, int x) { return r[static_cast<std::size_t>(k)][std::clamp(x, 0, w - 1)]; };
+  auto side = [&](int k1, int x1, int k2, int x2) { return std::max(at(k1, x1), at(k2, x2)); };
+  auto scalar = [&](int x) {
+    const int m = std::max({std::min(side(2, x - 1, 2, x - 2), side(2, x + 1, 2, x + 2)),
+                            std::min(side(1, x, 0, x), side(3, x, 4, x)),
+                            std::min(side(1, x - 1, 0, x - 2), side(3, x + 1, 4, x + 2)),
+                            std::min(side(1, x + 1, 0, x + 2), side(3, x - 1, 4, x - 2))});
+    out[x] = static_cast<std::uint8_t>(std::max(0, m - step));
+  };
+  int x = 0;
+  for (; x < std::min(2, w); ++x) scalar(x);
+#if defined(__SSE2__)
+  auto load = [&](int k, int at_x) {
+    return _mm_loadu_si128(reinterpret_cast<const __m128i*>(r[static_cast<std::size_t>(k)] + at_x));
+  };
+  auto valley = [](__m128i a1, __m128i a2, __m128i b1, __m128i b2) {
+    return _mm_min_epu8(_mm_max_epu8(a1, a2), _mm_max_epu8(b1, b2));
+  };
+  const __m128i vstep = _mm_set1_epi8(static_cast<char>(step));
+  for (; x + 18 <= w; x += 16) {
+    const __m128i along_row = valley(load(2, x - 1), load(2, x - 2), load(2, x + 1), load(2, x + 2));
+    const __m128i along_column = valley(load(1, x), load(0, x), load(3, x), load(4, x));
+    const __m128i down_right = valley(load(1, x - 1), load(0, x - 2), load(3, x + 1), load(4, x + 2));
+    const __m128i down_left = valley(load(1, x + 1), load(0, x + 2), load(3, x - 1), load(4, x - 2));
+    const __m128i m = _mm_max_epu8(_mm_max_epu8(along_row, along_column), _mm_max_epu8(down_right, down_left));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + x), _mm_subs_epu8(m, vstep));
+  }
+#endif
+  for (; x < w; ++x) scalar(x);
+}
+
 // Bit x of light_bits_ is set when pixel x is light: not below the mean of
-// its neighbourhood (minus the offset) and not under the local maximum
-// (minus the step).
+// its neighbourhood (minus the offset) and not under the local rule's
+// floor.
 void Frame8Detector::light_row_bits(const std::uint8_t* row, int w, std::uint64_t* bits) {
   std::fill(bits, bits + light_stride_, 0);
   const std::uint8_t* thr = pixel_threshold_.data();
-  const std::uint8_t* lmax = local_max_.data();
+  const std::uint8_t* lmax = local_floor_.data();
   int x = 0;
 #if defined(__SSE2__)
   for (; x + 16 <= w; x += 16) {

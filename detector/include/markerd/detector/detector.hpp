@@ -75,7 +75,8 @@ struct Frame8Options {
   Mounting mounting = Mounting::any;
   // Debug output, for when a marker is not found: empty is off. Otherwise a
   // directory (created if missing) into which every detect() call n (from 0)
-  // writes NNNN-threshold.png (the working image's light pixels, white),
+  // writes NNNN-threshold.png (the working image's light pixels, white;
+  // NNNN-threshold-second.png too where a second look was taken),
   // NNNN-candidates.png (each candidate's quad on the image: green read,
   // red rejected, with its index) and NNNN-candidates.json (per candidate
   // its corners, and for a rejected one the stage and the reason, with
