@@ -63,8 +63,10 @@ void Frame8Detector::detect(const GreyView& image, std::vector<Detection>& out) 
   }
   if (image.width < 16 || image.height < 16) return;
   full_ = image;
-  if (debug_) debug_candidates_.clear();
-  debug_second_look_from_ = std::numeric_limits<std::size_t>::max();
+  if (debug_) {
+    debug_candidates_.clear();
+    debug_second_look_from_ = std::numeric_limits<std::size_t>::max();
+  }
   make_working_image();
   threshold_tiles();
   look(LocalRule::brightest_neighbour, out);
@@ -283,15 +285,15 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
     }
     // Then the reads of a hole the mounting may have reshaped: displaced by
     // a frame's roll, inset by a switch's rocker.
-    const bool reshaped = !read && worth_it && seeks_reshaped_hole_;
-    if (reshaped && read_inset(inner, cell_size, det, rotation, H)) {
+    const bool seek_reshaped = !read && worth_it && seeks_reshaped_hole_;
+    if (seek_reshaped && read_inset(inner, cell_size, det, rotation, H)) {
       return finish_from_hole(H, HiddenSide{}, rotation, cell_px, det);
     }
-    if (reshaped && read_on_ring_edges(H, cell_size, det, rotation, H)) {
+    if (seek_reshaped && read_on_ring_edges(H, cell_size, det, rotation, H)) {
       read = true;
       inner = H.quad();
     }
-    if (reshaped && !read && read_by_ring_alignment(inner, cell_size, det, rotation, H)) {
+    if (seek_reshaped && !read && read_by_ring_alignment(inner, cell_size, det, rotation, H)) {
       read = true;
       inner = H.quad();
     }

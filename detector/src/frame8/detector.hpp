@@ -5,9 +5,11 @@
 // Memory: every buffer is a member that grows to the largest frame seen and is
 // reused, so detect() allocates nothing in steady state.
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <initializer_list>
+#include <limits>
 #include <optional>
 #include <span>
 #include <utility>
@@ -63,6 +65,11 @@ class Frame8Detector final : public MarkerDetector {
   void light_pixels_and_runs(LocalRule rule);
   void brightest_neighbour_row(int y);
   void valley_row(int y);
+  // How far below the rule's reference level a pixel may lie and be light:
+  // twice the threshold's offset.
+  [[nodiscard]] std::uint8_t local_step() const {
+    return static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
+  }
   // Segmentation under `rule`, then stages 2 to 6 (detector.cpp).
   void look(LocalRule rule, std::vector<Detection>& out);
   // How far a quad's corners from the valley rule's pixels are moved in
@@ -355,8 +362,8 @@ class Frame8Detector final : public MarkerDetector {
   // inset, the ring's edges and the ring's alignment search for those). An
   // ink outline: a cut-out hole no lighter than the line (stage 2c).
   bool seeks_reshaped_hole_ = true;
-  LocalRule rule_ = LocalRule::brightest_neighbour;  // the look under way
   bool seeks_ink_outline_ = true;
+  LocalRule rule_ = LocalRule::brightest_neighbour;  // the look under way
   // The blur an edge profile sees: the lens, the pixel's area and the
   // bilinear sampling of the profile (a quarter pixel squared on average).
   double profile_sigma_ = 0.7;
@@ -407,7 +414,8 @@ class Frame8Detector final : public MarkerDetector {
   bool debug_ = false;
   int debug_frame_ = 0;
   std::vector<DebugCandidate> debug_candidates_;
-  std::size_t debug_second_look_from_ = 0;  // the second look's first candidate
+  // The second look's first candidate (none: no second look).
+  std::size_t debug_second_look_from_ = std::numeric_limits<std::size_t>::max();
 };
 
 }  // namespace markerd::detector::frame8

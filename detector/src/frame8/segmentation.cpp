@@ -210,7 +210,7 @@ void Frame8Detector::brightest_neighbour_row(int y) {
   for (; x < w; ++x) colmax[x] = std::max({above[x], here[x], below[x]});
   colmax[-1] = colmax[0];
   colmax[w] = colmax[w - 1];
-  const auto step = static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
+  const std::uint8_t step = local_step();
   std::uint8_t* out = local_floor_.data();
   x = 0;
 #if defined(__SSE2__)
@@ -237,7 +237,7 @@ void Frame8Detector::valley_row(int y) {
   const int w = work_.width, h = work_.height;
   std::array<const std::uint8_t*, 5> r{};
   for (int k = 0; k < 5; ++k) r[static_cast<std::size_t>(k)] = work_.row(std::clamp(y - 2 + k, 0, h - 1));
-  const auto step = static_cast<std::uint8_t>(std::min(255, 2 * config_.frame8.threshold_offset));
+  const std::uint8_t step = local_step();
   std::uint8_t* out = local_floor_.data();
   auto at = [&](int k, int x) { return r[static_cast<std::size_t>(k)][std::clamp(x, 0, w - 1)]; };
   auto side = [&](int k1, int x1, int k2, int x2) { return std::max(at(k1, x1), at(k2, x2)); };
