@@ -6,11 +6,16 @@
 
 #include <algorithm>
 #include <array>
+#include <cassert>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstring>
 
 #include <Eigen/Core>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "markerd/detector/detection.hpp"
 #include "markerd/detector/frame8.hpp"
@@ -161,15 +166,64 @@ inline bool sample(const GreyView& img, double x, double y, float& out) {
 // A profile across an edge: `count` samples from `at` + `from` * `across`,
 // `step` apart along `across` (a unit vector). False, with nothing
 // sampled, when any sample would fall outside the image: the samples lie
-// on a segment, so its two ends decide.
+// on a segment, so its two ends decide. The segment is under 64 pixels long.
 inline bool sample_profile(const GreyView& img, Point2 at, Point2 across, double from, double step, int count,
                            float* out) {
   const double to = from + (count - 1) * step;
+  assert(std::abs(to - from) < 64);
   if (!samples_inside(img, at.x + from * across.x, at.y + from * across.y) ||
       !samples_inside(img, at.x + to * across.x, at.y + to * across.y)) {
     return false;
   }
-  for (int s = 0; s < count; ++s) {
+  int s = 0;
+#if defined(__SSE2__)
+  // Four samples at a time: this is most of the edge refinement's time.
+  // Positions are taken in float relative to a pixel 64 to the left and
+  // above the first (every sample lies within 64 pixels of it), which
+  // keeps them positive, so truncation floors, and exact to 1e-5 pixels.
+  // A count that is no multiple of four ends with four that overlap the
+  // ones before.
+  if (count >= 4) {
+    const double bx = at.x + from * across.x, by = at.y + from * across.y;
+    const int ox = static_cast<int>(bx) - 64, oy = static_cast<int>(by) - 64;
+    const __m128 rx0 = _mm_set1_ps(static_cast<float>(bx - ox)), ry0 = _mm_set1_ps(static_cast<float>(by - oy));
+    const __m128 sx = _mm_set1_ps(static_cast<float>(step * across.x)),
+                 sy = _mm_set1_ps(static_cast<float>(step * across.y));
+    const __m128i low_byte = _mm_set1_epi32(0xFF);
+    const std::uint8_t* origin = img.data + static_cast<std::ptrdiff_t>(oy) * img.stride + ox;
+    const std::ptrdiff_t stride = img.stride;
+    auto pair_at = [](const std::uint8_t* p) {
+      std::uint16_t pair = 0;  // two neighbours, little-endian as SSE2's x86 is
+      std::memcpy(&pair, p, 2);
+      return static_cast<int>(pair);
+    };
+    for (;;) {
+      const __m128 k = _mm_add_ps(_mm_set1_ps(static_cast<float>(s)), _mm_setr_ps(0, 1, 2, 3));
+      const __m128 rx = _mm_add_ps(rx0, _mm_mul_ps(k, sx)), ry = _mm_add_ps(ry0, _mm_mul_ps(k, sy));
+      const __m128i ix = _mm_cvttps_epi32(rx), iy = _mm_cvttps_epi32(ry);
+      const __m128 fx = _mm_sub_ps(rx, _mm_cvtepi32_ps(ix)), fy = _mm_sub_ps(ry, _mm_cvtepi32_ps(iy));
+      alignas(16) std::array<std::int32_t, 4> xs{}, ys{};
+      _mm_store_si128(reinterpret_cast<__m128i*>(xs.data()), ix);
+      _mm_store_si128(reinterpret_cast<__m128i*>(ys.data()), iy);
+      const std::uint8_t* p0 = origin + ys[0] * stride + xs[0];
+      const std::uint8_t* p1 = origin + ys[1] * stride + xs[1];
+      const std::uint8_t* p2 = origin + ys[2] * stride + xs[2];
+      const std::uint8_t* p3 = origin + ys[3] * stride + xs[3];
+      const __m128i t = _mm_setr_epi32(pair_at(p0), pair_at(p1), pair_at(p2), pair_at(p3));
+      const __m128i b =
+          _mm_setr_epi32(pair_at(p0 + stride), pair_at(p1 + stride), pair_at(p2 + stride), pair_at(p3 + stride));
+      const __m128 t0 = _mm_cvtepi32_ps(_mm_and_si128(t, low_byte)), t1 = _mm_cvtepi32_ps(_mm_srli_epi32(t, 8));
+      const __m128 b0 = _mm_cvtepi32_ps(_mm_and_si128(b, low_byte)), b1 = _mm_cvtepi32_ps(_mm_srli_epi32(b, 8));
+      const __m128 upper = _mm_add_ps(t0, _mm_mul_ps(fx, _mm_sub_ps(t1, t0)));
+      const __m128 lower = _mm_add_ps(b0, _mm_mul_ps(fx, _mm_sub_ps(b1, b0)));
+      _mm_storeu_ps(out + s, _mm_add_ps(upper, _mm_mul_ps(fy, _mm_sub_ps(lower, upper))));
+      if (s + 4 == count) break;
+      s = std::min(s + 4, count - 4);
+    }
+    return true;
+  }
+#endif
+  for (; s < count; ++s) {
     const double off = from + s * step;
     out[s] = sample_inside(img, at.x + off * across.x, at.y + off * across.y);
   }
