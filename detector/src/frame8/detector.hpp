@@ -239,7 +239,10 @@ class Frame8Detector final : public MarkerDetector {
     std::size_t stride;
     int w, h, scale;
     [[nodiscard]] bool light(int x, int y) const {
-      if (x < 0 || y < 0 || x >= w || y >= h) return false;
+      if (static_cast<unsigned>(x) >= static_cast<unsigned>(w) ||
+          static_cast<unsigned>(y) >= static_cast<unsigned>(h)) {
+        return false;
+      }
       return (bits[stride * static_cast<std::size_t>(y) + static_cast<std::size_t>(x >> 6)] >> (x & 63)) & 1U;
     }
     [[nodiscard]] bool was_passed(int x, int y) const {

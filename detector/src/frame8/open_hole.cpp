@@ -140,8 +140,8 @@ void Frame8Detector::simplify_outline() {
       if (open && (lo.x * v.y - lo.y * v.x < 0 || v.x * hi.y - v.y * hi.x < 0)) break;
       end = i;
       // The directions within the tolerance of this point: v turned by
-      // +-asin(tol / r).
-      const double s = tolerance / std::sqrt(r2), c = std::sqrt(1 - s * s);
+      // +-asin(tol / r), scaled by r (only their sides of each other count).
+      const double s = tolerance, c = std::sqrt(r2 - s * s);
       const Point2 vlo{c * v.x + s * v.y, -s * v.x + c * v.y}, vhi{c * v.x - s * v.y, s * v.x + c * v.y};
       if (!open) {
         lo = vlo;

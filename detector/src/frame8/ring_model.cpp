@@ -154,9 +154,11 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
   // The pixels the fit uses, decided once: a set that changed with the map
   // would change the sum being minimised under the steps that minimise it.
   // Their mean grey is the levels' prior.
+  // The levels' normal equations for this map are summed on the way, as
+  // solve_levels() would sum them: the coverages are the ones it needs.
   inside_.assign(static_cast<std::size_t>(width) * (py1_ - py0_ + 1), 1);
+  clear_levels_normal();
   double sum = 0;
-  int used = 0;
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
@@ -171,12 +173,12 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
       inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = inside;
       if (inside) {
         sum += row[px];
-        ++used;
+        add_pixel_to_levels(n, row[px]);
       }
     }
   }
-  if (used < 2 * kRegions) return false;
-  prior_ = sum / used;
+  if (normal_.used < 2 * kRegions) return false;
+  prior_ = sum / normal_.used;
   return true;
 }
 
@@ -270,37 +272,48 @@ void RingModel::add_levels(int n, double value, Normal& normal, Rhs& rhs) const 
   }
 }
 
+void RingModel::clear_levels_normal() {
+  normal_.ata.setZero();
+  normal_.atb.setZero();
+  normal_.btb = 0;
+  normal_.used = 0;
+}
+
+// One pixel's row of: pixel = sum over regions of coverage * level, for
+// the n regions coverage() touched.
+void RingModel::add_pixel_to_levels(int n, double grey) {
+  add_levels(n, grey, normal_.ata, normal_.atb);
+  normal_.btb += grey * grey;
+  ++normal_.used;
+}
+
 bool RingModel::solve_levels(const GreyView& image) {
-  // Normal equations of: pixel = sum over regions of coverage * level.
-  using Matrix = Eigen::Matrix<double, kRegions, kRegions>;
-  Matrix ata = Matrix::Zero();
-  Vector atb = Vector::Zero();
-  double btb = 0;
-  int used = 0;
+  clear_levels_normal();
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
       const int n = coverage(px, py, false, gx, gy, w);
-      if (n == 0) continue;
-      const double b = row[px];
-      add_levels(n, b, ata, atb);
-      btb += b * b;
-      ++used;
+      if (n != 0) add_pixel_to_levels(n, row[px]);
     }
   }
-  if (used == 0) return false;
-  Matrix regularised = ata;
-  Vector rhs = atb;
+  return solve_accumulated_levels();
+}
+
+bool RingModel::solve_accumulated_levels() {
+  if (normal_.used == 0) return false;
+  LevelsMatrix regularised = normal_.ata;
+  Vector rhs = normal_.atb;
   for (int r = 0; r < kRegions; ++r) {
     regularised(r, r) += kRidge;
     rhs(r) += kRidge * prior_;
   }
-  const Eigen::LDLT<Matrix> solver(regularised);
+  const Eigen::LDLT<LevelsMatrix> solver(regularised);
   if (solver.info() != Eigen::Success) return false;
   level_ = solver.solve(rhs);
-  const double sse = btb - 2 * level_.dot(atb) + level_.dot(ata.selfadjointView<Eigen::Lower>() * level_);
-  rms_ = std::sqrt(std::max(0.0, sse) / used);
+  const double sse =
+      normal_.btb - 2 * level_.dot(normal_.atb) + level_.dot(normal_.ata.selfadjointView<Eigen::Lower>() * level_);
+  rms_ = std::sqrt(std::max(0.0, sse) / normal_.used);
   return true;
 }
 
@@ -395,7 +408,7 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
   // A pixel's square convolved with the blur: close to a Gaussian whose
   // variance is the sum of the two.
   sigma_ = std::sqrt(1.0 / 12 + blur_sigma_px * blur_sigma_px);
-  if (!prepare(image, grid_to_image) || !solve_levels(image)) return false;
+  if (!prepare(image, grid_to_image) || !solve_accumulated_levels()) return false;
   if (align) {
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;

@@ -63,10 +63,18 @@ class RingModel {
  private:
   using Vector = Eigen::Matrix<double, kRegions, 1>;
 
+  using LevelsMatrix = Eigen::Matrix<double, kRegions, kRegions>;
+
   // Pixels of the footprint, the map from (centred) pixels to the grid, and
-  // the pixels the fit uses with their mean grey.
+  // the pixels the fit uses with their mean grey; the levels' normal
+  // equations for that map.
   bool prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image);
+  // The levels for the current map (solve_levels), or for the normal
+  // equations summed already.
   bool solve_levels(const GreyView& image);
+  bool solve_accumulated_levels();
+  void clear_levels_normal();
+  void add_pixel_to_levels(int n, double grey);
   // One Gauss-Newton step of the map for the current levels; false when it
   // cannot be taken. `moved` is the largest displacement it makes, pixels.
   bool align_step(const GreyView& image, double& moved);
@@ -95,6 +103,13 @@ class RingModel {
   double prior_ = 0;  // their mean grey, which every level is pulled towards
   std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
   std::array<int, kRegions> touched_{};
+  // The levels' normal equations (lower triangle), summed over the pixels used.
+  struct LevelsNormal {
+    LevelsMatrix ata = LevelsMatrix::Zero();
+    Vector atb = Vector::Zero();
+    double btb = 0;
+    int used = 0;
+  } normal_;
   Vector level_ = Vector::Zero();
   double rms_ = 0;
 };
