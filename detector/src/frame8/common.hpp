@@ -354,6 +354,10 @@ constexpr double kThinLineCells = 8.0;
 // while the long ones' are four, is read by its short edges' profiles,
 // which the model does not know.
 constexpr double kModelCheckedCells = 2.5;
+// The least cells (pixels, across and along) read with a side hidden
+// (hidden_side.cpp): from here every read of the three edges left stands
+// without the ring model's confirmation.
+constexpr double kHiddenSideCells = kModelCheckedCells;
 // Keeps the levels' normal equations of the profile fits solvable where a
 // basis barely shows (the outside, at the end of a short profile).
 constexpr double kProfileRidge = 1e-3;
