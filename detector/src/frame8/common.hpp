@@ -387,6 +387,10 @@ struct Component {
   bool quad = false;
   // The dark pixels within its rows' spans (quad fitting measures them).
   std::int64_t dark_inside = 0;
+  // Its quad is under 20 px a side and bulges as only a cover frame's
+  // rounded hole may (quad_fit.cpp): a grid's square joined to its
+  // neighbour bulges so too.
+  bool small_and_bulging = false;
 };
 
 // An edge of the printed pattern seen in the image: the point lies on the

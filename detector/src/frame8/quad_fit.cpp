@@ -77,7 +77,10 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   // to 30 px, turned 30 deg at 0.95 m, falls 0.11 to 0.16 short of its hull.
   constexpr double kRoundedMinSide = 20;
   if (hull_area - quad_area > 0.06 * hull_area + staircase) {
-    if (perimeter / 4 < kRoundedMinSide && !seeks_reshaped_hole_) return Rejection::not_a_quad;
+    if (perimeter / 4 < kRoundedMinSide) {
+      if (!seeks_reshaped_hole_) return Rejection::not_a_quad;
+      c.small_and_bulging = true;
+    }
     constexpr double kRoundedBulge = 0.11;  // of the mean side, and a pixel of staircase
     if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
     double bulge = 0;
