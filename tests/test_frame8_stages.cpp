@@ -156,6 +156,18 @@ class Frame8StageTest : public ::testing::Test {
     return why;
   }
 
+  static constexpr int kMinPatternEdges = Frame8Detector::kMinPatternEdges;
+
+  // The pattern's edges collect_pattern_edges() finds on `img` for the
+  // code `id` read the right way round, with `hidden` left out.
+  int pattern_edges(const GreyImage& img, const std::array<Point2, 4>& inner, int id, double cell_px,
+                    const HiddenSide& hidden) {
+    detector_.full_ = img.view();
+    Homography H;
+    if (!Homography::from_unit_square(inner, H)) return 0;
+    return detector_.collect_pattern_edges(H, id, 0, cell_px, hidden);
+  }
+
   // convex_hull() then max_area_quad() on contour points sorted by (y, x).
   bool quad_of(const std::vector<Point2>& points, std::array<Point2, 4>& quad, double& hull_area) {
     detector_.points_ = points;
@@ -322,6 +334,20 @@ TEST_F(Frame8StageTest, QuadFitTakesASmallBulgingHoleOnlyWhereTheMountingRoundsH
   }
   EXPECT_EQ(fit_quad_at(square, Mounting::any, 30, 30, excess, &bulging), Rejection::none);
   EXPECT_FALSE(bulging);
+}
+
+// A read with a side hidden under 3 px a cell stands only where the
+// pattern it predicts shows at least kMinPatternEdges of its edges
+// (hidden_side.cpp). Cells of 2.9 px (a covered marker from 1.2 m turned
+// 30 deg) are sampled twice each, as about one point per 1.5 px has it:
+// a clean marker with its top side hidden, whose white cells beside the
+// line (under 1.5 px there) give no edge, shows 26; sampled once each, 13.
+TEST_F(Frame8StageTest, AHiddenSidesPatternCheckFindsEnoughEdgesOnSmallCells) {
+  constexpr int kId = 239;  // 11101111: two white runs, few boundaries
+  const GreyImage img = clean_marker(kId, 3, 60, 120);
+  const std::array<Point2, 4> inner = clean_inner(3, 60);
+  const HiddenSide top{0, 1.5};
+  EXPECT_GE(pattern_edges(img, inner, kId, 2.9, top), kMinPatternEdges);
 }
 
 TEST_F(Frame8StageTest, EdgeRefinementPutsTheSidesOnTheHolesEdge) {

@@ -106,8 +106,13 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, const CellColours
   // left to the steps beside black cells and to the boundaries.
   const double min_dip_line_px = 2 * profile_sigma_;
   const double line_px = (kInnerLo - frame8::line_outer) * cell_px;
-  // Points per cell along an edge: about one per 1.5 px.
-  const int per_cell = std::clamp(static_cast<int>(cell_px / 1.5), 1, 4);
+  // Points per cell along an edge: about one per 1.5 px. Where a side is
+  // hidden the edges found are a check of the read as well (at least
+  // kMinPatternEdges, hidden_side.cpp), and cells of 2.9 px, a covered
+  // marker's from 1.2 m turned 30 deg, take two each, not one.
+  const double per_cell_px = cell_px / 1.5;
+  const int per_cell =
+      std::clamp(static_cast<int>(hidden.side >= 0 ? std::lround(per_cell_px) : std::floor(per_cell_px)), 1, 4);
   pattern_count_ = 0;
   auto add = [&](Point2 g, Point2 normal, double half, bool dip, int axis) {
     if (pattern_count_ >= kMaxPatternEdges) return;
