@@ -47,6 +47,10 @@ packages=(
   # the fuzz build (tools/run-fuzz.sh): clang and its runtime libraries,
   # libFuzzer among them
   clang libclang-rt-14-dev
+  # the man pages' tests (tests/manpages/, tests/systemd/check-install.sh):
+  # man and lexgrog render and index them, groff with its warnings; a
+  # container image may lack both
+  man-db groff-base
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
   # renders SVG from the scripts the report writes; -nox leaves out X and Qt
   gnuplot-nox
