@@ -5,7 +5,9 @@
 # binaries, the unit naming them by their installed path, the sysusers.d and
 # tmpfiles.d files (applied to a scratch root by systemd-sysusers and
 # systemd-tmpfiles themselves), the udev rules, the example config under
-# the config directory whatever the prefix, and nothing anywhere else.
+# the config directory whatever the prefix, the man pages (found by man
+# under the prefix, as the unit's Documentation= names them), the bash
+# completion (loaded by bash), and nothing anywhere else.
 #
 #   check-install.sh --cmake CMAKE --build BUILD_DIR --source SOURCE_DIR
 #                    --config-dir DIR [--with-markerd]
@@ -33,6 +35,7 @@ here=$(dirname "$(realpath "$0")")
 for tool in systemd-sysusers systemd-tmpfiles; do
   command -v $tool >/dev/null || fail "$tool not found: it comes with Debian's package systemd (tools/install-deps.sh)"
 done
+command -v man >/dev/null || fail "man not found: it comes with Debian's package man-db (tools/install-deps.sh)"
 
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
@@ -71,8 +74,34 @@ check_prefix() {  # PREFIX
   ! grep -n '@[A-Z_]*@' "$unit" || fail "$unit has placeholders left"
   expect_line "$unit" "ExecStartPre=$prefix/bin/markerd --check-config --config $config_dir/markerd.toml"
   expect_line "$unit" "ExecStart=$prefix/bin/markerd --config $config_dir/markerd.toml"
-  expect_line "$unit" "Documentation=file:$prefix/share/doc/markerd/systemd.md"
+  expect_line "$unit" "Documentation=man:markerd(8) man:markerd.toml(5) man:markerctl(1) file:$prefix/share/doc/markerd/systemd.md"
   [[ -f $root$prefix/share/doc/markerd/systemd.md ]] || fail "$prefix/share/doc/markerd/systemd.md not installed"
+
+  # The man pages where man-db looks under the prefix, each found by man as
+  # the unit's Documentation= names it (man -M: the staging root's tree
+  # alone), with its NAME line.
+  local mandir=$root$prefix/share/man page section name
+  for page in markerd.8 markerctl.1 markerd.toml.5; do
+    section=${page##*.}
+    cmp -s "$source/docs/man/$page" "$mandir/man$section/$page" ||
+      fail "$prefix/share/man/man$section/$page missing or not docs/man/$page"
+  done
+  for page in $(sed -n 's/^Documentation=//p' "$unit"); do
+    [[ $page =~ ^man:([^()]+)\(([0-9])\)$ ]] || continue
+    name=${BASH_REMATCH[1]} section=${BASH_REMATCH[2]}
+    MANWIDTH=80 man -M "$mandir" "$section" "$name" 2>/dev/null | grep -qE "^ *${name//./\\.} +- " ||
+      fail "man $section $name (the unit's Documentation=) finds no page under $prefix/share/man"
+  done
+
+  # The bash completion where bash-completion loads it from, one file per
+  # program, each registering its function when bash sources it.
+  local completions=$root$prefix/share/bash-completion/completions program
+  for program in markerctl markerd; do
+    cmp -s "$source/tools/completion/$program.bash" "$completions/$program" ||
+      fail "$prefix/share/bash-completion/completions/$program missing or not tools/completion/$program.bash"
+    bash --norc --noprofile -c 'source "$1" && complete -p "$2"' _ "$completions/$program" "$program" >/dev/null 2>&1 ||
+      fail "$prefix/share/bash-completion/completions/$program registers no completion for $program in bash"
+  done
   if [[ $with_markerd -eq 1 ]]; then
     # The installed unit itself, through the same checks as the tests' copy,
     # with its programs pointed into the staging root for verify.
