@@ -17,6 +17,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -47,6 +48,9 @@ using test_support::write_file;
 class DaemonTest : public testing::Test {
  protected:
   void SetUp() override {
+    // markerd locks its rig's devices (here the simulated rig's file): in a
+    // directory of the test's own, not the machine's /run/lock/markerd.
+    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
     fs::create_directories(dir_ / "logs");
     fs::create_directories(dir_ / "state");
     // The example rig, with simulated time running 50 times faster than real

@@ -17,6 +17,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -158,6 +159,12 @@ std::size_t count_events(const sweep::RunRecords& records, std::string_view kind
 
 class SweepKillTest : public testing::Test {
  protected:
+  void SetUp() override {
+    // markerd locks its rig's devices (here the simulated rig's file): in a
+    // directory of the test's own, not the machine's /run/lock/markerd.
+    ::setenv("MARKERD_LOCK_DIR", (root_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
+  }
+
   static int failures() { return testing::UnitTest::GetInstance()->current_test_info()->result()->total_part_count(); }
 
   // Starts the plan; the run's directory, or empty (a failure).

@@ -14,6 +14,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -54,6 +55,9 @@ const std::string kPlan = read_file(test_support::kSourceTree / "tests/data/plan
 class SweepRunTest : public testing::Test {
  protected:
   void SetUp() override {
+    // markerd locks its rig's devices (here the simulated rig's file): in a
+    // directory of the test's own, not the machine's /run/lock/markerd.
+    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
     fs::create_directories(dir_ / "logs");
     fs::create_directories(dir_ / "state");
     // The example rig with simulated time 100 times faster than real time:

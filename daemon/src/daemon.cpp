@@ -135,7 +135,10 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
 }
 
 Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
-  if (config_.rig) rig_ = rig::make_rig(*config_.rig);
+  if (config_.rig) {
+    rig_lock_.emplace(rig::lock_rig_devices(*config_.rig));
+    rig_ = rig::make_rig(*config_.rig);
+  }
   source_ = make_capture_source(config_.camera, config_.rig);
   const CaptureGeometry geometry = source_->geometry();
   if (config_.camera.model && geometry.width > 0 &&

@@ -17,6 +17,7 @@
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/daemon/detection_log_sink.hpp"
 #include "markerd/daemon/pipeline.hpp"
+#include "markerd/rig/device_lock.hpp"
 #include "markerd/rig/rig.hpp"
 #include "markerd/sweep/runner.hpp"
 
@@ -29,7 +30,8 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
 class Daemon {
  public:
   // Builds everything and opens what must be there at start (the rig's
-  // devices, the detection log); throws (rig::DriveError, LogWriteError,
+  // devices, the detection log); throws (rig::DeviceLockError when another
+  // process holds one of the rig's devices, rig::DriveError, LogWriteError,
   // CaptureError of kind config, ...) naming what failed. A camera that is
   // not there yet is no reason to fail: the capture loop waits for it.
   explicit Daemon(DaemonConfig config);
@@ -75,6 +77,10 @@ class Daemon {
   class SweepEnvironment;
 
   DaemonConfig config_;
+  // Taken before the rig opens its devices and released after it has closed
+  // them (members are destroyed in reverse order): no other process drives
+  // the rig's motors while this one may.
+  std::optional<rig::DeviceLock> rig_lock_;
   std::unique_ptr<rig::Rig> rig_;
   std::unique_ptr<CaptureSource> source_;
   std::unique_ptr<DetectionLogSink> sink_;
