@@ -300,10 +300,11 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   app->require_subcommand(1);
   app->footer(
       "Runs one command on the rig a config describes (config/rig-*.toml, docs/rig.md), then disables the axes.\n"
-      "The rig's devices are locked first: a command refuses to run while another process (markerd, another\n"
-      "markerctl rig) holds them, and names that process. Values take a unit: the rail mm, cm or m, the\n"
-      "turntable deg or rad. A new process starts with the axes unhomed (an open-loop stepper loses its\n"
-      "reference when the process that drove it ends): pass --home to move or jog to home what is not homed.\n"
+      "The rig's devices are locked first: a command refuses to run while another process (markerd, which\n"
+      "holds them while it runs, or another markerctl rig) holds them, and names that process. Values take a\n"
+      "unit: the rail mm, cm or m, the turntable deg or rad. A new process starts with the axes unhomed (an\n"
+      "open-loop stepper loses its reference when the process that drove it ends): pass --home to move or jog\n"
+      "to home what is not homed.\n"
       "An interrupt (Ctrl-C, SIGTERM) stops the motion with a ramp, disables the axes and exits with 1.\n"
       "Exit status: 0 done, 1 refused or failed (a fault, the devices in use, an interrupt), 2 bad usage.\n"
       "Without --config, status, home, move, jog --rail/--turntable and stop go to a running markerd (its\n"
