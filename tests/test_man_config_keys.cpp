@@ -92,8 +92,8 @@ std::optional<std::vector<std::string>> known_keys(const Document& doc, const st
     *message = e.what();
   }
   const std::string prefix = path.empty() ? std::string() : join(path) + ".";
-  const std::regex refusal("(^|[ :])" + std::regex_replace(prefix, std::regex(R"(\.)"), R"(\.)") +
-                           std::string(kProbe) + R"(: unknown key \(known here: ([^)]*)\))");
+  const std::regex refusal("(^|[ :])" + std::regex_replace(prefix, std::regex(R"(\.)"), R"(\.)") + std::string(kProbe) +
+                           R"(: unknown key \(known here: ([^)]*)\))");
   std::smatch match;
   if (!std::regex_search(*message, match, refusal)) return std::nullopt;
   std::vector<std::string> keys;
@@ -229,10 +229,30 @@ TEST(ManPageConfig, TheParserIsProbedInEveryTable) {
   for (const auto& failure : keys.failures) ADD_FAILURE() << "no 'unknown key' refusal: " << failure;
   // What the walk must reach, or it has stopped working (the refusal's
   // wording changed, a shipped config went missing).
-  for (const char* table : {"", "marker", "marker.frame", "camera", "camera.sim", "camera.v4l2", "camera.libcamera",
-                            "camera.file", "detector", "detector.frame8", "pipeline", "log", "control", "sweep", "rig",
-                            "rig.geometry", "rig.sim", "rig.<axis>", "rig.<axis>.homing", "rig.<axis>.sim",
-                            "rig.<axis>.gpio", "rig.<axis>.gpio.<line>", "rig.buses.<name>", "rig.<axis>.modbus"}) {
+  for (const char* table : {"",
+                            "marker",
+                            "marker.frame",
+                            "camera",
+                            "camera.sim",
+                            "camera.v4l2",
+                            "camera.libcamera",
+                            "camera.file",
+                            "detector",
+                            "detector.frame8",
+                            "pipeline",
+                            "log",
+                            "control",
+                            "sweep",
+                            "rig",
+                            "rig.geometry",
+                            "rig.sim",
+                            "rig.<axis>",
+                            "rig.<axis>.homing",
+                            "rig.<axis>.sim",
+                            "rig.<axis>.gpio",
+                            "rig.<axis>.gpio.<line>",
+                            "rig.buses.<name>",
+                            "rig.<axis>.modbus"}) {
     EXPECT_TRUE(keys.tables.contains(table)) << "the probe did not reach [" << table << "]";
   }
   EXPECT_GE(keys.tables.at("camera.sim").size(), 10U) << joined(keys.tables.at("camera.sim"));
@@ -251,8 +271,8 @@ TEST(ManPageConfig, EveryKeyTheParserReadsIsDocumented) {
     for (const auto& key : known) {
       const std::string subtable = section_name(table.empty() ? key : table + "." + key);
       EXPECT_TRUE(section->second.contains(key) || page.tables.contains(subtable))
-          << "markerd.toml.5: " << heading << " does not document " << key
-          << " (a .TP item naming it, or a section [" << subtable << "])";
+          << "markerd.toml.5: " << heading << " does not document " << key << " (a .TP item naming it, or a section ["
+          << subtable << "])";
     }
   }
 }
