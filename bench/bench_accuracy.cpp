@@ -272,6 +272,12 @@ int main(int argc, char** argv) {
   bool no_distort = false;
   app.add_flag("--no-distort", no_distort, "a lens without distortion: the camera's distortion set to zero");
   app.add_option("--seed", seed, "seed of the jitter, ids and backgrounds")->capture_default_str();
+  double roll_jitter = 5;
+  app.add_option("--roll", roll_jitter,
+                 "the marker turned in the image plane by up to this many degrees either way, at random (45: every "
+                 "in-plane turn)")
+      ->check(CLI::Range(0.0, 180.0))
+      ->capture_default_str();
   int fixed_id = -1;
   app.add_option("--id", fixed_id,
                  "every frame shows this id (one family only) instead of random ones: to measure one id class, "
@@ -383,6 +389,7 @@ int main(int argc, char** argv) {
   settings.random_ids = fixed_id < 0;
   if (fixed_id >= 0) settings.scene.id = fixed_id;
   settings.seed = seed;
+  settings.roll_jitter_deg = roll_jitter;
   settings.scene.marker_size_m = size_m;
   settings.scene.noise_sigma = noise;
   settings.scene.blur_sigma_px = blur;
