@@ -9,6 +9,7 @@
 #include <cmath>
 #include <initializer_list>
 #include <numbers>
+#include <numeric>
 #include <random>
 #include <string>
 #include <vector>
@@ -940,6 +941,42 @@ TEST(Frame8, EverySubPixelPhaseIsReadForEveryBitPattern) {
   EXPECT_GE(found, frames - frames / 100) << "of " << frames << ", missed:" << missed;
 }
 
+// Issue 19's phase invariance through distance and in-plane turns: the
+// marker moved away in 1 mm steps across 1.09 to 1.13 m (cells of 3.6 to
+// 3.7 px, where a renderer this project did not write showed a band of
+// misses at 1.10 m for ids with the top bit set), and turned in the image
+// plane by 3 deg steps through a quarter turn (every in-plane turn, up to
+// the code's own quarter turns) at 1.1 and 1.3 m, for ids of each bit
+// pattern, printed with the paper margin.
+TEST(Frame8, EveryMillimetreAndInPlaneTurnIsReadForEveryBitPattern) {
+  auto det = make_detector(posed_config());
+  int frames = 0, found = 0, wrong = 0;
+  std::string missed;
+  auto look_at = [&](int id, double distance_m, double roll_deg) {
+    Scene s = scene(id, distance_m, 0, roll_deg, 5000 + static_cast<std::uint64_t>(frames));
+    s.paper_margin_m = 0.010;
+    ++frames;
+    bool right = false;
+    for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
+      right = right || d.id == id;
+      wrong += d.id != id;
+    }
+    found += right;
+    if (!right) {
+      missed += " id " + std::to_string(id) + " at " + std::to_string(distance_m) + " m, roll " +
+                std::to_string(roll_deg) + ";";
+    }
+  };
+  for (const int id : {0b10000001, 0b01111110, 0b11110000, 0b00001111, 0b10101010, 0b01010101}) {
+    for (int mm = 1090; mm <= 1130; ++mm) look_at(id, mm / 1000.0, 0);
+    for (const double distance_m : {1.1, 1.3}) {
+      for (int roll = 0; roll < 90; roll += 3) look_at(id, distance_m, roll);
+    }
+  }
+  EXPECT_EQ(wrong, 0);
+  EXPECT_GE(found, frames - frames / 100) << "of " << frames << ", missed:" << missed;
+}
+
 // The print with its hole cut out (issue 18), the ground showing through:
 // over a light ground it is the printed hole, and found as on paper; the
 // bare marker (no paper margin) over a dark ground or clutter has no light
@@ -1236,33 +1273,67 @@ TEST(Frame8, NoDetectionOnClutter) {
 // Textures that look like markers, without one (issue 19: none in 10,000
 // frames): 40 frames of each kind in bench_accuracy's imaging, through
 // markerd's detector. Tiles are not among them yet: the detector reads
-// markers in them, mostly id 126 where the grout is dark, as in seed 10
-// here (bench_accuracy --background all --false-positives 10000: 4 of
-// 1,429 tile frames, 70 before grey ink and the near-uniform rule; 1 of
-// 1,429 keyboard frames, 20 before).
+// markers in them, id 126 where the grout is dark, as in seed 10 here (a
+// light tile in its grout, the grout that crosses each end of an edge
+// darkening the ring cell there), and the frames of TileFrames below.
 class Frame8OnBackground : public ::testing::TestWithParam<Background> {};
 
-TEST_P(Frame8OnBackground, NoDetection) {
-  auto det = make_detector(posed_config());
+int false_positives_on(MarkerDetector& det, Background background, const std::vector<std::uint64_t>& seeds) {
   Scene s = benchmark_settings().scene;
-  s.background = GetParam();
+  s.background = background;
   int false_positives = 0;
-  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+  for (const std::uint64_t seed : seeds) {
     s.seed = seed;
-    for (const Detection& d : detect(*det, render_background(kCamera, s))) {
+    for (const Detection& d : detect(det, render_background(kCamera, s))) {
       ++false_positives;
       ADD_FAILURE() << "seed " << seed << ": id " << d.id << " at " << d.corners[0].x << "," << d.corners[0].y << " "
                     << d.corners[1].x << "," << d.corners[1].y << " " << d.corners[2].x << "," << d.corners[2].y << " "
                     << d.corners[3].x << "," << d.corners[3].y;
     }
   }
-  EXPECT_EQ(false_positives, 0);
+  return false_positives;
+}
+
+TEST_P(Frame8OnBackground, NoDetection) {
+  auto det = make_detector(posed_config());
+  std::vector<std::uint64_t> seeds(40);
+  std::iota(seeds.begin(), seeds.end(), 1);
+  EXPECT_EQ(false_positives_on(*det, GetParam(), seeds), 0);
 }
 
 INSTANTIATE_TEST_SUITE_P(Kinds, Frame8OnBackground,
                          ::testing::Values(Background::shapes, Background::keyboard, Background::checkerboard,
                                            Background::windows, Background::text, Background::outlets),
                          [](const auto& p) { return std::string(to_string(p.param)); });
+
+// Frames of bench_accuracy --background all --false-positives 10000 (seeds
+// 1 to 5 and 43; the frame's seed is 1000003 times the run's plus the
+// frame's index) where a texture read as a marker, each refused since by
+// the rule named.
+TEST(Frame8, MarkerLikeTexturesOnceReadAreNoMarkers) {
+  auto det = make_detector(posed_config());
+  // A light tile among grey ones, its light grout taken for the line, read
+  // as 129 with cells of 2.1 px: the ring model confirmed the code, its line
+  // as light as the white cells on a side or two (model_line_light).
+  EXPECT_EQ(false_positives_on(*det, Background::tiles, {1000018, 1003595}), 0);
+  // The same at 2.8 px, where the model was not asked: a near-uniform ring
+  // under 3 px is a grid's square measured twice alike.
+  EXPECT_EQ(false_positives_on(*det, Background::tiles, {2009345, 43002244}), 0);
+  // Key tops in their bevels in the second look, the shadow of a key's edge
+  // taken for the line, read as 126 with a side's six cells outvoted, and
+  // nothing read with that side hidden (covered_side_unread).
+  EXPECT_EQ(false_positives_on(*det, Background::keyboard, {2000561, 2002549, 2009661}), 0);
+  // Three keys with a side taken for hidden: a trapezoid 13 px on one side
+  // and 73 on the other, read as 131 (sides_unequal), and a quad three keys
+  // tall and one wide, read as 94 (its short sides 0.32 of its long ones).
+  EXPECT_EQ(false_positives_on(*det, Background::keyboard, {2006707, 2006392}), 0);
+  // In the second look, which segments the frame again with light ridges
+  // kept whole: window panes and keys read faintly as 126, 24, 124 and 62,
+  // a tile as 126 (margins 0.18 to 0.34; kSecondLookMargin).
+  EXPECT_EQ(false_positives_on(*det, Background::windows, {2001242, 43005698, 4000310, 4007289}), 0);
+  EXPECT_EQ(false_positives_on(*det, Background::keyboard, {5005904, 2000743}), 0);
+  EXPECT_EQ(false_positives_on(*det, Background::tiles, {3008634}), 0);
+}
 
 // bench_accuracy --background all: frame i of a point shows kind i % n.
 // The marker is out of reach, so that every frame is a miss and seen.

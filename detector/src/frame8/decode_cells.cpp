@@ -186,6 +186,10 @@ void Frame8Detector::unmix_ring(const Homography& H, std::array<CellSample, 4>& 
 // Opposite sides of a marker with cells under kResolvedCells: at most
 // this ratio (1.06 for 30 px seen at a focal length of 500 px).
 constexpr double kMaxSmallSideRatio = 1.3;
+// Opposite sides of any marker: at most this ratio, that of a square's
+// edges when it is turned edge-on 1.5 of its size from the lens (at 0.3 m
+// an 8 cm marker's is 1.3 at most).
+constexpr double kMaxSideRatio = 2.0;
 
 // Reads the ring's cells: sampled in the image through H or, with `model`,
 // the ring model's levels. Under kResolvedCells the samples are unmixed.
@@ -221,19 +225,21 @@ Rejection Frame8Detector::read_cells(const Homography& H, CellSize cell_size, co
   // A square's opposite sides differ in the image by the ratio of their
   // depths, which for a marker of a few dozen pixels is a few percent at
   // any focal length: clutter's slivers and trapezoids differ by far more,
-  // and with small cells, unmixed (unmix_ring), can read as a code.
+  // and with small cells, unmixed (unmix_ring), can read as a code. Larger
+  // ones, by more only where the marker is close: a quad with a side hidden
+  // across three keys of a keyboard, 13 px on one side and 73 on the
+  // other, read as 131.
   if (cell_size.mean < kMinCells) return Rejection::cells_too_small;
-  if (cell_size.mean < kResolvedCells) {
-    std::array<Point2, 4> outer{};
-    for (int k = 0; k < 4; ++k) {
-      outer[static_cast<std::size_t>(k)] =
-          grid_point(H, (k == 1 || k == 2) ? frame8::grid : 0, k >= 2 ? frame8::grid : 0);
-    }
-    for (int k = 0; k < 2; ++k) {
-      const double a = distance(outer[static_cast<std::size_t>(k)], outer[static_cast<std::size_t>(k + 1)]);
-      const double b = distance(outer[static_cast<std::size_t>(k + 2)], outer[static_cast<std::size_t>((k + 3) % 4)]);
-      if (std::max(a, b) > kMaxSmallSideRatio * std::min(a, b)) return Rejection::sides_unequal;
-    }
+  const double max_ratio = cell_size.mean < kResolvedCells ? kMaxSmallSideRatio : kMaxSideRatio;
+  std::array<Point2, 4> outer{};
+  for (int k = 0; k < 4; ++k) {
+    outer[static_cast<std::size_t>(k)] =
+        grid_point(H, (k == 1 || k == 2) ? frame8::grid : 0, k >= 2 ? frame8::grid : 0);
+  }
+  for (int k = 0; k < 2; ++k) {
+    const double a = distance(outer[static_cast<std::size_t>(k)], outer[static_cast<std::size_t>(k + 1)]);
+    const double b = distance(outer[static_cast<std::size_t>(k + 2)], outer[static_cast<std::size_t>((k + 3) % 4)]);
+    if (std::max(a, b) > max_ratio * std::min(a, b)) return Rejection::sides_unequal;
   }
   if (!model && cell_size.narrow < kResolvedCells) unmix_ring(H, r.corner, r.cell);
   return Rejection::none;

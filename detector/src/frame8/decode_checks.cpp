@@ -15,6 +15,22 @@ constexpr double kTinyCells = 1.5;
 constexpr double kCheckedLineCells = 2.0;
 // How dark (soft level, -1 = black) the ring model must find the line.
 constexpr double kClearLine = 0.5;
+// The least margin of a read in the second look (a frame in which the
+// first found no marker, segmented again with light ridges kept whole),
+// whatever min_margin allows, from kSecondLookClearCells up and for the
+// near-uniform ids at any size: its rule makes holes of more of a
+// texture's light shapes, and what those read is read faintly (keys and
+// windows as 124, 62 and 24 at 2.5 to 3.3 px a cell, margins 0.23 to 0.35;
+// window panes and a tile as 126 at 1.4 to 2 px, 0.18 to 0.34: some 1 in
+// 3,000 marker-free frames). From 2 px a cell the first look reads a flat
+// print, and what the second is there for mostly reads clearly (a socket
+// frame from 1.8 to 2.5 m facing, 0.45 and up; a cut-out hole over black,
+// 0.55 and up), but socket and switch frames turned 50 to 60 deg from 0.95
+// m read a quarter of theirs under it (4 to 12 points there). Under 2 px
+// the second look also finds far prints whose line the first look broke,
+// a quarter of them under it.
+constexpr double kSecondLookMargin = 0.4;
+constexpr double kSecondLookClearCells = 2.0;
 
 namespace {
 
@@ -113,6 +129,10 @@ Rejection Frame8Detector::check_structure(const Homography& H, CellSize cell_siz
   if (r.orientation_clarity < config_.frame8.min_margin && cell_size.narrow < kResolvedCells)
     return Rejection::unclear_orientation_small;
   r.margin = std::min(r.margin, std::max(r.orientation_clarity, 0.0));
+  if (rule_ == LocalRule::valley && r.margin < kSecondLookMargin &&
+      (cell_size.mean >= kSecondLookClearCells || near_uniform(r.id))) {
+    return Rejection::low_margin;
+  }
 
   // The line must be there on every side: across it, from the hole's edge
   // out to the ring, the profile dips well under the white cells' level.

@@ -306,7 +306,12 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // A quad that ends at something dark in front of the marker may have
   // read the code with its cells a cell or more off: the hole goes on
   // behind it. Where cells are resolved it is read again with that side
-  // hidden: another id rejects the candidate; with a camera, a hole found
+  // hidden: another id rejects the candidate, and in the second look so
+  // does no read at all where the first outvoted cells (a key top in its
+  // bevel, its edge's shadow for the line, read as 126 with a side's six
+  // cells outvoted; no covered marker in the cover sets read so, but a
+  // print with one edge's cells painted over does, its line whole, and the
+  // first look finds it); with a camera, a hole found
   // to reach further (more nearly a square in perspective) replaces the
   // read (without one, an edge painted over reads at several depths as
   // well as the quad seen, which is kept). Where they are not, a read that
@@ -325,6 +330,8 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
         det = again;
         return finish_from_hole(again_H, hidden, again_rotation, cell_px, det);
       }
+    } else if (det.bits_corrected > 0 && rule_ == LocalRule::valley) {
+      return Rejection::covered_side_unread;
     }
   }
   bool second_pass_agrees = false;
@@ -384,7 +391,12 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // With the code known, every edge of the printed pattern is a measurement.
   const bool by_pattern =
       cell_px >= kPatternCells && collect_pattern_edges(H, det.id, rotation, cell_px) >= kMinPatternEdges;
-  if (cell_size.mean < kModelCheckedCells && !by_model) {
+  // A near-uniform ring under 3 px a cell is also what a grid's squares
+  // show, and a measurement twice alike (a light tile in light grout, read
+  // as 129 at 2.8 px): the model must read it too, with its line ink.
+  const bool model_checked =
+      cell_size.mean < kModelCheckedCells || (near_uniform(det.id) && cell_size.narrow < kResolvedCells);
+  if (model_checked && !by_model) {
     // The model aligns its own map; started from the pattern's (where the
     // quad's outer corners are up to a pixel off, the pattern's are a
     // tenth of that), it needs one or two steps instead of four. A wrong

@@ -28,6 +28,27 @@ namespace markerd::detector::frame8 {
 // cells, and every bit is still read on the opposite edge and one other.
 constexpr std::array<double, 12> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.25, 3.5, 3.75, 4.0};
 
+// A hole read with a side hidden and its white corner hidden too (two
+// orientations fit) has its short sides at least this share of its long
+// ones (turned up to about 65 deg): two leniencies on a squeezed hole were
+// a quad three keys of a keyboard tall and one wide (0.32), read as 94. A
+// covered print or a socket frame read so showed 0.68 at least; a switch
+// frame turned to 80 deg and read with a side hidden, 0.30, but with its
+// white corner seen.
+constexpr double kMinAmbiguousHiddenSideRatio = 0.4;
+
+namespace {
+double short_to_long_sides(const std::array<Point2, 4>& q) {
+  double shortest = std::numeric_limits<double>::infinity(), longest = 0;
+  for (std::size_t i = 0; i < 4; ++i) {
+    const double len = distance(q[i], q[(i + 1) % 4]);
+    shortest = std::min(shortest, len);
+    longest = std::max(longest, len);
+  }
+  return shortest / longest;
+}
+}  // namespace
+
 // Beyond a seen side the line gives way to the ring, whose light cells
 // are as light as the hole; beyond a covered side, out to where the ring
 // would be, all is the cover's one grey, darker than the hole. `into_hole`:
@@ -150,6 +171,10 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
     // m), each a near-uniform id, as a grid's squares read.
     if (why == Rejection::none && size.narrow < kResolvedCells && reads_like_a_grid(read)) {
       why = Rejection::grid_like_read;
+    }
+    if (why == Rejection::none && read.orientation_ambiguous &&
+        short_to_long_sides(hole) < kMinAmbiguousHiddenSideRatio) {
+      why = Rejection::second_leniency;
     }
     note_attempt(Read::side_hidden, why);
     last_why = why;

@@ -52,6 +52,7 @@ Stage stage_of(Rejection r) {
     case Rejection::ink_read_corrected: return Stage::bit_votes;
     case Rejection::hidden_side_disagrees: return Stage::structure;
     case Rejection::covered_side_small_cells: return Stage::structure;
+    case Rejection::covered_side_unread: return Stage::structure;
     case Rejection::second_pass_disagrees: return Stage::structure;
     case Rejection::unconfirmed_correction: return Stage::structure;
     case Rejection::unconfirmed_small_cells: return Stage::structure;
@@ -134,6 +135,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::ink_read_corrected: return "ink_read_corrected";
     case Rejection::hidden_side_disagrees: return "hidden_side_disagrees";
     case Rejection::covered_side_small_cells: return "covered_side_small_cells";
+    case Rejection::covered_side_unread: return "covered_side_unread";
     case Rejection::second_pass_disagrees: return "second_pass_disagrees";
     case Rejection::unconfirmed_correction: return "unconfirmed_correction";
     case Rejection::unconfirmed_small_cells: return "unconfirmed_small_cells";

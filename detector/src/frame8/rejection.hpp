@@ -48,7 +48,7 @@ enum class Rejection : std::uint8_t {
   corner_off_image,  // a corner cell lies outside the image
   cells_off_image,   // fewer than 24 data cells inside the image
   cells_too_small,   // cells under kMinCells pixels
-  sides_unequal,     // small cells and opposite sides beyond kMaxSmallSideRatio
+  sides_unequal,     // opposite sides beyond kMaxSideRatio (small cells: kMaxSmallSideRatio)
   // 4b. the grey model
   one_grey_level,  // the ring's levels do not split into black and white
   no_contrast,     // black and white too close
@@ -79,6 +79,7 @@ enum class Rejection : std::uint8_t {
   hole_not_lighter,           // a cell outvoted, and the hole no lighter than its line on two sides or more
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
+  covered_side_unread,        // second look: cells outvoted beside a covered side, which read hidden reads nothing
   second_pass_disagrees,      // the sides measured again knowing the code read another id
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
   unconfirmed_small_cells,    // cells under 2.5 px read once, the second measurement reading nothing
