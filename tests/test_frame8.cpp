@@ -151,6 +151,10 @@ void cover_cells(GreyImage& img, const Scene& s, const std::vector<frame8::Cell>
 
 // One edge covered, black or white, on its data cells or along its whole
 // strip: the other three edges still decide every bit.
+// An edge's eight cells painted over, its line whole: outvoted, and read
+// from the other three. Not for the near-uniform ids: a key top in its
+// bevel, one side's bevel shaded, reads so as 126 (covered_side_unread);
+// those are refused, and never read as another id.
 TEST(Frame8, OneCoveredEdgeStillDecodes) {
   auto det = make_detector(DetectorConfig{});
   for (const int id : {165, 0x5a, 0x0f, 1, 254}) {
@@ -162,6 +166,10 @@ TEST(Frame8, OneCoveredEdgeStillDecodes) {
         for (int bit = 0; bit < 8; ++bit) cells.push_back(frame8::data_cell(edge, bit));
         cover_cells(img, s, cells, paint);
         const auto found = detect(*det, img);
+        if (frame8::near_uniform(id)) {
+          for (const Detection& d : found) EXPECT_EQ(d.id, id) << "edge " << edge << " paint " << int(paint);
+          continue;
+        }
         ASSERT_EQ(found.size(), 1u) << "id " << id << " edge " << edge << " paint " << int(paint);
         EXPECT_EQ(found[0].id, id) << "edge " << edge << " paint " << int(paint);
         EXPECT_EQ(found[0].quarter_turns, 0) << "id " << id << " edge " << edge << " paint " << int(paint);

@@ -34,7 +34,10 @@ std::array<std::uint8_t, grid * grid> ring_cells(int id);
 // square's ring: the neighbouring squares for the cells, and at each end
 // the crossing line or its absence. The detector asks more of these reads
 // (0 and 255 only with uniform_ids; the others, under 3 px a cell, only
-// when read twice), so they reach less far than other ids.
+// when read twice and confirmed by the ring model, and with one edge's
+// cells outvoted only where that edge reads as hidden), so they reach less
+// far than other ids and a print of one with an edge's cells painted over
+// is not read.
 constexpr bool near_uniform(int id) {
   const int core = (id >> 1) & 0x3F;
   return core == 0 || core == 0x3F;
