@@ -123,6 +123,14 @@ class Frame8StageTest : public ::testing::Test {
     return light;
   }
 
+  // Each 4x4 tile's threshold (stage 1), row by row.
+  std::vector<std::uint8_t> tile_thresholds(const GreyImage& img) {
+    detector_.full_ = img.view();
+    detector_.make_working_image();
+    detector_.threshold_tiles();
+    return detector_.tile_threshold_;
+  }
+
   // The valley rule's floor for row y (what a pixel must reach besides the mean).
   std::vector<int> valley_floor(const GreyImage& img, int y) {
     detector_.full_ = img.view();
@@ -271,6 +279,47 @@ TEST_F(Frame8StageTest, SegmentationsValleyFloorIsTheRulesDefinition) {
         best = std::max(best, std::min(before, after));
       }
       EXPECT_EQ(floor[static_cast<std::size_t>(x)], std::max(0, best - step)) << "x " << x << ", y " << y;
+    }
+  }
+}
+
+// A tile's threshold, eight tiles at a time, is its definition: the
+// rounded mean of the pixels of its 3x3 tiles (fewer at the borders, and
+// partial tiles where the image is not a multiple of four), less the
+// offset, at least 0; on noise, for widths and heights on either side of
+// the vector steps.
+TEST_F(Frame8StageTest, SegmentationsTileThresholdIsTheNeighbourhoodsMeanLessTheOffset) {
+  const int offset = DetectorConfig{}.frame8.threshold_offset;
+  std::uint32_t state = 4321;
+  for (const auto& [w, h] : {std::pair{640, 480}, std::pair{643, 481}, std::pair{37, 29}, std::pair{41, 17},
+                             std::pair{16, 16}, std::pair{18, 21}}) {
+    GreyImage img(w, h);
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        state = state * 1664525U + 1013904223U;
+        // Dark and light patches as well as noise: means from 0 to 255.
+        const int patch = ((x / 24) + (y / 20)) % 3;
+        img.at(x, y) = static_cast<std::uint8_t>(patch == 0   ? state >> 29
+                                                 : patch == 1 ? 255 - (state >> 29)
+                                                              : state >> 24);
+      }
+    }
+    const std::vector<std::uint8_t> thresholds = tile_thresholds(img);
+    const int tw = (w + 3) / 4, th = (h + 3) / 4;
+    ASSERT_GE(thresholds.size(), static_cast<std::size_t>(tw * th));
+    for (int ty = 0; ty < th; ++ty) {
+      for (int tx = 0; tx < tw; ++tx) {
+        int sum = 0, n = 0;
+        for (int y = std::max(0, ty - 1) * 4; y < std::min(h, (ty + 2) * 4); ++y) {
+          for (int x = std::max(0, tx - 1) * 4; x < std::min(w, (tx + 2) * 4); ++x) {
+            sum += img.at(x, y);
+            ++n;
+          }
+        }
+        const int expected = std::clamp((sum + n / 2) / n - offset, 0, 255);
+        EXPECT_EQ(thresholds[static_cast<std::size_t>(ty * tw + tx)], expected)
+            << w << "x" << h << ", tile " << tx << "," << ty;
+      }
     }
   }
 }

@@ -118,7 +118,16 @@ void Frame8Detector::threshold_tiles() {
     const std::uint32_t* in = tile_sum_.data() + static_cast<std::size_t>(ty) * tw;
     std::uint32_t* out = tile_row_sum_.data() + static_cast<std::size_t>(ty + 1) * tw;
     out[0] = in[0] + (tw > 1 ? in[1] : 0);
-    for (int tx = 1; tx + 1 < tw; ++tx) out[tx] = in[tx - 1] + in[tx] + in[tx + 1];
+    int tx = 1;
+#if defined(__SSE2__)
+    for (; tx + 5 <= tw; tx += 4) {
+      const __m128i left = _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + tx - 1));
+      const __m128i here = _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + tx));
+      const __m128i right = _mm_loadu_si128(reinterpret_cast<const __m128i*>(in + tx + 1));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(out + tx), _mm_add_epi32(_mm_add_epi32(left, here), right));
+    }
+#endif
+    for (; tx + 1 < tw; ++tx) out[tx] = in[tx - 1] + in[tx] + in[tx + 1];
     if (tw > 1) out[tw - 1] = in[tw - 2] + in[tw - 1];
   }
   auto span = [](int t, int tiles, int pixels) {  // pixels covered by tiles t-1 .. t+1
@@ -137,12 +146,45 @@ void Frame8Detector::threshold_tiles() {
     const std::uint32_t* down = mid + tw;
     const auto rows = static_cast<std::uint32_t>(span(ty, th, h));
     std::uint8_t* out = tile_threshold_.data() + static_cast<std::size_t>(ty) * tw;
-    for (int tx = 0; tx < tw; ++tx) {
+    auto threshold = [&](int tx) {
       const std::uint32_t sum = up[tx] + mid[tx] + down[tx];
       const std::uint32_t n = rows * tile_span_x_[static_cast<std::size_t>(tx)];
       const auto mean = static_cast<int>(((sum + n / 2) * kReciprocal[n]) >> 32);
       out[tx] = static_cast<std::uint8_t>(std::clamp(mean - offset, 0, 255));
+    };
+    threshold(0);
+    int tx = 1;
+#if defined(__SSE2__)
+    // Between the first and the last column every neighbourhood spans three
+    // whole tiles across: one pixel count, one reciprocal for the row. The
+    // products are 64 bits wide, two lanes at a time.
+    if (tw > 2) {
+      const std::uint32_t n = rows * tile_span_x_[1];
+      const __m128i half = _mm_set1_epi32(static_cast<int>(n / 2));
+      const __m128i reciprocal = _mm_set1_epi32(static_cast<int>(kReciprocal[n]));
+      const __m128i vo = _mm_set1_epi32(offset);
+      const __m128i odd_lanes = _mm_set_epi32(-1, 0, -1, 0);
+      // Four tiles' means less the offset, as 32-bit lanes.
+      auto four = [&](int at) {
+        const __m128i sum = _mm_add_epi32(_mm_add_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(up + at)),
+                                                        _mm_loadu_si128(reinterpret_cast<const __m128i*>(mid + at))),
+                                          _mm_loadu_si128(reinterpret_cast<const __m128i*>(down + at)));
+        const __m128i rounded = _mm_add_epi32(sum, half);
+        const __m128i even = _mm_srli_epi64(_mm_mul_epu32(rounded, reciprocal), 32);
+        const __m128i odd = _mm_mul_epu32(_mm_srli_epi64(rounded, 32), reciprocal);
+        // even's quotients sit in lanes 0 and 2, odd's (its high halves) in 1 and 3.
+        return _mm_sub_epi32(_mm_or_si128(even, _mm_and_si128(odd, odd_lanes)), vo);
+      };
+      // Up to the third last column: the last tile may be partial, and the
+      // second last's neighbourhood then spans fewer pixels.
+      for (; tx + 10 <= tw; tx += 8) {
+        // Signed saturation to 16 bits, then unsigned to 8: the clamp to 0..255.
+        const __m128i bytes = _mm_packus_epi16(_mm_packs_epi32(four(tx), four(tx + 4)), _mm_setzero_si128());
+        _mm_storel_epi64(reinterpret_cast<__m128i*>(out + tx), bytes);
+      }
     }
+#endif
+    for (; tx < tw; ++tx) threshold(tx);
   }
 }
 
