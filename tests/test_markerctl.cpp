@@ -224,6 +224,34 @@ TEST_F(Markerctl, NoCommandOrAnUnknownOneIsAUsageError) {
   EXPECT_EQ(bad_option.code, 2) << bad_option.describe();
 }
 
+// A mistyped word is named, with what was likely meant, wherever it stands;
+// CLI11 alone said "A subcommand is required" and "--id is required".
+TEST_F(Markerctl, AMistypedCommandOrOptionIsNamedWithASuggestion) {
+  struct Case {
+    std::vector<std::string> args;
+    std::string error;
+  };
+  const Case cases[] = {
+      {{"markr"}, "markerctl: usage: unknown command 'markr'; did you mean 'marker'? (see 'markerctl --help')\n"},
+      {{"marker", "--sise", "80mm"},
+       "markerctl: marker: unknown option '--sise'; did you mean '--size'? (see 'markerctl marker --help')\n"},
+      {{"sweep", "statsu"},
+       "markerctl: sweep: unknown command 'statsu'; did you mean 'status'? (see 'markerctl sweep --help')\n"},
+      {{"sweep", "status", "--folow"},
+       "markerctl: sweep status: unknown option '--folow'; did you mean '--follow'? (see 'markerctl sweep status "
+       "--help')\n"},
+      {{"rig", "--config", "rig.toml", "stauts"},
+       "markerctl: rig: unknown command 'stauts'; did you mean 'status'? (see 'markerctl rig --help')\n"},
+      {{"frobnicate"}, "markerctl: usage: unknown command 'frobnicate' (see 'markerctl --help')\n"},
+  };
+  for (const Case& c : cases) {
+    const Outcome r = run(c.args);
+    EXPECT_EQ(r.code, 2) << r.describe();
+    EXPECT_EQ(r.err, c.error) << r.describe();
+    EXPECT_EQ(r.out, "") << r.describe();
+  }
+}
+
 TEST_F(Markerctl, BadIdIsAUsageError) {
   const Outcome r = run({"marker", "--family", "frame8", "--id", "300", "--size", "80mm", "-o", path("m.svg")});
   EXPECT_EQ(r.code, 2) << r.describe();

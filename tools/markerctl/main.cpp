@@ -21,6 +21,7 @@
 
 #include "cmd_daemon.hpp"
 #include "common.hpp"
+#include "did_you_mean.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/print.hpp"
@@ -114,6 +115,15 @@ int main(int argc, char** argv) {
   } catch (const CLI::Success& e) {  // --help, --help-all, --version
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
+    // A word markerctl does not know is named first, with the names it may
+    // have meant: CLI11 would report whatever rule it checks first instead.
+    if (const auto unknown = markerctl::find_unknown_name(app, std::vector<std::string>(argv + 1, argv + argc))) {
+      const std::string& where = unknown->command;
+      print_error(where.empty() ? "usage" : where,
+                  fmt::format("{} (see 'markerctl {}{}--help')", markerctl::describe(*unknown), where,
+                              where.empty() ? "" : " "));
+      return markerctl::exit_usage;
+    }
     const auto chosen = app.get_subcommands();
     const std::string where = chosen.empty() ? std::string("usage") : chosen.front()->get_name();
     const std::string help = chosen.empty() ? "markerctl --help" : fmt::format("markerctl {} --help", where);
