@@ -377,13 +377,16 @@ TEST_F(ControlServerTest, ArgumentsAreReadByNameTypeAndRangeWithErrorsThatNameTh
 
 // Runs the real markerctl with MARKERD_SOCKET set to `socket_env` or unset;
 // `uid` runs it as that user.
+// `input` is its standard input (else /dev/null).
 Outcome run_markerctl(const std::vector<std::string>& args, std::optional<uid_t> uid = {},
-                      const std::optional<std::string>& socket_env = {}, std::chrono::seconds timeout = 60s) {
+                      const std::optional<std::string>& socket_env = {}, std::chrono::seconds timeout = 60s,
+                      const std::optional<fs::path>& input = {}) {
   std::vector<std::string> argv{MARKERCTL_PATH};
   argv.insert(argv.end(), args.begin(), args.end());
   markerd::test_support::ProcessOptions options;
   options.environment = {socket_env ? "MARKERD_SOCKET=" + *socket_env : "MARKERD_SOCKET"};
   options.user = uid;
+  options.input = input;
   const Outcome outcome = markerd::test_support::run_program(argv, options, timeout);
   if (outcome.timed_out) ADD_FAILURE() << "markerctl did not finish within " << timeout.count() << " s";
   return outcome;
@@ -418,6 +421,45 @@ TEST_F(MarkerctlAgainstTheServer, CallSendsACommandWithArgumentsAndPrintsTheRepl
   r = run_markerctl({"call", "add", "{a: 1}", "--socket", socket().string()});
   EXPECT_EQ(r.code, 2) << r.describe();
   EXPECT_NE(r.err.find("markerctl: call: the arguments are not JSON:"), std::string::npos) << r.err;
+}
+
+TEST_F(MarkerctlAgainstTheServer, CallReadsItsArgumentsFromStandardInput) {
+  start();
+  const fs::path arguments = dir_.path() / "arguments.json";
+  {
+    std::ofstream out(arguments);
+    out << R"({"a": 2, "b": 40})" << '\n';
+  }
+  const Outcome r = run_markerctl({"call", "add", "-", "--socket", socket().string()}, {}, {}, 60s, arguments);
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(json::parse(r.out)["sum"], 42) << r.out;
+}
+
+// --follow --json: sweep.status's reply a line each time it changes, to the
+// run's end (JSON Lines), and nothing that is not JSON.
+TEST_F(MarkerctlAgainstTheServer, SweepStatusFollowJsonPrintsOneObjectALine) {
+  server_ = std::make_unique<ControlServer>(settings_);
+  auto calls = std::make_shared<std::atomic<int>>(0);
+  server_->register_command("sweep.status", [calls](const json&) {
+    const int n = ++*calls;
+    const std::size_t done = n >= 4 ? 3 : static_cast<std::size_t>(n - 1);
+    return json{{"state", n >= 4 ? "done" : "running"},
+                {"run_id", "R1"},
+                {"run_directory", "/runs/R1"},
+                {"steps_done", done},
+                {"steps_total", 3},
+                {"phase", "collecting"}};
+  });
+  server_->start();
+  const Outcome r = run_markerctl({"sweep", "status", "--follow", "--json", "--socket", socket().string()});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  std::istringstream lines(r.out);
+  std::string line;
+  std::vector<json> objects;
+  while (std::getline(lines, line)) objects.push_back(json::parse(line));  // throws on a line that is not JSON
+  ASSERT_EQ(objects.size(), 4u) << r.out;
+  for (std::size_t i = 0; i < objects.size(); ++i) EXPECT_EQ(objects[i]["steps_done"], std::min<std::size_t>(i, 3));
+  EXPECT_EQ(objects.back()["state"], "done");
 }
 
 TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {

@@ -103,6 +103,17 @@ class Markerctl : public ::testing::Test {
     return r;
   }
 
+  // Runs markerctl with `args` and standard input from `input`.
+  static Outcome run_with_input(const std::vector<std::string>& args, const std::string& input) {
+    std::vector<std::string> argv{MARKERCTL_PATH};
+    argv.insert(argv.end(), args.begin(), args.end());
+    markerd::test_support::ProcessOptions options;
+    options.input = input;
+    Outcome r = markerd::test_support::run_program(argv, options);
+    if (r.timed_out) ADD_FAILURE() << "markerctl did not finish: " << r.describe();
+    return r;
+  }
+
   // Renders a scene and returns the truth line it printed.
   json render(const std::string& name, std::vector<std::string> extra) const {
     std::vector<std::string> args{"render", "-o", path(name)};
@@ -137,6 +148,25 @@ TEST_F(Markerctl, SweepCheckOfflineListsThePlanAndRefusesPointsBeyondTheRail) {
   EXPECT_EQ(far.code, 1) << far.describe();
   EXPECT_NE(far.out.find("3.5"), std::string::npos) << far.describe();
   EXPECT_NE(far.out.find("max_position"), std::string::npos) << far.describe();
+}
+
+TEST_F(Markerctl, SweepCheckReadsThePlanFromStandardInput) {
+  const std::string source = MARKERD_SOURCE_DIR;
+  const std::string plan = source + "/config/plans/thesis.toml";
+  const std::string config = source + "/config/markerd-sim.toml";
+  const Outcome from_file = run({"sweep", "check", plan, "--config", config});
+  ASSERT_EQ(from_file.code, 0) << from_file.describe();
+  const Outcome from_stdin = run_with_input({"sweep", "check", "-", "--config", config}, plan);
+  EXPECT_EQ(from_stdin.code, 0) << from_stdin.describe();
+  // The plan goes by "standard input" where the file goes by its path.
+  std::string expected = from_file.out;
+  expected.replace(expected.find(plan), plan.size(), "standard input");
+  EXPECT_EQ(from_stdin.out, expected);
+
+  // An empty standard input is a plan with nothing in it, named as such.
+  const Outcome empty = run({"sweep", "check", "-", "--config", config});
+  EXPECT_EQ(empty.code, 1) << empty.describe();
+  EXPECT_NE(empty.err.find("standard input"), std::string::npos) << empty.describe();
 }
 
 // Plans that are not regular files, or too large for markerd to take, are
@@ -486,6 +516,63 @@ TEST_F(Markerctl, DetectSaysWhenTheWhiteCornerIsHidden) {
   const Outcome bad = run({"detect", "--blur-sigma", "6", path("cover-top.png")});
   EXPECT_EQ(bad.code, 2) << bad.describe();
   EXPECT_NE(bad.err.find("--blur-sigma"), std::string::npos) << bad.describe();
+}
+
+// '-' reads one image from standard input, decoded as a file is; --json is
+// taken as by every command with output, and changes nothing here.
+TEST_F(Markerctl, DetectReadsAnImageFromStandardInput) {
+  const std::string file = path("frame.png");
+  render("frame.png", {"--dist", "0.5", "--yaw", "20", "--noise", "2"});
+  const Outcome from_file = run({"detect", file});
+  ASSERT_EQ(from_file.code, 0) << from_file.describe();
+  ASSERT_FALSE(json_lines(from_file).empty()) << from_file.describe();
+
+  for (const bool as_json : {false, true}) {
+    std::vector<std::string> args{"detect", "-"};
+    if (as_json) args.emplace_back("--json");
+    const Outcome from_stdin = run_with_input(args, file);
+    EXPECT_EQ(from_stdin.code, 0) << from_stdin.describe();
+    auto expected = json_lines(from_file);
+    auto got = json_lines(from_stdin);
+    ASSERT_EQ(got.size(), expected.size()) << from_stdin.describe();
+    for (std::size_t i = 0; i < got.size(); ++i) {
+      EXPECT_EQ(got[i]["file"], "-");
+      // The same detections; the time differs from run to run.
+      for (json* j : {&got[i], &expected[i]}) {
+        j->erase("file");
+        j->erase("time_ms");
+      }
+      EXPECT_EQ(got[i], expected[i]);
+    }
+  }
+
+  const Outcome empty = run({"detect", "-"});  // /dev/null
+  EXPECT_EQ(empty.code, 1) << empty.describe();
+  EXPECT_NE(empty.err.find("markerctl: standard input: the image is empty (0 bytes)\n"), std::string::npos)
+      << empty.describe();
+  const Outcome twice = run_with_input({"detect", "-", "-"}, file);
+  EXPECT_EQ(twice.code, 2) << twice.describe();
+  EXPECT_EQ(twice.err, "markerctl: detect: '-' (standard input) can be given once\n");
+}
+
+TEST_F(Markerctl, MarkerJsonSaysWhatWasWritten) {
+  const Outcome print = run({"marker", "--id", "165", "--size", "8cm", "-o", path("m.svg"), "--json"});
+  ASSERT_EQ(print.code, 0) << print.describe();
+  const auto lines = json_lines(print);
+  ASSERT_EQ(lines.size(), 1u) << print.describe();
+  EXPECT_EQ(lines[0]["output"], path("m.svg"));
+  EXPECT_EQ(lines[0]["family"], "frame8");
+  EXPECT_EQ(lines[0]["id"], 165);
+  EXPECT_DOUBLE_EQ(lines[0]["size_mm"].get<double>(), 80.0);
+  EXPECT_TRUE(lines[0]["dpi"].is_null()) << "a vector print has no resolution";
+
+  const Outcome image = run({"marker", "--id", "7", "--image-px", "100", "-o", path("m.png"), "--json"});
+  ASSERT_EQ(image.code, 0) << image.describe();
+  const auto image_lines = json_lines(image);
+  ASSERT_EQ(image_lines.size(), 1u) << image.describe();
+  EXPECT_EQ(image_lines[0]["marker_px"], 100);
+  EXPECT_EQ(png_size(path("m.png")),
+            std::make_pair(image_lines[0]["width_px"].get<int>(), image_lines[0]["height_px"].get<int>()));
 }
 
 TEST_F(Markerctl, PoseNeedsBothCameraAndSize) {

@@ -81,9 +81,11 @@ struct ProcessOptions {
   // CapturedProcess: stderr into stdout, interleaved as a terminal shows them
   // (Outcome::err stays empty).
   bool merge_output = false;
+  // Standard input from this file instead of /dev/null.
+  std::optional<fs::path> input = std::nullopt;
 };
 
-// A child process with standard input from /dev/null. Whatever happens to its
+// A child process with standard input from /dev/null (or ProcessOptions::input). Whatever happens to its
 // owner, it does not outlive the object, nor the thread that started it
 // (PR_SET_PDEATHSIG: start children from a thread that lives as long as they
 // should).
@@ -136,7 +138,7 @@ class ChildProcess {
     std::vector<char*> env_pointers;
     for (auto& e : env) env_pointers.push_back(e.data());
     env_pointers.push_back(nullptr);
-    const UniqueFd in = open_or_throw("/dev/null", O_RDONLY);
+    const UniqueFd in = open_or_throw(options.input.value_or("/dev/null"), O_RDONLY);
     const pid_t parent = ::getpid();
     const pid_t pid = ::fork();
     if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));

@@ -22,6 +22,7 @@
 #include <vector>
 
 #include "markerd/daemon/control/control_client.hpp"
+#include "markerd/daemon/control/control_server.hpp"
 
 namespace markerctl {
 
@@ -104,7 +105,13 @@ int run_detections(const std::string& socket, std::uint64_t count) {
 
 // ---------------------------------------------------------------- call
 
-int run_call(const std::string& socket, const std::string& command, const std::string& arguments, double timeout_s) {
+int run_call(const std::string& socket, const std::string& command, const std::string& arguments_option,
+             double timeout_s) {
+  // More than markerd takes in one request line is refused here.
+  const std::string arguments =
+      arguments_option == "-"
+          ? read_standard_input(markerd::daemon::ControlSettings{}.max_request_bytes, "the arguments", "call")
+          : arguments_option;
   json request = json::object();
   if (!arguments.empty()) {
     try {
@@ -389,7 +396,9 @@ void add_daemon_commands(CLI::App& parent, Commands& commands) {
   call->add_option("command", call_options->command, "The command (markerctl call help lists them)")
       ->type_name("CMD")
       ->required();
-  call->add_option("arguments", call_options->arguments, "Its arguments as a JSON object")->type_name("JSON-ARGS");
+  call->add_option("arguments", call_options->arguments,
+                   "Its arguments as a JSON object; - reads them from standard input")
+      ->type_name("JSON-ARGS");
   call->add_option("--socket", call_options->socket, socket_help)->type_name("PATH");
   call->add_option("--timeout", call_options->timeout_s, "Seconds to wait for the reply (default 10)")
       ->type_name("SECONDS")

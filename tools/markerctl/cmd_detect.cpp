@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <iostream>
@@ -31,6 +32,7 @@ struct DetectOptions {
   std::string mounting;
   std::string debug_dir;
   bool verbose = false;
+  bool json = false;  // the output is JSON either way; accepted as every command with output accepts it
   std::vector<std::string> images;
 };
 
@@ -69,6 +71,9 @@ nlohmann::ordered_json detection_json(const std::string& file, const markerd::de
 
 int run_detect(const DetectOptions& o) {
   const markerd::detector::Family family = parse_family(o.family);
+  if (std::count(o.images.begin(), o.images.end(), "-") > 1) {
+    throw usage_error("detect", "'-' (standard input) can be given once");
+  }
   if (o.camera.empty() != o.size.empty()) {
     throw usage_error(o.camera.empty() ? "--size" : "--camera",
                       "the pose needs both --camera and --size (give both or neither)");
@@ -107,7 +112,11 @@ int run_detect(const DetectOptions& o) {
   for (const std::string& path : o.images) {
     try {
       // The size the header declares is checked before anything is decoded.
-      const markerd::daemon::ImageSize size = reader.open(path);
+      const markerd::daemon::ImageSize size =
+          path == "-"
+              ? reader.open_bytes(read_standard_input(markerd::daemon::kMaxImageFileBytes, "the image", "detect"),
+                                  standard_input_name)
+              : reader.open(path);
       if (config.camera && (size.width != config.camera->width || size.height != config.camera->height)) {
         report(fmt::format("{}: the image is {}x{} but the camera model {} is {}x{}", path, size.width, size.height,
                            o.camera, config.camera->width, config.camera->height));
@@ -204,7 +213,9 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
                   "frame8: write the threshold image and the candidates, and why each was rejected, into DIR")
       ->type_name("DIR");
   app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
-  app->add_option("images", o->images, "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")
+  app->add_flag("--json", o->json, "JSON lines (the output is JSON lines with or without it)");
+  app->add_option("images", o->images,
+                  "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF); - reads one from standard input")
       ->type_name("IMAGE")
       ->required();
   commands.push_back({app, [o] { return run_detect(*o); }});

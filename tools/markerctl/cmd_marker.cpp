@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
@@ -26,6 +27,7 @@ struct MarkerOptions {
   double dpi = 300;
   int image_px = 0;
   bool no_quiet_zone = false;
+  bool json = false;
   std::string output;
 };
 
@@ -63,6 +65,17 @@ int write_image(const MarkerOptions& o, markerd::detector::Family family) {
     throw runtime_error(o.output, fmt::format("cannot write the image: {}", e.err));
   }
   if (!ok) throw runtime_error(o.output, "cannot write the image (does the directory exist?)");
+  if (o.json) {
+    nlohmann::ordered_json j;
+    j["output"] = o.output;
+    j["family"] = info.name;
+    j["id"] = o.id;
+    j["width_px"] = image.width();
+    j["height_px"] = image.height();
+    j["marker_px"] = o.image_px;
+    std::cout << json_line(j) << '\n';
+    return 0;
+  }
   std::cout << fmt::format("{}: {} id {}, {}x{} px image ({} px marker)\n", o.output, info.name, o.id, image.width(),
                            image.height(), o.image_px);
   return 0;
@@ -98,6 +111,17 @@ int run_marker(const MarkerOptions& o) {
   spec.margin_mm = margin_mm;
   spec.dpi = o.dpi;
   markerd::detector::write_printable_marker(spec, o.output);
+  if (o.json) {
+    nlohmann::ordered_json j;
+    j["output"] = o.output;
+    j["family"] = markerd::detector::family_info(family).name;
+    j["id"] = o.id;
+    j["size_mm"] = size_mm;
+    j["margin_mm"] = margin_mm;
+    j["dpi"] = ext == ".png" ? nlohmann::ordered_json(o.dpi) : nlohmann::ordered_json(nullptr);
+    std::cout << json_line(j) << '\n';
+    return 0;
+  }
   std::cout << fmt::format("{}: {} id {}, {:g} mm marker, {:g} mm margin{}\n", o.output,
                            markerd::detector::family_info(family).name, o.id, size_mm, margin_mm,
                            ext == ".png" ? fmt::format(", {:g} dpi", o.dpi) : std::string());
@@ -136,6 +160,7 @@ void add_marker_command(CLI::App& parent, Commands& commands) {
                                  "With --image-px: leave out the white quiet zone of ArUco/AprilTag");
   image_px->excludes(size)->excludes(margin)->excludes(dpi);
   no_quiet->needs(image_px);
+  app->add_flag("--json", o->json, "What was written as one JSON object instead of text");
   app->add_option("-o,--output", o->output, "Output file")->type_name("FILE")->required();
   commands.push_back({app, [o] { return run_marker(*o); }});
 }

@@ -39,6 +39,7 @@ struct RenderOptions {
   std::string background = "shapes";
   bool no_distort = false;
   bool cut_hole = false;
+  bool json = false;  // the truth line is JSON either way; accepted as every command with output accepts it
   std::string frame = "none";
   std::string insert = "none";
   double frame_reflectance = markerd::detector::CoverFrame{}.reflectance;
@@ -262,6 +263,7 @@ void add_render_command(CLI::App& parent, Commands& commands) {
       ->capture_default_str()
       ->check(CLI::Range(0.01, 1.0));
   app->add_option("--seed", o->seed, "Seed of the clutter and noise")->capture_default_str();
+  app->add_flag("--json", o->json, "The truth as one JSON line (printed so with or without it)");
   app->add_option("-o,--output", o->output, "Output image (.png, .pgm, .bmp, .tif)")->type_name("FILE")->required();
   commands.push_back({app, [o] { return run_render(*o); }});
 }

@@ -36,9 +36,17 @@ namespace {
 using nlohmann::json;
 using namespace std::chrono_literals;
 
-std::string read_plan_text(const std::string& context, const std::string& path) {
+// A plan's text and the name it goes by in errors and in the run's records.
+struct PlanText {
+  std::string text;
+  std::string source;
+};
+
+PlanText read_plan_text(const std::string& context, const std::string& path) {
+  if (path == "-")
+    return {read_standard_input(markerd::sweep::kMaxPlanBytes, "the plan", context), standard_input_name};
   try {
-    return markerd::sweep::read_plan_file(path);
+    return {markerd::sweep::read_plan_file(path), path};
   } catch (const markerd::ConfigError& e) {
     throw runtime_error(context, e.what());
   }
@@ -82,28 +90,39 @@ std::string progress_line(const json& p) {
 bool finished(const std::string& state) { return state == "done" || state == "aborted" || state == "failed"; }
 
 // Follows the run until it ends; on a terminal the bar redraws in place.
-// Exit status: 0 done, 1 aborted or failed.
-int follow(DaemonConnection& daemon) {
-  const bool tty = ::isatty(STDOUT_FILENO) != 0;
+// With `as_json`, sweep.status's reply each time it changes, a line each
+// (JSON Lines), the last one the run's end. Exit status: 0 done, 1 aborted
+// or failed.
+int follow(DaemonConnection& daemon, bool as_json) {
+  const bool tty = !as_json && ::isatty(STDOUT_FILENO) != 0;
   std::string last;
   for (;;) {
     const json p = daemon.call({{"cmd", "sweep.status"}});
-    if (p.value("state", std::string()) == "idle") {
-      std::cout << "no run since markerd started\n";
-      return exit_runtime;
-    }
-    const std::string line = progress_line(p);
-    if (tty) {
-      std::cout << "\r\033[K" << line << std::flush;
-    } else if (line != last) {
-      std::cout << line << '\n' << std::flush;
-    }
-    last = line;
     const std::string state = p.value("state", std::string());
+    if (as_json) {
+      std::string line = json_line(p);
+      if (line != last) std::cout << line << '\n' << std::flush;
+      last = std::move(line);
+      if (state == "idle") return exit_runtime;
+    } else {
+      if (state == "idle") {
+        std::cout << "no run since markerd started\n";
+        return exit_runtime;
+      }
+      const std::string line = progress_line(p);
+      if (tty) {
+        std::cout << "\r\033[K" << line << std::flush;
+      } else if (line != last) {
+        std::cout << line << '\n' << std::flush;
+      }
+      last = line;
+    }
     if (finished(state)) {
-      if (tty) std::cout << '\n';
-      std::cout << fmt::format("run {}: {}; records in {}\n", p.value("run_id", std::string()), state,
-                               p.value("run_directory", std::string()));
+      if (!as_json) {
+        if (tty) std::cout << '\n';
+        std::cout << fmt::format("run {}: {}; records in {}\n", p.value("run_id", std::string()), state,
+                                 p.value("run_directory", std::string()));
+      }
       return state == "done" ? 0 : exit_runtime;
     }
     std::this_thread::sleep_for(tty ? 250ms : 1s);
@@ -112,17 +131,17 @@ int follow(DaemonConnection& daemon) {
 
 int run_check(const std::string& socket, const std::string& plan_path, const std::string& config_path, bool as_json) {
   const std::string context = "sweep check";
-  const std::string text = read_plan_text(context, plan_path);
+  const auto [text, source] = read_plan_text(context, plan_path);
   if (!config_path.empty()) {
     // Offline: against the rig and camera of a config, without markerd.
     try {
-      const markerd::sweep::SweepPlan plan = markerd::sweep::parse_plan(text, plan_path);
+      const markerd::sweep::SweepPlan plan = markerd::sweep::parse_plan(text, source);
       const markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
       if (!config.rig)
         throw runtime_error(context, fmt::format("{} has no rig to check the plan against", config_path));
       if (auto problem = markerd::sweep::marker_problem(plan.marker, markerd::daemon::detector_config(config),
                                                         config.marker.mounting)) {
-        throw runtime_error(context, fmt::format("plan {} cannot run with {}: {}", plan_path, config_path, *problem));
+        throw runtime_error(context, fmt::format("plan {} cannot run with {}: {}", source, config_path, *problem));
       }
       const double fps = std::visit([](const auto& s) { return s.fps; }, config.camera.source);
       const markerd::sweep::PlanCheck check = markerd::sweep::check_plan(plan, *config.rig, fps);
@@ -133,7 +152,7 @@ int run_check(const std::string& socket, const std::string& plan_path, const std
     }
   }
   DaemonConnection daemon(socket, context);
-  const json reply = daemon.call({{"cmd", "sweep.check"}, {"plan", text}, {"source", plan_path}});
+  const json reply = daemon.call({{"cmd", "sweep.check"}, {"plan", text}, {"source", source}});
   if (as_json) {
     std::cout << reply.dump() << '\n';
   } else {
@@ -144,21 +163,21 @@ int run_check(const std::string& socket, const std::string& plan_path, const std
 
 int run_start(const std::string& socket, const std::string& plan_path, bool wait, bool as_json) {
   const std::string context = "sweep start";
-  const std::string text = read_plan_text(context, plan_path);
+  const auto [text, source] = read_plan_text(context, plan_path);
   DaemonConnection daemon(socket, context);
-  const json reply = daemon.call({{"cmd", "sweep.start"}, {"plan", text}, {"source", plan_path}});
+  const json reply = daemon.call({{"cmd", "sweep.start"}, {"plan", text}, {"source", source}});
   if (as_json) {
     std::cout << reply.dump() << '\n';
   } else {
     std::cout << fmt::format("run {} started: {} steps; records in {}\n", reply.value("run_id", std::string()),
                              reply.value("steps", 0), reply.value("run_directory", std::string()));
   }
-  return wait ? follow(daemon) : 0;
+  return wait ? follow(daemon, as_json) : 0;
 }
 
 int run_status(const std::string& socket, bool follow_run, bool as_json) {
   DaemonConnection daemon(socket, "sweep status");
-  if (follow_run) return follow(daemon);
+  if (follow_run) return follow(daemon, as_json);
   const json p = daemon.call({{"cmd", "sweep.status"}});
   if (as_json) {
     std::cout << p.dump() << '\n';
@@ -174,12 +193,12 @@ int run_status(const std::string& socket, bool follow_run, bool as_json) {
   return 0;
 }
 
-int run_simple(const std::string& socket, const std::string& command, json arguments) {
+int run_simple(const std::string& socket, const std::string& command, json arguments, bool as_json) {
   DaemonConnection daemon(socket, "sweep " + command);
   arguments["cmd"] = "sweep." + command;
   (void)daemon.call(std::move(arguments));
   const json p = daemon.call({{"cmd", "sweep.status"}});
-  std::cout << progress_line(p) << '\n';
+  std::cout << (as_json ? json_line(p) : progress_line(p)) << '\n';
   return 0;
 }
 
@@ -204,7 +223,7 @@ void add_sweep_command(CLI::App& parent, Commands& commands) {
 
   CLI::App* check =
       sweep->add_subcommand("check", "Dry run: the plan's points, what does not fit the rig, the duration");
-  check->add_option("plan", o->plan, "The plan (TOML)")->required()->type_name("PLAN");
+  check->add_option("plan", o->plan, "The plan (TOML); - reads it from standard input")->required()->type_name("PLAN");
   check
       ->add_option("--config", o->config,
                    "Check against this markerd config's rig and camera instead of the running markerd's")
@@ -214,30 +233,33 @@ void add_sweep_command(CLI::App& parent, Commands& commands) {
   commands.push_back({check, [o] { return run_check(o->socket, o->plan, o->config, o->json); }});
 
   CLI::App* start = sweep->add_subcommand("start", "Start a run of a plan");
-  start->add_option("plan", o->plan, "The plan (TOML)")->required()->type_name("PLAN");
+  start->add_option("plan", o->plan, "The plan (TOML); - reads it from standard input")->required()->type_name("PLAN");
   start->add_flag("--wait", o->wait, "Follow the run to its end (exit 0 when done, 1 when aborted or failed)");
   start->add_option("--socket", o->socket, socket_help)->type_name("PATH");
-  start->add_flag("--json", o->json, "The reply as JSON");
+  start->add_flag("--json", o->json, "The reply as JSON; with --wait, then sweep.status as JSON lines as it changes");
   commands.push_back({start, [o] { return run_start(o->socket, o->plan, o->wait, o->json); }});
 
   CLI::App* status = sweep->add_subcommand("status", "The run's progress, step, last detection rate and time left");
   status->add_flag("--follow", o->follow, "Follow the run to its end");
   status->add_option("--socket", o->socket, socket_help)->type_name("PATH");
-  status->add_flag("--json", o->json, "sweep.status's reply as JSON");
+  status->add_flag("--json", o->json, "sweep.status's reply as JSON; with --follow, a line each time it changes");
   commands.push_back({status, [o] { return run_status(o->socket, o->follow, o->json); }});
 
   CLI::App* pause = sweep->add_subcommand("pause", "Stop the axes and hold the run at its step");
   pause->add_option("--socket", o->socket, socket_help)->type_name("PATH");
-  commands.push_back({pause, [o] { return run_simple(o->socket, "pause", json::object()); }});
+  pause->add_flag("--json", o->json, "sweep.status's reply afterwards as JSON");
+  commands.push_back({pause, [o] { return run_simple(o->socket, "pause", json::object(), o->json); }});
 
   CLI::App* resume = sweep->add_subcommand("resume", "Resume a paused run at its step");
   resume->add_option("--socket", o->socket, socket_help)->type_name("PATH");
-  commands.push_back({resume, [o] { return run_simple(o->socket, "resume", json::object()); }});
+  resume->add_flag("--json", o->json, "sweep.status's reply afterwards as JSON");
+  commands.push_back({resume, [o] { return run_simple(o->socket, "resume", json::object(), o->json); }});
 
   CLI::App* abort = sweep->add_subcommand("abort", "End the run; the axes stop and are disabled");
   abort->add_option("--reason", o->reason, "Why, for the run's stop record")->type_name("TEXT");
   abort->add_option("--socket", o->socket, socket_help)->type_name("PATH");
-  commands.push_back({abort, [o] { return run_simple(o->socket, "abort", json{{"reason", o->reason}}); }});
+  abort->add_flag("--json", o->json, "sweep.status's reply afterwards as JSON");
+  commands.push_back({abort, [o] { return run_simple(o->socket, "abort", json{{"reason", o->reason}}, o->json); }});
 }
 
 }  // namespace markerctl

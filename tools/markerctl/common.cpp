@@ -1,10 +1,15 @@
 #include "common.hpp"
 #include "markerd/base/ascii.hpp"
+#include "markerd/base/errno_text.hpp"
+#include "markerd/base/read_file.hpp"
+
+#include <unistd.h>
 
 #include <fmt/format.h>
 
 #include <array>
 #include <cctype>
+#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <filesystem>
@@ -147,6 +152,30 @@ markerd::detector::CameraModel load_camera(const std::string& path) {
   } catch (const markerd::detector::CameraModelError& e) {
     // The loader's message already names the file.
     throw runtime_error("--camera", e.what());
+  }
+}
+
+std::string read_standard_input(std::size_t max_bytes, std::string_view what, const std::string& context) {
+  if (::isatty(STDIN_FILENO) != 0) {
+    throw usage_error(context, fmt::format("'-' reads {} from standard input, which is a terminal: pipe or redirect "
+                                           "it in (markerctl ... - < FILE)",
+                                           what));
+  }
+  std::string bytes;
+  std::array<char, 65536> buffer{};
+  for (;;) {
+    const ssize_t n = ::read(STDIN_FILENO, buffer.data(), buffer.size());
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw runtime_error(context,
+                          fmt::format("{}: cannot be read: {}", standard_input_name, markerd::errno_text(errno)));
+    }
+    if (n == 0) return bytes;
+    if (bytes.size() + static_cast<std::size_t>(n) > max_bytes) {
+      throw runtime_error(context, fmt::format("{}: {} is larger than the {} allowed", standard_input_name, what,
+                                               markerd::format_bytes(max_bytes)));
+    }
+    bytes.append(buffer.data(), static_cast<std::size_t>(n));
   }
 }
 

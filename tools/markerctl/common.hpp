@@ -93,6 +93,12 @@ inline constexpr const char* thesis_camera_text =
 // From a calibration file, or the thesis camera when `path` is empty.
 markerd::detector::CameraModel load_camera(const std::string& path);
 
+// What a file argument of "-" reads: the whole of standard input, up to
+// `max_bytes`; `what` names it in errors ("the plan"). A terminal is refused:
+// nothing was piped in, and markerctl would wait for typing that never ends.
+inline constexpr const char* standard_input_name = "standard input";
+std::string read_standard_input(std::size_t max_bytes, std::string_view what, const std::string& context);
+
 // One line of JSON; bytes of a file name that are not UTF-8 become U+FFFD
 // instead of aborting the output.
 std::string json_line(const nlohmann::ordered_json& value);

@@ -261,8 +261,9 @@ ImageSize ImageFileReader::open(const std::filesystem::path& path) {
   path_ = path;
   format_ = Format::none;
   bytes_.clear();
+  std::string bytes;
   try {
-    bytes_ = read_regular_file(path, kMaxImageFileBytes, "the image");
+    bytes = read_regular_file(path, kMaxImageFileBytes, "the image");
   } catch (const FileError& e) {
     // "<path>: the image is a directory, not a file": the cause is what
     // follows the path.
@@ -270,6 +271,17 @@ ImageSize ImageFileReader::open(const std::filesystem::path& path) {
     const std::string prefix = path.string() + ": ";
     if (cause.starts_with(prefix)) cause.erase(0, prefix.size());
     throw ImageFileError(path, cause);
+  }
+  return open_bytes(std::move(bytes), path);
+}
+
+ImageSize ImageFileReader::open_bytes(std::string bytes, const std::filesystem::path& path) {
+  path_ = path;
+  format_ = Format::none;
+  bytes_ = std::move(bytes);
+  if (bytes_.size() > kMaxImageFileBytes) {
+    throw ImageFileError(path,
+                         fmt::format("the image is larger than the {} allowed", format_bytes(kMaxImageFileBytes)));
   }
   const auto b = as_bytes(bytes_);
   if (b.empty()) throw ImageFileError(path, "the image is empty (0 bytes)");

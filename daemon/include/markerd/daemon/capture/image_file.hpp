@@ -65,6 +65,9 @@ class ImageFileReader {
   // and a declared size beyond kMaxImagePixels or kMaxImageSide. Throws
   // ImageFileError.
   ImageSize open(const std::filesystem::path& path);
+  // The same for an image already in memory (one read from standard input),
+  // `path` naming it in errors.
+  ImageSize open_bytes(std::string bytes, const std::filesystem::path& path);
 
   // Decodes the file open() read into `grey`, the open() size with rows of
   // `stride` bytes. Throws ImageFileError when it does not decode whole; the
