@@ -56,6 +56,21 @@ std::vector<json> json_lines(const Outcome& outcome) {
   return lines;
 }
 
+// The detections of detect's records (one a line, the detection log's
+// schema), each with "file": its record's frame.source.
+std::vector<json> detections_in(const Outcome& outcome) {
+  std::vector<json> detections;
+  for (const json& record : json_lines(outcome)) {
+    EXPECT_EQ(record["schema"], 1) << record.dump();
+    EXPECT_EQ(record["status"], "ok") << record.dump();
+    for (json d : record["detections"]) {
+      d["file"] = record["frame"]["source"];
+      detections.push_back(std::move(d));
+    }
+  }
+  return detections;
+}
+
 // Width and height from a PNG's IHDR chunk (big-endian, at bytes 16 and 20).
 std::pair<int, int> png_size(const fs::path& path) {
   const std::string bytes = read_file(path);
@@ -417,7 +432,12 @@ TEST_P(RoundTrip, DetectFindsTheRenderedIdAtTheTrueCorners) {
 
   const Outcome r = run({"detect", "--family", c.family, path("frame.png")});
   ASSERT_EQ(r.code, 0) << r.describe();
-  const auto lines = json_lines(r);
+  const auto records = json_lines(r);
+  ASSERT_EQ(records.size(), 1u) << "one record for the image\n" << r.describe();
+  EXPECT_GE(records[0]["detection_time_ms"].get<double>(), 0.0);
+  EXPECT_EQ(records[0]["frame"]["width"], 640);
+  EXPECT_TRUE(records[0]["rig"].is_null() && records[0]["truth"].is_null()) << records[0].dump();
+  const auto lines = detections_in(r);
   ASSERT_FALSE(lines.empty()) << r.describe();
   const json* found = detection_at(lines, truth);
   ASSERT_NE(found, nullptr) << r.describe();
@@ -426,10 +446,9 @@ TEST_P(RoundTrip, DetectFindsTheRenderedIdAtTheTrueCorners) {
   EXPECT_EQ(d["family"], c.family);
   EXPECT_EQ(d["id"], c.id) << d.dump();
   EXPECT_LT(worst_corner_error(d, truth), c.corner_tolerance_px) << d.dump() << "\n" << truth.dump();
-  EXPECT_EQ(d.contains("inner_corners"), std::string(c.family) == "frame8") << d.dump();
+  EXPECT_EQ(!d["inner_corners"].is_null(), std::string(c.family) == "frame8") << d.dump();
   EXPECT_TRUE(d.contains("quarter_turns") && d.contains("bits_corrected") && d.contains("margin")) << d.dump();
-  EXPECT_GE(d["time_ms"].get<double>(), 0.0);
-  EXPECT_FALSE(d.contains("tvec")) << "no pose without --camera and --size\n" << d.dump();
+  EXPECT_TRUE(d["pose"].is_null()) << "no pose without --camera and --size\n" << d.dump();
 }
 
 INSTANTIATE_TEST_SUITE_P(Families, RoundTrip,
@@ -449,21 +468,27 @@ TEST_F(Markerctl, DetectWithCameraAndSizeGivesTheDistance) {
         render(file.substr(dir_.path().string().size() + 1), {"--dist", "0.95", "--yaw", yaw, "--noise", "2"});
     const Outcome r = run({"detect", "--camera", thesis_camera_file, "--size", "0.08", file});
     ASSERT_EQ(r.code, 0) << r.describe();
-    const auto lines = json_lines(r);
+    const auto lines = detections_in(r);
     const json* found = detection_at(lines, truth);
     ASSERT_NE(found, nullptr) << r.describe();
     const json& d = *found;
     EXPECT_EQ(d["id"], 165);
     EXPECT_LT(worst_corner_error(d, truth), 0.5) << d.dump();
-    ASSERT_EQ(d["tvec"].size(), 3u) << d.dump();
-    EXPECT_NEAR(d["tvec"][2].get<double>(), 0.95, 0.02 * 0.95) << d.dump();
-    ASSERT_EQ(d["rvec"].size(), 3u) << d.dump();
-    ASSERT_EQ(d["quaternion"].size(), 4u) << d.dump();
+    // The pose nested as the detection log nests it: the best solution, the
+    // alternative (or null), and no error without a truth.
+    ASSERT_TRUE(d["pose"].is_object()) << d.dump();
+    const json& best = d["pose"]["best"];
+    ASSERT_EQ(best["tvec"].size(), 3u) << d.dump();
+    EXPECT_NEAR(best["tvec"][2].get<double>(), 0.95, 0.02 * 0.95) << d.dump();
+    ASSERT_EQ(best["rvec"].size(), 3u) << d.dump();
+    ASSERT_EQ(best["quaternion"].size(), 4u) << d.dump();
     double norm2 = 0;
-    for (const auto& v : d["quaternion"]) norm2 += v.get<double>() * v.get<double>();
+    for (const auto& v : best["quaternion"]) norm2 += v.get<double>() * v.get<double>();
     EXPECT_NEAR(norm2, 1.0, 1e-5);
-    EXPECT_TRUE(d["ambiguous"].is_boolean()) << d.dump();
-    EXPECT_LT(d["reprojection_error_px"].get<double>(), 1.0) << d.dump();
+    EXPECT_TRUE(d["pose"]["ambiguous"].is_boolean()) << d.dump();
+    EXPECT_TRUE(d["pose"].contains("alternative")) << d.dump();
+    EXPECT_LT(best["reprojection_error_px"].get<double>(), 1.0) << d.dump();
+    EXPECT_TRUE(best["error"].is_null()) << d.dump();
   }
 }
 
@@ -488,7 +513,7 @@ TEST_F(Markerctl, RenderTakesTheBenchsBlurAndNoiseModels) {
     EXPECT_GT(cv::norm(other, gaussian, cv::NORM_L1), 0.0);
     const Outcome r = run({"detect", path(name)});
     ASSERT_EQ(r.code, 0) << r.describe();
-    const auto lines = json_lines(r);
+    const auto lines = detections_in(r);
     ASSERT_EQ(lines.size(), 1U) << r.describe();
     EXPECT_EQ(lines[0]["id"], 165);
   }
@@ -508,7 +533,7 @@ TEST_F(Markerctl, DetectSaysWhenTheWhiteCornerIsHidden) {
     const Outcome r =
         run({"detect", "--blur-sigma", "0.6", "--camera", thesis_camera_file, "--size", "0.08", path(name)});
     ASSERT_EQ(r.code, 0) << r.describe();
-    const auto lines = json_lines(r);
+    const auto lines = detections_in(r);
     ASSERT_EQ(lines.size(), 1U) << r.describe();
     EXPECT_EQ(lines[0]["id"], 165);
     EXPECT_EQ(lines[0]["orientation_ambiguous"], std::string(side) == "top") << r.describe();
@@ -536,11 +561,12 @@ TEST_F(Markerctl, DetectReadsAnImageFromStandardInput) {
     auto got = json_lines(from_stdin);
     ASSERT_EQ(got.size(), expected.size()) << from_stdin.describe();
     for (std::size_t i = 0; i < got.size(); ++i) {
-      EXPECT_EQ(got[i]["file"], "-");
-      // The same detections; the time differs from run to run.
+      EXPECT_EQ(got[i]["frame"]["source"], "-");
+      // The same record; the times differ from run to run.
       for (json* j : {&got[i], &expected[i]}) {
-        j->erase("file");
-        j->erase("time_ms");
+        j->erase("detection_time_ms");
+        j->at("frame").erase("source");
+        j->at("frame").erase("capture_utc");
       }
       EXPECT_EQ(got[i], expected[i]);
     }
@@ -599,8 +625,10 @@ TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
   for (const char* name : {"missing.png", "corrupt.png", "empty.png"}) {
     EXPECT_NE(r.err.find(path(name) + ": "), std::string::npos) << name << "\n" << r.describe();
   }
-  const auto lines = json_lines(r);
+  const auto lines = detections_in(r);
   for (const auto& line : lines) EXPECT_EQ(line["file"], path("good.png")) << r.describe();
+  // Its record counts the image's place on the command line, the bad ones too.
+  for (const json& record : json_lines(r)) EXPECT_EQ(record["frame"]["sequence"], 1) << r.describe();
   const json* found = detection_at(lines, truth);
   ASSERT_NE(found, nullptr) << r.describe();
   EXPECT_EQ((*found)["id"], 165) << r.describe();
@@ -608,7 +636,7 @@ TEST_F(Markerctl, UnreadableImagesAreNamedAndTheOthersStillDetected) {
   // A good file after a bad one is processed too.
   const Outcome last = run({"detect", path("corrupt.png"), path("good.png")});
   EXPECT_EQ(last.code, 1) << last.describe();
-  const auto last_lines = json_lines(last);
+  const auto last_lines = detections_in(last);
   EXPECT_NE(detection_at(last_lines, truth), nullptr) << last.describe();
 }
 
@@ -676,9 +704,9 @@ TEST_F(Markerctl, VerboseReportsImagesWithoutDetections) {
   EXPECT_EQ(verbose.code, 0) << verbose.describe();
   const auto lines = json_lines(verbose);
   ASSERT_EQ(lines.size(), 1u) << verbose.describe();
-  EXPECT_EQ(lines.front()["file"], path("far.png"));
-  EXPECT_EQ(lines.front()["detections"], 0);
-  EXPECT_TRUE(lines.front().contains("time_ms"));
+  EXPECT_EQ(lines.front()["frame"]["source"], path("far.png"));
+  EXPECT_EQ(lines.front()["detections"], json::array());
+  EXPECT_TRUE(lines.front()["detection_time_ms"].is_number());
 }
 
 TEST_F(Markerctl, DebugWritesTheThresholdTheCandidatesAndWhyEachWasRejected) {
@@ -694,11 +722,11 @@ TEST_F(Markerctl, DebugWritesTheThresholdTheCandidatesAndWhyEachWasRejected) {
 
   // The same detections as without the option.
   auto without_time = [](std::vector<json> lines) {
-    for (auto& j : lines) j.erase("time_ms");
+    for (auto& j : lines) j.erase("detection_time_ms");
     return lines;
   };
   EXPECT_EQ(without_time(json_lines(r)), without_time(json_lines(plain))) << r.describe();
-  ASSERT_NE(detection_at(json_lines(r), truth), nullptr) << r.describe();
+  ASSERT_NE(detection_at(detections_in(r), truth), nullptr) << r.describe();
 
   EXPECT_EQ(png_size(path("debug/0000-threshold.png")), std::make_pair(640, 480));
   EXPECT_EQ(png_size(path("debug/0000-candidates.png")), std::make_pair(640, 480));

@@ -10,10 +10,10 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
-#include <nlohmann/json.hpp>
 
 #include "common.hpp"
 #include "markerd/daemon/capture/image_file.hpp"
+#include "markerd/daemon/detection_record.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/sweep/plan.hpp"
 
@@ -36,37 +36,14 @@ struct DetectOptions {
   std::vector<std::string> images;
 };
 
-nlohmann::ordered_json quad_json(const markerd::detector::Quad& quad) {
-  auto out = nlohmann::ordered_json::array();
-  // 1e-4 px: ten times finer than the detectors' best sub-pixel accuracy.
-  for (const auto& p : quad) out.push_back({rounded(p.x, 4), rounded(p.y, 4)});
-  return out;
-}
-
-nlohmann::ordered_json detection_json(const std::string& file, const markerd::detector::Detection& d, double time_ms) {
-  nlohmann::ordered_json j;
-  j["file"] = file;
-  j["family"] = markerd::detector::family_info(d.family).name;
-  j["id"] = d.id;
-  j["corners"] = quad_json(d.corners);
-  if (d.inner_corners) j["inner_corners"] = quad_json(*d.inner_corners);
-  j["quarter_turns"] = d.quarter_turns;
-  j["orientation_ambiguous"] = d.orientation_ambiguous;
-  j["bits_corrected"] = d.bits_corrected;
-  j["margin"] = rounded(d.margin, 4);
-  if (d.pose) {
-    const markerd::detector::MarkerPose& pose = d.pose->best;
-    const Eigen::Vector3d r = pose.rvec();
-    const Eigen::Quaterniond q = pose.quaternion();
-    const Eigen::Vector3d& t = pose.translation;
-    j["rvec"] = {rounded(r.x(), 7), rounded(r.y(), 7), rounded(r.z(), 7)};
-    j["tvec"] = {rounded(t.x(), 7), rounded(t.y(), 7), rounded(t.z(), 7)};
-    j["quaternion"] = {rounded(q.w(), 7), rounded(q.x(), 7), rounded(q.y(), 7), rounded(q.z(), 7)};
-    j["reprojection_error_px"] = rounded(pose.reprojection_error_px, 4);
-    j["ambiguous"] = d.pose->ambiguous;
-  }
-  j["time_ms"] = rounded(time_ms, 3);
-  return j;
+// When the image was made, as near as a file tells: its modification time;
+// an image from standard input, the time it was read.
+std::chrono::system_clock::time_point image_time(const std::string& path) {
+  if (path == "-") return std::chrono::system_clock::now();
+  std::error_code ec;
+  const auto written = std::filesystem::last_write_time(path, ec);
+  if (ec) return std::chrono::system_clock::now();
+  return std::chrono::time_point_cast<std::chrono::system_clock::duration>(std::chrono::file_clock::to_sys(written));
 }
 
 int run_detect(const DetectOptions& o) {
@@ -109,7 +86,9 @@ int run_detect(const DetectOptions& o) {
   markerd::daemon::ImageFileReader reader;
   markerd::detector::GreyImage grey;
   int debug_frame = 0;  // the detector numbers its debug output by detect() call
-  for (const std::string& path : o.images) {
+  markerd::daemon::DetectionRecordFormatter formatter;
+  for (std::size_t index = 0; index < o.images.size(); ++index) {
+    const std::string& path = o.images[index];
     try {
       // The size the header declares is checked before anything is decoded.
       const markerd::daemon::ImageSize size =
@@ -131,11 +110,11 @@ int run_detect(const DetectOptions& o) {
       continue;
     }
     const markerd::detector::GreyView view = grey.view();
-    double time_ms = 0;
+    std::chrono::nanoseconds detection_time{0};
     try {
       const auto start = std::chrono::steady_clock::now();
       detector->detect(view, detections);
-      time_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+      detection_time = std::chrono::steady_clock::now() - start;
     } catch (const markerd::detector::DetectorError& e) {
       report(fmt::format("{}: {}", path, e.what()));
       continue;
@@ -143,15 +122,18 @@ int run_detect(const DetectOptions& o) {
     if (!o.debug_dir.empty()) {
       std::cerr << fmt::format("markerctl: {}: debug output {}/{:04}-*\n", path, o.debug_dir, debug_frame++);
     }
-    for (const auto& d : detections) std::cout << json_line(detection_json(path, d, time_ms)) << '\n';
-    if (o.verbose && detections.empty()) {
-      nlohmann::ordered_json j;
-      j["file"] = path;
-      j["detections"] = 0;
-      j["time_ms"] = rounded(time_ms, 3);
-      std::cout << json_line(j) << '\n';
-    }
-    std::cout.flush();
+    if (detections.empty() && !o.verbose) continue;
+    // The detection log's record (docs/detection-log.md), so that one reader
+    // takes both; an image has no rig, no truth and no monotonic capture time.
+    markerd::daemon::FrameRecordInput record;
+    record.sequence = index;
+    record.capture_utc = image_time(path);
+    record.source = path;
+    record.width = view.width;
+    record.height = view.height;
+    record.detection_time = detection_time;
+    record.detections = detections;
+    std::cout << formatter.format(record) << std::flush;
   }
   if (failed > 0) {
     throw runtime_error("detect", fmt::format("{} of {} image{} could not be processed", failed, o.images.size(),
@@ -164,17 +146,18 @@ int run_detect(const DetectOptions& o) {
 
 void add_detect_command(CLI::App& parent, Commands& commands) {
   auto o = std::make_shared<DetectOptions>();
-  CLI::App* app = parent.add_subcommand("detect", "Detect markers in image files; one JSON line per detection");
+  CLI::App* app = parent.add_subcommand("detect", "Detect markers in image files; one JSON line per image");
   app->footer(
-      "Detect markers in image files and print one JSON object per detection per line:\n"
-      "  {\"file\", \"family\", \"id\", \"corners\": [[x,y] x4], \"inner_corners\" (frame8), \"quarter_turns\",\n"
-      "   \"orientation_ambiguous\" (frame8: the white corner hidden, quarter_turns one of two),\n"
-      "   \"bits_corrected\", \"margin\", \"rvec\", \"tvec\", \"quaternion\" [w,x,y,z], \"reprojection_error_px\",\n"
-      "   \"ambiguous\", \"time_ms\"}\n"
+      "Detect markers in image files and print, per image with detections, one line of JSON: the\n"
+      "detection log's record (docs/detection-log.md), as markerd logs a frame:\n"
+      "  {\"schema\", \"status\", \"cause\", \"frame\": {\"sequence\" (the image's place, from 0), \"source\" (its\n"
+      "   path; - standard input), \"width\", \"height\", ...}, \"detection_time_ms\", \"rig\": null,\n"
+      "   \"truth\": null, \"detections\": [{\"family\", \"id\", \"corners\", \"inner_corners\", \"quarter_turns\",\n"
+      "   \"orientation_ambiguous\", \"bits_corrected\", \"margin\", \"pose\": {\"ambiguous\", \"best\": {\"rvec\",\n"
+      "   \"quaternion\", \"tvec\", \"reprojection_error_px\", \"error\"}, \"alternative\"}}]}\n"
       "Corners are pixels (pixel centres at integers), TL TR BR BL of the outer printed square, to 1e-4 px.\n"
-      "The pose fields (tvec in metres) appear only with both --camera and --size. time_ms is the\n"
-      "detection time of that image. An image without detections prints nothing (with --verbose a\n"
-      "{\"file\", \"detections\": 0, \"time_ms\"} line). Images (PNG, JPEG, PNM, BMP, TIFF) are read\n"
+      "pose is null unless both --camera and --size are given. With --verbose an image without\n"
+      "detections prints its record too (\"detections\": []). Images (PNG, JPEG, PNM, BMP, TIFF) are read\n"
       "as 8-bit grey, colour converted as cv::imread(IMREAD_GRAYSCALE) converts it, as stored (EXIF\n"
       "orientation ignored), at most 64 megapixels (checked in the header before decoding).\n"
       "A file that cannot be read or does not decode whole (truncated, corrupt) is reported on stderr\n"
@@ -212,7 +195,7 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
   app->add_option("--debug", o->debug_dir,
                   "frame8: write the threshold image and the candidates, and why each was rejected, into DIR")
       ->type_name("DIR");
-  app->add_flag("-v,--verbose", o->verbose, "Also print a line for each image without detections");
+  app->add_flag("-v,--verbose", o->verbose, "Also print the record of each image without detections");
   app->add_flag("--json", o->json, "JSON lines (the output is JSON lines with or without it)");
   app->add_option("images", o->images,
                   "Image files (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF); - reads one from standard input")
