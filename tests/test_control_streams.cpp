@@ -464,17 +464,47 @@ TEST_F(MarkerctlAgainstTheServer, SweepStatusFollowJsonPrintsOneObjectALine) {
 
 TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
   server_ = std::make_unique<ControlServer>(settings_);
+  // markerd's status document as daemon_status.cpp makes it, in part (a
+  // summary must take a document without some parts), with a running sweep.
   server_->register_command("status", [](const json&) {
-    return json{{"version", "0.1.0"}, {"capture", {{"frames", 120}, {"source", "sim"}}}, {"rig", nullptr}};
+    return json::parse(R"({"responsive": true,
+      "camera": {"state": "streaming", "source": "sim 640x480@30", "frames": 1200, "corrupt": 0,
+                 "last_frame_age_ms": 12.5, "last_error": null},
+      "pipeline": {"dropped": 3, "detect": {"in": 1200, "out": 1197, "dropped": 0, "failed": 0},
+                   "latency": {"detect": {"p50_ms": 2.84, "p99_ms": 3.71}}, "workers": 2, "policy": "live"},
+      "log": {"file": "/var/log/markerd/detections-R-000.jsonl", "lines": 1197, "lines_lost": 0, "last_error": null},
+      "rig": {"rail": {"position": 250.0, "unit": "mm", "state": "idle", "homed": true, "settled": true,
+                       "fault": null},
+              "turntable": {"position": 30.0, "unit": "deg", "state": "moving", "homed": true, "settled": false,
+                            "fault": null},
+              "ground_truth": {"distance_m": 0.55, "yaw_deg": 30.0}},
+      "sweep": {"state": "running", "run_id": "R", "steps_done": 6, "steps_total": 24, "phase": "moving"},
+      "control": {"socket": "/run/markerd/control.sock", "clients": 1},
+      "status": "camera sim 640x480@30: streaming, 1200 frames, 3 dropped"})");
   });
   server_->start();
   Outcome r = run_markerctl({"status", "--socket", socket().string()});
   ASSERT_EQ(r.code, 0) << r.describe();
-  EXPECT_EQ(r.out, "capture:\n  frames: 120\n  source: sim\nrig: null\nversion: 0.1.0\n");
+  EXPECT_EQ(r.out,
+            "markerd    responsive\n"
+            "camera     streaming, sim 640x480@30; 1200 frames, 3 dropped, last 12 ms ago\n"
+            "detector   1197 frames, 0 failed; 2.8 ms p50, 3.7 ms p99; workers 2, live\n"
+            "log        /var/log/markerd/detections-R-000.jsonl; 1197 lines\n"
+            "rail       250.000 mm, idle, homed, settled\n"
+            "turntable  30.000 deg, moving, homed\n"
+            "truth      distance 0.5500 m, yaw 30.000 deg\n"
+            "sweep      run R\n"
+            "           [######------------------]    6/24   running  moving\n"
+            "control    /run/markerd/control.sock, 1 clients\n");
+  // One screen at 80 columns: no line wraps.
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), 80u) << line;
+
   r = run_markerctl({"status", "--json", "--socket", socket().string()});
   ASSERT_EQ(r.code, 0) << r.describe();
   const json status = json::parse(r.out);
-  EXPECT_EQ(status["capture"]["frames"], 120);
+  EXPECT_EQ(status["camera"]["frames"], 1200);
+  EXPECT_EQ(status["pipeline"]["latency"]["detect"]["p99_ms"], 3.71) << "everything, as markerd sent it";
   EXPECT_FALSE(status.contains("ok"));
   EXPECT_FALSE(status.contains("id"));
 }

@@ -12,6 +12,7 @@
 #include <CLI/CLI.hpp>
 #include <chrono>
 #include <cstdlib>
+#include <initializer_list>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -44,22 +45,97 @@ using Daemon = DaemonConnection;
 
 // ---------------------------------------------------------------- status
 
-std::string scalar_text(const json& value) {
+// Numbers from a status document that may lack them (an older markerd, a
+// daemon without a rig): the path's value, or `fallback`.
+const json& at(const json& document, std::initializer_list<const char*> path) {
+  static const json missing;
+  const json* j = &document;
+  for (const char* key : path) {
+    if (!j->is_object() || !j->contains(key)) return missing;
+    j = &(*j)[key];
+  }
+  return *j;
+}
+
+std::string text_of(const json& value, std::string_view fallback = "?") {
   if (value.is_string()) return value.get<std::string>();
+  if (value.is_null()) return std::string(fallback);
   return value.dump(-1, ' ', false, json::error_handler_t::replace);
 }
 
-// Nested objects as indented "key: value" lines; arrays and scalars on the
-// key's line as JSON (strings bare).
-void print_tree(const json& object, int indent, std::string& out) {
-  for (const auto& [key, value] : object.items()) {
-    if (value.is_object() && !value.empty()) {
-      out += fmt::format("{:{}}{}:\n", "", indent, key);
-      print_tree(value, indent + 2, out);
-    } else {
-      out += fmt::format("{:{}}{}: {}\n", "", indent, key, scalar_text(value));
-    }
+std::string number_text(const json& value, int decimals) {
+  return value.is_number() ? fmt::format("{:.{}f}", value.get<double>(), decimals) : "?";
+}
+
+std::string axis_summary(const json& axis) {
+  std::string text =
+      fmt::format("{} {}, {}", number_text(axis["position"], 3), text_of(axis["unit"], ""), text_of(axis["state"]));
+  text += axis.value("homed", false) ? ", homed" : ", not homed";
+  if (axis.value("settled", false)) text += ", settled";
+  if (!at(axis, {"fault"}).is_null()) text += "; fault: " + text_of(axis["fault"]);
+  return text;
+}
+
+// What an operator looks at first, a line a part, on one screen: the daemon,
+// the camera, the detector, the log, the rig, the sweep, the socket. The
+// whole document is --json's.
+std::string status_summary(const json& s) {
+  std::string out;
+  const auto line = [&out](std::string_view label, const std::string& text) {
+    out += fmt::format("{:<10} {}\n", label, text);
+  };
+  line("markerd", at(s, {"responsive"}).is_boolean() && !s["responsive"].get<bool>() ? "NOT responsive" : "responsive");
+
+  const json& camera = at(s, {"camera"});
+  std::string camera_text =
+      fmt::format("{}, {}; {} frames, {} dropped", text_of(at(camera, {"state"})), text_of(at(camera, {"source"})),
+                  text_of(at(camera, {"frames"})), text_of(at(s, {"pipeline", "dropped"})));
+  if (at(camera, {"corrupt"}).is_number() && camera["corrupt"].get<double>() > 0) {
+    camera_text += fmt::format(", {} corrupt", text_of(camera["corrupt"]));
   }
+  if (at(camera, {"last_frame_age_ms"}).is_number()) {
+    camera_text += fmt::format(", last {} ms ago", number_text(camera["last_frame_age_ms"], 0));
+  }
+  line("camera", camera_text);
+  if (!at(camera, {"last_error"}).is_null()) line("", "last error: " + text_of(camera["last_error"]));
+
+  const json& pipeline = at(s, {"pipeline"});
+  line("detector", fmt::format("{} frames, {} failed; {} ms p50, {} ms p99; workers {}, {}",
+                               text_of(at(pipeline, {"detect", "out"})), text_of(at(pipeline, {"detect", "failed"})),
+                               number_text(at(pipeline, {"latency", "detect", "p50_ms"}), 1),
+                               number_text(at(pipeline, {"latency", "detect", "p99_ms"}), 1),
+                               text_of(at(pipeline, {"workers"})), text_of(at(pipeline, {"policy"}))));
+
+  const json& log = at(s, {"log"});
+  std::string log_text = fmt::format("{}; {} lines", text_of(at(log, {"file"}), "none"), text_of(at(log, {"lines"})));
+  if (at(log, {"lines_lost"}).is_number() && log["lines_lost"].get<double>() > 0) {
+    log_text += fmt::format(", {} lost", text_of(log["lines_lost"]));
+  }
+  line("log", log_text);
+  if (!at(log, {"last_error"}).is_null()) line("", "last error: " + text_of(log["last_error"]));
+
+  const json& rig = at(s, {"rig"});
+  if (!rig.is_object()) {
+    line("rig", "none");
+  } else {
+    line("rail", axis_summary(at(rig, {"rail"})));
+    line("turntable", axis_summary(at(rig, {"turntable"})));
+    line("truth", fmt::format("distance {} m, yaw {} deg", number_text(at(rig, {"ground_truth", "distance_m"}), 4),
+                              number_text(at(rig, {"ground_truth", "yaw_deg"}), 3)));
+  }
+
+  const json& sweep = at(s, {"sweep"});
+  if (!sweep.is_object()) {
+    line("sweep", "none (markerd has no rig)");
+  } else if (sweep.value("state", std::string()) == "idle") {
+    line("sweep", "no run since markerd started");
+  } else {
+    line("sweep", fmt::format("run {}", text_of(at(sweep, {"run_id"}))));
+    line("", sweep_progress_line(sweep));
+  }
+  line("control",
+       fmt::format("{}, {} clients", text_of(at(s, {"control", "socket"})), text_of(at(s, {"control", "clients"}))));
+  return out;
 }
 
 int run_status(const std::string& socket, bool as_json) {
@@ -68,9 +144,7 @@ int run_status(const std::string& socket, bool as_json) {
   if (as_json) {
     std::cout << status.dump(-1, ' ', false, json::error_handler_t::replace) << '\n';
   } else {
-    std::string text;
-    print_tree(status, 0, text);
-    std::cout << text;
+    std::cout << status_summary(status);
   }
   return 0;
 }
@@ -364,7 +438,7 @@ void add_daemon_commands(CLI::App& parent, Commands& commands) {
   auto status_options = std::make_shared<StatusOptions>();
   CLI::App* status = parent.add_subcommand("status", "What markerd is doing: capture, detection, logs and the rig");
   status->add_option("--socket", status_options->socket, socket_help)->type_name("PATH");
-  status->add_flag("--json", status_options->json, "One JSON object instead of text");
+  status->add_flag("--json", status_options->json, "The whole status document as one JSON object");
   status->footer(access_footer);
   commands.push_back({status, [status_options] { return run_status(status_options->socket, status_options->json); }});
 

@@ -17,6 +17,10 @@ namespace markerctl {
 
 void add_daemon_commands(CLI::App& parent, Commands& commands);
 
+// A sweep's progress (sweep.status's reply) on one line: the bar, the step,
+// the phase, the last rate, the time left (cmd_sweep.cpp).
+std::string sweep_progress_line(const nlohmann::json& progress);
+
 // The socket markerctl talks to: --socket when given, else $MARKERD_SOCKET,
 // else /run/markerd/control.sock.
 std::string control_socket_path(const std::string& option);

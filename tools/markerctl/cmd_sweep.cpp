@@ -60,8 +60,10 @@ std::string duration_text(double seconds) {
   return fmt::format("{}s", s);
 }
 
+}  // namespace
+
 // One line: "[#######-------------]  23/62  running  0.95 m 30.0 deg  collecting 3/6  rate 100%  about 2m10s left"
-std::string progress_line(const json& p) {
+std::string sweep_progress_line(const json& p) {
   const auto done = p.value("steps_done", std::size_t{0});
   const auto total = p.value("steps_total", std::size_t{0});
   constexpr int kWidth = 24;
@@ -87,6 +89,8 @@ std::string progress_line(const json& p) {
   return line;
 }
 
+namespace {
+
 bool finished(const std::string& state) { return state == "done" || state == "aborted" || state == "failed"; }
 
 // Follows the run until it ends; on a terminal the bar redraws in place.
@@ -109,7 +113,7 @@ int follow(DaemonConnection& daemon, bool as_json) {
         std::cout << "no run since markerd started\n";
         return exit_runtime;
       }
-      const std::string line = progress_line(p);
+      const std::string line = sweep_progress_line(p);
       if (tty) {
         std::cout << "\r\033[K" << line << std::flush;
       } else if (line != last) {
@@ -189,7 +193,7 @@ int run_status(const std::string& socket, bool follow_run, bool as_json) {
   }
   std::cout << fmt::format("run {} (plan {}), records in {}\n", p.value("run_id", std::string()),
                            p.value("plan", std::string()), p.value("run_directory", std::string()))
-            << progress_line(p) << '\n';
+            << sweep_progress_line(p) << '\n';
   return 0;
 }
 
@@ -198,7 +202,7 @@ int run_simple(const std::string& socket, const std::string& command, json argum
   arguments["cmd"] = "sweep." + command;
   (void)daemon.call(std::move(arguments));
   const json p = daemon.call({{"cmd", "sweep.status"}});
-  std::cout << (as_json ? json_line(p) : progress_line(p)) << '\n';
+  std::cout << (as_json ? json_line(p) : sweep_progress_line(p)) << '\n';
   return 0;
 }
 
