@@ -31,6 +31,7 @@
 #include "markerd/daemon/control/line_broadcast.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
+#include "support/tmux.hpp"
 
 #include "control_server_fixture.hpp"
 
@@ -460,6 +461,46 @@ TEST_F(MarkerctlAgainstTheServer, SweepStatusFollowJsonPrintsOneObjectALine) {
   ASSERT_EQ(objects.size(), 4u) << r.out;
   for (std::size_t i = 0; i < objects.size(); ++i) EXPECT_EQ(objects[i]["steps_done"], std::min<std::size_t>(i, 3));
   EXPECT_EQ(objects.back()["state"], "done");
+}
+
+// The sweep's progress line on an 80-column terminal, as the user follows a
+// run: it is wider than that (about 110 columns), so it is cut to the width,
+// and each redraw replaces it instead of leaving a stale row.
+TEST_F(MarkerctlAgainstTheServer, SweepProgressFitsAnEightyColumnTerminal) {
+  server_ = std::make_unique<ControlServer>(settings_);
+  auto calls = std::make_shared<std::atomic<int>>(0);
+  static constexpr int kSteps = 30;
+  server_->register_command("sweep.status", [calls](const json&) {
+    const int n = std::min(++*calls, kSteps);
+    return json{{"state", n == kSteps ? "done" : "running"},
+                {"run_id", "20261201T071545Z-thesis"},
+                {"run_directory", "/var/lib/markerd/runs/20261201T071545Z-thesis"},
+                {"steps_done", n},
+                {"steps_total", kSteps},
+                {"step", {{"distance_m", 0.95}, {"angle_deg", 2.5 * n}, {"repeat", 2}}},
+                {"phase", "collecting"},
+                {"frames_collected", n % 6},
+                {"frames_per_point", 6},
+                {"last_rate", 1.0},
+                {"remaining_s", 130.0 - n}};
+  });
+  server_->start();
+  std::unique_ptr<markerd::test_support::TmuxScreen> screen;
+  ASSERT_NO_THROW(
+      screen = std::make_unique<markerd::test_support::TmuxScreen>(
+          std::vector<std::string>{MARKERCTL_PATH, "sweep", "status", "--follow", "--socket", socket().string()},
+          std::vector<std::string>{}, 80, 24, dir_.path()));
+  ASSERT_TRUE(screen->wait_for("[exit 0]")) << screen->text();
+  const auto lines = screen->lines();
+  int bars = 0;
+  for (const std::string& line : lines) {
+    EXPECT_LE(line.size(), 80u) << "a line wider than the terminal:\n" << line << "\nscreen:\n" << screen->text();
+    if (line.find("[#") != std::string::npos) ++bars;
+  }
+  EXPECT_EQ(bars, 1) << "the progress line once, its last state kept:\n" << screen->text();
+  EXPECT_NE(screen->text().find("30/30"), std::string::npos) << screen->text();
+  EXPECT_NE(screen->text().find("run 20261201T071545Z-thesis: done\nrecords in "), std::string::npos) << screen->text();
+  EXPECT_GE(calls->load(), kSteps) << "followed to the end";
 }
 
 TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {

@@ -1,6 +1,7 @@
 // markerctl's helpers as functions (tools/markerctl/): the names suggested
-// for a mistyped command or option. The real binary's messages are
-// test_markerctl.cpp's.
+// for a mistyped command or option, and live lines fitted to a terminal's
+// width. The real binary's messages are test_markerctl.cpp's; its live lines
+// on an 80-column terminal test_markerctl_rig.cpp's and test_control_streams.cpp's.
 
 #include <gtest/gtest.h>
 
@@ -14,6 +15,7 @@
 #pragma GCC diagnostic pop
 
 #include "did_you_mean.hpp"
+#include "live_line.hpp"
 
 namespace {
 
@@ -136,6 +138,45 @@ TEST_F(UnknownNames, KnownWordsValuesAndPositionalsAreNotTakenForMistakes) {
   EXPECT_FALSE(unknown({"sweep", "start", "--", "--plan"}));
   // An extra argument where a command takes none is CLI11's to report.
   EXPECT_FALSE(unknown({"marker", "--size", "80mm", "extra"}));
+}
+
+}  // namespace
+
+namespace {
+
+using markerctl::display_columns;
+using markerctl::fit_to_columns;
+using markerctl::join_fitting;
+
+TEST(LiveLine, ColumnsAreCharactersNotBytes) {
+  EXPECT_EQ(display_columns(""), 0u);
+  EXPECT_EQ(display_columns("rail 250.000 mm"), 15u);
+  EXPECT_EQ(display_columns("30.0\xc2\xb0"), 5u);  // "30.0°": ° is two bytes, one column
+  EXPECT_EQ(display_columns("\xc2\xb1"
+                            "0.5 mm"),
+            7u);  // "±0.5 mm"
+}
+
+TEST(LiveLine, FittingCutsAtTheWidthAndNeverInsideACharacter) {
+  EXPECT_EQ(fit_to_columns("rail 250.000 mm", 80), "rail 250.000 mm");
+  EXPECT_EQ(fit_to_columns("rail 250.000 mm", 4), "rail");
+  EXPECT_EQ(fit_to_columns("rail 250.000 mm", 0), "");
+  // "yaw 30°!" cut after the degree sign keeps both of its bytes, before it neither.
+  EXPECT_EQ(fit_to_columns("yaw 30\xc2\xb0!", 7), "yaw 30\xc2\xb0");
+  EXPECT_EQ(fit_to_columns("yaw 30\xc2\xb0!", 6), "yaw 30");
+  const std::string long_line(138, '#');
+  EXPECT_EQ(display_columns(fit_to_columns(long_line, 79)), 79u);
+}
+
+TEST(LiveLine, PartsThatDoNotFitAreLeftOutFromTheLast) {
+  const std::vector<std::string> parts{"rail 6.975 mm idle (homed)", "turntable 0.5\xc2\xb0 idle", "step 5 mm, 1 deg"};
+  EXPECT_EQ(join_fitting(parts, " | ", 200),
+            "rail 6.975 mm idle (homed) | turntable 0.5\xc2\xb0 idle | step 5 mm, 1 deg");
+  // 26 + 3 + 19 columns: the third does not fit (the ° counted as one).
+  EXPECT_EQ(join_fitting(parts, " | ", 48), "rail 6.975 mm idle (homed) | turntable 0.5\xc2\xb0 idle");
+  EXPECT_EQ(join_fitting(parts, " | ", 47), "rail 6.975 mm idle (homed)");
+  // The first alone is cut.
+  EXPECT_EQ(join_fitting(parts, " | ", 10), "rail 6.975");
 }
 
 }  // namespace

@@ -36,6 +36,7 @@
 #include "support/files.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
+#include "support/tmux.hpp"
 #include "support/toml_config.hpp"
 
 namespace fs = std::filesystem;
@@ -270,7 +271,12 @@ namespace {
 class OnTerminal {
  public:
   OnTerminal(const std::vector<std::string>& args, const fs::path& lock_dir) {
-    if (::openpty(&master_, &slave_, nullptr, nullptr, nullptr) != 0) throw std::runtime_error("openpty failed");
+    // Wide enough for the whole status line: these tests type keys and read
+    // what they did (the line fitted to 80 columns is a test of its own).
+    winsize size{};
+    size.ws_col = 200;
+    size.ws_row = 50;
+    if (::openpty(&master_, &slave_, nullptr, nullptr, &size) != 0) throw std::runtime_error("openpty failed");
     ::tcgetattr(slave_, &before_);
     std::vector<std::string> argv{MARKERCTL_PATH};
     argv.insert(argv.end(), args.begin(), args.end());
@@ -382,4 +388,73 @@ TEST_F(MarkerctlRig, InteractiveJogOnATerminal) {
     EXPECT_TRUE(jog.mode_restored()) << "the terminal was left in raw mode";
     EXPECT_NE(jog.screen().find("interrupted by SIGTERM"), std::string::npos) << jog.screen();
   }
+}
+
+// ---------------------------------------------------------------- live lines at 80 columns
+
+namespace {
+
+// Characters, not bytes: what a line takes on the terminal.
+std::size_t columns_of(const std::string& line) {
+  std::size_t n = 0;
+  for (const char c : line) n += (static_cast<unsigned char>(c) & 0xc0) != 0x80 ? 1 : 0;
+  return n;
+}
+
+// The screen as the user sees it: no line wider than the terminal (tmux joins
+// what it wrapped), and the live line, the rows containing `live`, at most
+// `most` times (a redraw that wrapped would leave a stale copy each time).
+void expect_one_screen(const markerd::test_support::TmuxScreen& screen, const std::string& live, int most) {
+  const auto lines = screen.lines();
+  int live_rows = 0;
+  for (const std::string& line : lines) {
+    EXPECT_LE(columns_of(line), 80u) << "a line wider than the terminal:\n" << line << "\nscreen:\n" << screen.text();
+    if (line.find(live) != std::string::npos) ++live_rows;
+  }
+  EXPECT_LE(live_rows, most) << "stale copies of the live line '" << live << "':\n" << screen.text();
+}
+
+}  // namespace
+
+// The interactive jog's status line on an 80-column terminal: it is wider
+// than that, so it is laid out to fit, and every redraw replaces it.
+TEST_F(MarkerctlRig, InteractiveJogFitsAnEightyColumnTerminal) {
+  const std::string config = sim_config(50);
+  markerd::test_support::TmuxScreen screen({MARKERCTL_PATH, "rig", "--config", config, "jog"},
+                                           {"MARKERD_LOCK_DIR=" + lock_dir().string()}, 80, 24, dir());
+  ASSERT_TRUE(screen.wait_for("| turntable")) << screen.text();
+  screen.send_keys({"h"});
+  ASSERT_TRUE(screen.wait_for("turntable: homed at")) << screen.text();
+  // Moves, step changes and redraws: the line changes many times.
+  screen.send_keys({"Right", "Right", "+", "Up", "Right", "-", "Down"});
+  ASSERT_TRUE(screen.wait_for("step 5 mm, 1 deg")) << screen.text();
+  // Rail -3.025 + 5 + 5 + 10 mm, turntable 0 + 5 - 1 deg.
+  ASSERT_TRUE(screen.wait_for("rail 16.975 mm idle (homed) | turntable 4.000 deg idle (homed")) << screen.text();
+  expect_one_screen(screen, "| turntable", 1);
+  screen.send_keys({"q"});
+  ASSERT_TRUE(screen.wait_for("[exit 0]")) << screen.text();
+  expect_one_screen(screen, "| turntable", 0);
+  EXPECT_NE(screen.text().find("rail at 16.975 mm, turntable at 4.000 deg"), std::string::npos) << screen.text();
+}
+
+// Homing shows its progress on one line redrawn in place, not a line a
+// second, and leaves the lines before and after it.
+TEST_F(MarkerctlRig, HomingProgressIsOneLine) {
+  // The rail's homing from 1200 mm takes 48 simulated seconds: several
+  // seconds here, many redraws.
+  const std::string config = sim_config(8);
+  markerd::test_support::TmuxScreen screen({MARKERCTL_PATH, "rig", "--config", config, "home", "--axis", "rail"},
+                                           {"MARKERD_LOCK_DIR=" + lock_dir().string()}, 80, 24, dir());
+  ASSERT_TRUE(screen.wait_for("rail: homing, at")) << screen.text();
+  // Until it ends, look at the screen as it goes.
+  while (screen.text().find("[exit") == std::string::npos) {
+    expect_one_screen(screen, "rail: homing, at", 1);
+    if (HasFailure()) break;
+    std::this_thread::sleep_for(200ms);
+  }
+  ASSERT_TRUE(screen.wait_for("[exit 0]")) << screen.text();
+  expect_one_screen(screen, ", at ", 0);
+  const std::string text = screen.text();
+  EXPECT_NE(text.find("rail: homing\n"), std::string::npos) << text;
+  EXPECT_NE(text.find("rail: homed at"), std::string::npos) << text;
 }

@@ -54,6 +54,10 @@ packages=(
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
   # renders SVG from the scripts the report writes; -nox leaves out X and Qt
   gnuplot-nox
+  # markerctl's live lines as a user sees them (test_markerctl_rig,
+  # test_control_streams): the tests run it inside tmux at 80x24 and read the
+  # screen back, which a pipe cannot show; without tmux they fail
+  tmux
 )
 
 if [[ $(id -u) -ne 0 ]]; then

@@ -6,6 +6,7 @@
 #include "cmd_daemon.hpp"
 
 #include <signal.h>
+#include <unistd.h>
 
 #include <fmt/format.h>
 
@@ -22,6 +23,7 @@
 #include <thread>
 #include <vector>
 
+#include "live_line.hpp"
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/control/control_server.hpp"
 
@@ -257,7 +259,10 @@ class DaemonRig {
   // rest), printing progress every second. A fault ends it with an error
   // naming the axis and the cause; a signal stops the rig.
   json follow(const std::vector<std::string>& axes, std::string_view doing, bool rest_is_enough = false) {
-    auto next_progress = Clock::now() + 1s;
+    // On a terminal the progress is one line redrawn in place; a pipe or a
+    // file gets only the lines before and after.
+    LiveLine live(std::cout, STDOUT_FILENO);
+    auto next_progress = Clock::now();
     std::vector<std::optional<Clock::time_point>> idle_since(axes.size());
     for (;;) {
       const json s = status();
@@ -286,19 +291,26 @@ class DaemonRig {
         }
       }
       if (done) return s;
-      if (Clock::now() >= next_progress) {
-        next_progress += 1s;
+      if (live.on_terminal() && Clock::now() >= next_progress) {
+        next_progress = Clock::now() + 200ms;
+        std::vector<std::string> parts;
         for (const std::string& name : axes) {
           const json& a = s[name];
-          if (a.value("settled", false)) continue;
           const std::string state = a.value("state", std::string());
-          std::cout << fmt::format("{}: {}, at {}\n", name, state == "idle" ? "settling" : state, position_text(a))
-                    << std::flush;
+          parts.push_back(fmt::format("{}: {}, at {}", name,
+                                      a.value("settled", false) ? "settled"
+                                      : state == "idle"         ? "settling"
+                                                                : state,
+                                      position_text(a)));
         }
+        live.show(parts, " | ");
       }
       const int signal = request_.wait_for_signal ? request_.wait_for_signal(50ms) : 0;
       if (signal == 0 && !request_.wait_for_signal) std::this_thread::sleep_for(50ms);
-      if (signal != 0) interrupted(signal);
+      if (signal != 0) {
+        live.clear();
+        interrupted(signal);
+      }
     }
   }
 

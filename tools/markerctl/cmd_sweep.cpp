@@ -26,6 +26,7 @@
 
 #include "cmd_daemon.hpp"
 #include "common.hpp"
+#include "live_line.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/sweep/plan.hpp"
 
@@ -98,7 +99,8 @@ bool finished(const std::string& state) { return state == "done" || state == "ab
 // (JSON Lines), the last one the run's end. Exit status: 0 done, 1 aborted
 // or failed.
 int follow(DaemonConnection& daemon, bool as_json) {
-  const bool tty = !as_json && ::isatty(STDOUT_FILENO) != 0;
+  LiveLine live(std::cout, STDOUT_FILENO);
+  const bool tty = !as_json && live.on_terminal();
   std::string last;
   for (;;) {
     const json p = daemon.call({{"cmd", "sweep.status"}});
@@ -115,7 +117,7 @@ int follow(DaemonConnection& daemon, bool as_json) {
       }
       const std::string line = sweep_progress_line(p);
       if (tty) {
-        std::cout << "\r\033[K" << line << std::flush;
+        live.show(line);
       } else if (line != last) {
         std::cout << line << '\n' << std::flush;
       }
@@ -123,8 +125,10 @@ int follow(DaemonConnection& daemon, bool as_json) {
     }
     if (finished(state)) {
       if (!as_json) {
-        if (tty) std::cout << '\n';
-        std::cout << fmt::format("run {}: {}; records in {}\n", p.value("run_id", std::string()), state,
+        // The final state stays on the screen, whole.
+        live.keep();
+        // Two lines: with the run's directory one would not fit 80 columns.
+        std::cout << fmt::format("run {}: {}\nrecords in {}\n", p.value("run_id", std::string()), state,
                                  p.value("run_directory", std::string()));
       }
       return state == "done" ? 0 : exit_runtime;
@@ -173,7 +177,7 @@ int run_start(const std::string& socket, const std::string& plan_path, bool wait
   if (as_json) {
     std::cout << reply.dump() << '\n';
   } else {
-    std::cout << fmt::format("run {} started: {} steps; records in {}\n", reply.value("run_id", std::string()),
+    std::cout << fmt::format("run {} started: {} steps\nrecords in {}\n", reply.value("run_id", std::string()),
                              reply.value("steps", 0), reply.value("run_directory", std::string()));
   }
   return wait ? follow(daemon, as_json) : 0;

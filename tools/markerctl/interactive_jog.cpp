@@ -1,5 +1,7 @@
 #include "interactive_jog.hpp"
 
+#include "live_line.hpp"
+
 #include <termios.h>
 #include <unistd.h>
 
@@ -147,11 +149,13 @@ class InteractiveJog {
 
   int run() {
     RawTerminal terminal(STDIN_FILENO);
-    std::cout << "markerctl rig jog: left/right arrows jog the rail, up/down the turntable; + and - change the step;\n"
-                 "h homes both axes; s stops; space is an EMERGENCY STOP; q quits (the axes are then disabled).\n"
+    // Within 80 columns, as the status line below it.
+    std::cout << "markerctl rig jog: left/right arrows jog the rail, up/down the turntable;\n"
+                 "+ and - change the step; h homes both axes; s stops;\n"
+                 "space is an EMERGENCY STOP; q quits (the axes are then disabled).\n"
               << std::flush;
     std::string pending;
-    std::string shown;
+    std::vector<std::string> shown;
     auto next_redraw = Clock::now();
     for (;;) {
       const auto wake = session_.signals().wait(50ms, STDIN_FILENO);
@@ -174,10 +178,11 @@ class InteractiveJog {
         }
       }
       advance();
-      const std::string line = status_line();
-      if (line != shown || Clock::now() >= next_redraw) {
-        std::cout << "\r\x1b[K" << line << std::flush;
-        shown = line;
+      // Redrawn once a second unchanged too: the terminal may have been resized.
+      std::vector<std::string> parts = status_parts();
+      if (parts != shown || Clock::now() >= next_redraw) {
+        live_.show(parts, " | ");
+        shown = std::move(parts);
         next_redraw = Clock::now() + 1s;
       }
     }
@@ -190,8 +195,8 @@ class InteractiveJog {
 
   Axis& axis(std::size_t i) { return *session_.axes()[i]; }
 
-  void message(const std::string& text) { std::cout << "\r\x1b[K" << text << "\n" << std::flush; }
-  void end_line() { std::cout << "\r\x1b[K" << std::flush; }
+  void message(const std::string& text) { live_.print(text); }
+  void end_line() { live_.clear(); }
 
   void handle(Key key) {
     switch (key) {
@@ -199,8 +204,15 @@ class InteractiveJog {
       case Key::rail_down: jog(0, -1); break;
       case Key::turntable_up: jog(1, +1); break;
       case Key::turntable_down: jog(1, -1); break;
-      case Key::bigger: step_ = std::min(step_ + 1, kJogSteps.size() - 1); break;
-      case Key::smaller: step_ = step_ > 0 ? step_ - 1 : 0; break;
+      // Said on a line of its own too: a narrow terminal leaves the step out of the status line.
+      case Key::bigger:
+        step_ = std::min(step_ + 1, kJogSteps.size() - 1);
+        message(step_text());
+        break;
+      case Key::smaller:
+        step_ = step_ > 0 ? step_ - 1 : 0;
+        message(step_text());
+        break;
       case Key::home:
         homing_.assign({0, 1});
         homing_started_ = false;
@@ -296,22 +308,28 @@ class InteractiveJog {
     }
   }
 
-  std::string status_line() {
-    std::string line;
+  [[nodiscard]] std::string step_text() const {
+    return fmt::format("step {:g} mm, {:g} deg", kJogSteps[step_].first, kJogSteps[step_].second);
+  }
+
+  // The status line's parts, the most important first: what fits the
+  // terminal's width is shown.
+  std::vector<std::string> status_parts() {
+    std::vector<std::string> parts;
     for (Axis* a : session_.axes()) {
       const AxisStatus s = a->status();
       std::string flags = s.homed ? "homed" : "not homed";
       if (s.inputs.limit_min || s.inputs.limit_max || s.inputs.home || s.inputs.estop) {
         flags += ", " + inputs_text(s.inputs);
       }
-      line += fmt::format("{} {} {} ({}) | ", a->settings().name, position_text(a->settings(), s.position),
-                          markerd::rig::to_string(s.state), flags);
+      parts.push_back(fmt::format("{} {} {} ({})", a->settings().name, position_text(a->settings(), s.position),
+                                  markerd::rig::to_string(s.state), flags));
     }
     const auto truth =
         markerd::rig::ground_truth(session_.rig().geometry(), axis(0).status().position, axis(1).status().position);
-    line += fmt::format("step {:g} mm, {:g} deg | d {:.3f} m, yaw {:.2f} deg", kJogSteps[step_].first,
-                        kJogSteps[step_].second, truth.distance_m, truth.yaw_deg);
-    return line;
+    parts.push_back(step_text());
+    parts.push_back(fmt::format("d {:.3f} m, yaw {:.2f} deg", truth.distance_m, truth.yaw_deg));
+    return parts;
   }
 
   // q: a controlled stop, then the Session disables the axes.
@@ -333,6 +351,7 @@ class InteractiveJog {
   }
 
   Session& session_;
+  LiveLine live_{std::cout, STDOUT_FILENO};
   std::array<Jog, 2> jogs_{};
   std::deque<std::size_t> homing_;  // axes (0 rail, 1 turntable) still to home, in order
   bool homing_started_ = false;

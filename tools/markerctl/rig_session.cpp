@@ -1,6 +1,10 @@
 #include "rig_session.hpp"
 
+#include <unistd.h>
+
 #include <iostream>
+
+#include "live_line.hpp"
 
 namespace markerctl {
 
@@ -109,7 +113,10 @@ void Session::home(markerd::rig::Axis& axis) {
 }
 
 void Session::follow(const std::vector<markerd::rig::Axis*>& moving, std::string_view doing) {
-  auto next_progress = std::chrono::steady_clock::now() + 1s;
+  // On a terminal the progress is one line redrawn in place (a homing of 50 s
+  // printed 50 lines); a pipe or a file gets only the lines before and after.
+  LiveLine live(std::cout, STDOUT_FILENO);
+  auto next_progress = std::chrono::steady_clock::now();
   std::vector<std::optional<std::chrono::steady_clock::time_point>> idle_since(moving.size());
   for (;;) {
     bool all_settled = true;
@@ -138,18 +145,23 @@ void Session::follow(const std::vector<markerd::rig::Axis*>& moving, std::string
       }
     }
     if (all_settled) return;
-    if (std::chrono::steady_clock::now() >= next_progress) {
-      next_progress += 1s;
+    if (live.on_terminal() && std::chrono::steady_clock::now() >= next_progress) {
+      next_progress = std::chrono::steady_clock::now() + 200ms;
+      std::vector<std::string> parts;
       for (const markerd::rig::Axis* axis : moving) {
         const markerd::rig::AxisStatus s = axis->status();
-        if (s.settled) continue;
-        const char* state = s.state == markerd::rig::AxisState::idle ? "settling" : markerd::rig::to_string(s.state);
-        std::cout << fmt::format("{}: {}, at {}\n", axis->settings().name, state,
-                                 position_text(axis->settings(), s.position))
-                  << std::flush;
+        const char* state = s.settled                                  ? "settled"
+                            : s.state == markerd::rig::AxisState::idle ? "settling"
+                                                                       : markerd::rig::to_string(s.state);
+        parts.push_back(
+            fmt::format("{}: {}, at {}", axis->settings().name, state, position_text(axis->settings(), s.position)));
       }
+      live.show(parts, " | ");
     }
-    if (const int signal = signals_.wait(20ms).signal) interrupted(signal);
+    if (const int signal = signals_.wait(20ms).signal) {
+      live.clear();
+      interrupted(signal);
+    }
   }
 }
 

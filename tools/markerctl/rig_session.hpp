@@ -56,8 +56,8 @@ class Session {
   // Homes one axis and waits for it.
   void home(markerd::rig::Axis& axis);
 
-  // Waits until every axis in `axes` has settled, printing its progress
-  // every second. A fault ends the wait with an error naming the axis and the
+  // Waits until every axis in `axes` has settled, its progress on a live
+  // line on a terminal. A fault ends the wait with an error naming the axis and the
   // cause; a signal with a controlled stop (interrupted()).
   void follow(const std::vector<markerd::rig::Axis*>& moving, std::string_view doing);
 
