@@ -10,7 +10,8 @@
 #     after `-`, every short one;
 #   - for an option whose --help gives its choices ({a,b,c}), exactly those;
 #   - files where a command takes them (detect's images, sweep's plans,
-#     report's run directories, --config's TOML files, markerd's --config).
+#     report's run directories, --config's TOML files, markerd's --config),
+#     and "-" after a typed "-" where a command reads standard input.
 #
 #   check-completion.sh --markerctl PROGRAM --markerd PROGRAM --scripts DIR
 set -uo pipefail
@@ -129,6 +130,15 @@ expect "'markerctl detect <TAB>' (images)" "frame.png notes.txt plan.toml run1 r
 expect "'markerctl report <TAB>' (run directories)" "run1 run2" "$markerctl_script" markerctl report run1 ""
 expect "'markerctl report --paper <TAB>'" "run1 run2" "$markerctl_script" markerctl report --paper ""
 expect "'markerctl render --frame=s<TAB>'" "socket switch" "$markerctl_script" markerctl render --frame=s
+# '-' (standard input) after a typed "-" where a command reads a file, with
+# the options; not where none is read.
+for command in "detect" "sweep check" "sweep start" "call rig.move"; do
+  read -ra words <<<"$command"
+  complete_words "$markerctl_script" markerctl "${words[@]}" - | grep -qx -- - ||
+    fail "'markerctl $command -<TAB>': not offered: - (standard input)"
+done
+! complete_words "$markerctl_script" markerctl marker - | grep -qx -- - ||
+  fail "'markerctl marker -<TAB>': offered - (standard input), which marker does not read"
 expect "'markerd --config <TAB>'" "plan.toml run1 run2" "$markerd_script" markerd --config ""
 expect "'markerd -c p<TAB>'" "plan.toml" "$markerd_script" markerd -c p
 

@@ -3,7 +3,8 @@
 # bash-completion loads it on the first `markerctl <TAB>`; or source it).
 # Completes the commands, nested ones too (rig move, sweep start), each
 # command's options, the values of options that take a fixed set of words,
-# and files, directories or devices where a command takes them.
+# and files, directories or devices where a command takes them ("-", standard
+# input, too where a command reads a file: after a typed "-").
 #
 # The words are written out here rather than asked of markerctl at each
 # TAB: no program runs while typing. tests/completion/check-completion.sh
@@ -16,16 +17,19 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
   local socket="--socket="
   case $1 in
     "") echo "marker render detect evaluate rig cameras status detections call sweep report|-h --help --version" ;;
-    marker) echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone -o= --output= -h -h --help" ;;
+    marker)
+      echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone --json -o= --output= -h -h" \
+        "--help"
+      ;;
     render)
       echo "|--dist= --yaw= --pitch= --roll= --offset-x= --offset-y= --family= --id= --size= --camera= --noise=" \
         "--noise-model= --blur= --blur-model= --exposure= --supersample= --no-clutter --background= --no-distort" \
         "--cut-hole --frame= --frame-reflectance= --insert= --margin= --cover= --cover-depth= --cover-reflectance=" \
-        "--cover-height= --background-grey= --ambient= --seed= -o= --output= -h --help"
+        "--cover-height= --background-grey= --ambient= --seed= --json -o= --output= -h --help"
       ;;
     detect)
       echo "|--family= --camera= --size= --decimate= --threshold-offset= --min-margin= --blur-sigma= --mounting=" \
-        "--uniform-ids --debug= -v --verbose -h --help"
+        "--uniform-ids --debug= -v --verbose --json -h --help"
       ;;
     evaluate)
       echo "|--family= --dist= --yaw= --yaw-at= --frames= --noise= --blur= --supersample= --camera= --size= --seed=" \
@@ -45,8 +49,8 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     "sweep check") echo "|--config= $socket --json -h -h --help" ;;
     "sweep start") echo "|--wait $socket --json -h -h --help" ;;
     "sweep status") echo "|--follow $socket --json -h -h --help" ;;
-    "sweep pause" | "sweep resume") echo "|$socket -h -h --help" ;;
-    "sweep abort") echo "|--reason= $socket -h -h --help" ;;
+    "sweep pause" | "sweep resume") echo "|$socket --json -h -h --help" ;;
+    "sweep abort") echo "|--reason= $socket --json -h -h --help" ;;
     report) echo "|--paper= --socket= -o= --output= --no-plots -h -h --help" ;;
   esac
 }
@@ -107,6 +111,15 @@ _markerctl_value() {  # PATH OPTION CURRENT
   esac
 }
 
+# Whether a command reads "-" as standard input where it takes a file (or,
+# for call, its arguments).
+_markerctl_reads_stdin() {  # PATH
+  case $1 in
+    detect | "sweep check" | "sweep start" | call) return 0 ;;
+    *) return 1 ;;
+  esac
+}
+
 # What a command takes where no option is being completed.
 _markerctl_arguments() {  # PATH CURRENT
   local path=$1 cur=$2
@@ -159,6 +172,8 @@ _markerctl() {
   options=${spec#*|}
   if [[ $cur == -* ]]; then
     _markerctl_words "$cur" "${options//=/}"
+    # A lone "-" may be standard input rather than the start of an option.
+    if [[ $cur == - ]] && _markerctl_reads_stdin "$path"; then COMPREPLY+=(-); fi
   elif [[ -n $subcommands ]]; then
     _markerctl_words "$cur" "$subcommands"
   else
