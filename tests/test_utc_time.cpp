@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <stdexcept>
 
 namespace markerd {
@@ -54,6 +55,25 @@ TEST(UtcTime, WhatIsNotATimeIsNamed) {
   for (const std::string clock :
        {"24:00:00.000Z", "06:60:00.000Z", "06:15:60.000Z", "06:-1:00.000Z", "06:15:00.-12Z"}) {
     EXPECT_EQ(error("2026-12-01T" + clock), "not a time of day: \"2026-12-01T" + clock + "\"");
+  }
+}
+
+TEST(UtcTime, UnixSecondsReadBackToTheMicrosecond) {
+  EXPECT_DOUBLE_EQ(unix_seconds(sys_days{year{1970} / January / 1} + seconds{90}), 90.0);
+  EXPECT_EQ(from_unix_seconds(unix_seconds(kTime)), kTime);
+  const auto before_1970 = system_clock::time_point{} - microseconds{1'500'001};
+  EXPECT_EQ(from_unix_seconds(unix_seconds(before_1970)), before_1970);
+}
+
+TEST(UtcTime, UnixSecondsOutsideTheClocksYearsAreRefused) {
+  for (const double bad : {std::nan(""), HUGE_VAL, -1e10, 1e10}) {
+    EXPECT_THROW((void)from_unix_seconds(bad), std::runtime_error) << bad;
+  }
+  try {
+    (void)from_unix_seconds(9.3e9);
+    ADD_FAILURE() << "9.3e9 s was read";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("outside 1678 to 2261"), std::string::npos) << e.what();
   }
 }
 

@@ -1,5 +1,6 @@
 #include "markerd/base/utc_time.hpp"
 
+#include <cmath>
 #include <cstdio>
 #include <stdexcept>
 
@@ -23,6 +24,24 @@ std::chrono::system_clock::time_point parse_utc_milliseconds(const std::string& 
   // would overflow the clock as a year would.
   if (h > 23 || mi > 59 || s > 59 || ms > 999) throw std::runtime_error(fmt::format("not a time of day: \"{}\"", text));
   return sys_days{date} + hours{h} + minutes{mi} + seconds{s} + milliseconds{ms};
+}
+
+double unix_seconds(std::chrono::system_clock::time_point t) {
+  using namespace std::chrono;
+  return static_cast<double>(floor<microseconds>(t).time_since_epoch().count()) / 1e6;
+}
+
+std::chrono::system_clock::time_point from_unix_seconds(double seconds) {
+  using namespace std::chrono;
+  const double first =
+      static_cast<double>(sys_seconds{sys_days{year{kFirstUtcYear} / January / 1}}.time_since_epoch().count());
+  const double end =
+      static_cast<double>(sys_seconds{sys_days{year{kLastUtcYear + 1} / January / 1}}.time_since_epoch().count());
+  if (!std::isfinite(seconds) || seconds < first || seconds >= end) {
+    throw std::runtime_error(fmt::format("{} seconds since 1970 is outside {} to {}, the years markerd's clock holds",
+                                         seconds, kFirstUtcYear, kLastUtcYear));
+  }
+  return system_clock::time_point{duration_cast<system_clock::duration>(microseconds{std::llround(seconds * 1e6)})};
 }
 
 }  // namespace markerd

@@ -62,4 +62,12 @@ inline constexpr int kLastUtcYear = 2261;
 // a year outside kFirstUtcYear to kLastUtcYear).
 [[nodiscard]] std::chrono::system_clock::time_point parse_utc_milliseconds(const std::string& text);
 
+// Seconds since 1970-01-01T00:00:00Z as a number, to the microsecond: the
+// times of Bluesky's event model (sweep/documents.hpp). A double holds a
+// microsecond exactly enough to read it back through these years.
+[[nodiscard]] double unix_seconds(std::chrono::system_clock::time_point t);
+// And back, to the nearest microsecond. Throws std::runtime_error naming the
+// number when it is not finite or falls outside kFirstUtcYear to kLastUtcYear.
+[[nodiscard]] std::chrono::system_clock::time_point from_unix_seconds(double seconds);
+
 }  // namespace markerd
