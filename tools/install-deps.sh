@@ -58,6 +58,10 @@ packages=(
   # test_control_streams): the tests run it inside tmux at 80x24 and read the
   # screen back, which a pipe cannot show; without tmux they fail
   tmux
+  # a sweep run's Bluesky documents checked against the event model's JSON
+  # schemas (tests/bluesky/check_documents.py, run by test_sweep_run and
+  # test_sweep_kill with Debian's /usr/bin/python3)
+  python3-jsonschema
 )
 
 if [[ $(id -u) -ne 0 ]]; then
