@@ -65,7 +65,7 @@ fs::path write_run(const fs::path& directory, const std::string& plan_source, De
     }
     recorder.append_point(r);
   }
-  recorder.finish(RunStop{start.time + std::chrono::minutes(10), ExitStatus::done, "", steps.size()});
+  recorder.finish(RunStop{start.time + std::chrono::minutes(10), ExitStatus::done, "", steps.size(), "", ""});
   return directory;
 }
 

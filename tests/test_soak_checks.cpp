@@ -126,7 +126,7 @@ void make_run(const fs::path& directory, const std::vector<std::size_t>& recorde
     p.started = p.finished = start.time;
     recorder.append_point(p);
   }
-  if (stop) recorder.finish({start.time, *stop, reason, recorded.size()});
+  if (stop) recorder.finish({start.time, *stop, reason, recorded.size(), "", ""});
 }
 
 TEST_F(SoakChecks, ACleanRunPassesAndEachKindOfLieIsReported) {

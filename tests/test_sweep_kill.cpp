@@ -31,6 +31,7 @@
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/summary.hpp"
+#include "support/bluesky.hpp"
 #include "support/child_process.hpp"
 #include "support/files.hpp"
 #include "support/temp_dir.hpp"
@@ -206,6 +207,10 @@ class SweepKillTest : public testing::Test {
       EXPECT_EQ(records.stop->steps_done, records.start.steps);
     }
     EXPECT_EQ(count_events(records, "started"), 1U);
+    // However often markerd was killed, Bluesky's documents are one run:
+    // one start, its events numbered 1 to 10 once each, the stop counting them.
+    const test_support::Outcome documents = test_support::check_bluesky_documents(run / "documents.jsonl");
+    EXPECT_EQ(documents.code, 0) << documents.describe();
     EXPECT_FALSE(fs::exists(setup.journal())) << "a finished run's journal is removed";
     expect_whole_json_lines(run / "points.jsonl");
     expect_whole_json_lines(run / "events.jsonl");

@@ -2,7 +2,9 @@
 // sweep against the simulated ground truth; pause, resume and abort; a camera
 // unplugged and a drive alarm in the middle of a run, which suspend it and
 // from which it resumes by itself; a run that is cut off and resumed from its
-// journal by the next daemon.
+// journal by the next daemon. A run's records as Bluesky's documents,
+// checked against the event model's schemas; records written before markerd
+// gave them uids still read, report and resume.
 
 #include <gtest/gtest.h>
 
@@ -18,19 +20,24 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <sstream>
 #include <string>
 #include <thread>
 
+#include "markerd/base/utc_time.hpp"
 #include "markerd/daemon/capture/sim_camera.hpp"
 #include "markerd/daemon/control/control_client.hpp"
 #include "markerd/daemon/daemon.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/detector/render.hpp"
 #include "markerd/rig/sim_drive.hpp"
+#include "markerd/sweep/documents.hpp"
 #include "markerd/sweep/records.hpp"
+#include "markerd/sweep/report.hpp"
 #include "markerd/sweep/runner.hpp"
 #include "markerd/sweep/summary.hpp"
+#include "support/bluesky.hpp"
 #include "support/files.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -114,6 +121,52 @@ class SweepRunTest : public testing::Test {
   const test_support::TempDir temp_{"markerd-sweep"};
   const fs::path dir_ = temp_.path();
 };
+
+std::vector<nlohmann::json> read_json_lines(const fs::path& path) {
+  std::vector<nlohmann::json> lines;
+  std::istringstream in(read_file(path));
+  for (std::string line; std::getline(in, line);) lines.push_back(nlohmann::json::parse(line));
+  return lines;
+}
+
+void write_json_lines(const fs::path& path, const std::vector<nlohmann::json>& lines) {
+  std::string text;
+  for (const auto& line : lines) text += line.dump() + "\n";
+  write_file(path, text);
+}
+
+// A run's records as markerd wrote them before they were Bluesky's documents
+// (record schema 1): no uids, no descriptor uid, no num_events, times as UTC
+// text, exit status done/aborted/failed.
+void rewrite_as_schema_1(const fs::path& run) {
+  const auto iso = [](const nlohmann::json& seconds) {
+    return format_utc(from_unix_seconds(seconds.get<double>()), UtcForm::milliseconds);
+  };
+  nlohmann::json start = nlohmann::json::parse(read_file(run / "start.json"));
+  start["schema"] = 1;
+  start.erase("uid");
+  start.erase("descriptors");
+  start["time"] = iso(start["time"]);
+  write_file(run / "start.json", start.dump(2) + "\n");
+  for (const char* file : {"points.jsonl", "events.jsonl"}) {
+    std::vector<nlohmann::json> lines = read_json_lines(run / file);
+    for (auto& line : lines) {
+      line["schema"] = 1;
+      line.erase("uid");
+    }
+    write_json_lines(run / file, lines);
+  }
+  if (fs::exists(run / "stop.json")) {
+    nlohmann::json stop = nlohmann::json::parse(read_file(run / "stop.json"));
+    stop["schema"] = 1;
+    for (const char* key : {"uid", "run_start", "num_events"}) stop.erase(key);
+    stop["time"] = iso(stop["time"]);
+    const std::map<std::string, std::string> old_words{{"success", "done"}, {"abort", "aborted"}, {"fail", "failed"}};
+    stop["exit_status"] = old_words.at(stop["exit_status"].get<std::string>());
+    write_file(run / "stop.json", stop.dump(2) + "\n");
+  }
+  fs::remove(run / "documents.jsonl");
+}
 
 TEST_F(SweepRunTest, ASimulatedSweepMeasuresTheGroundTruth) {
   auto d = make_daemon();
@@ -404,7 +457,7 @@ TEST_F(SweepRunTest, AFailedRunWhoseStopRecordCouldNotBeWrittenIsNeverResumed) {
     // says the run failed.
     const auto journal = nlohmann::json::parse(read_file(dir_ / "state/sweep-journal.json"));
     EXPECT_EQ(journal["state"], "failed") << journal.dump();
-    EXPECT_EQ(journal["stop"]["exit_status"], "failed") << journal.dump();
+    EXPECT_EQ(journal["stop"]["exit_status"], "fail") << journal.dump();
     d->stop();
     rail->set_communication_lost(false);
   }
@@ -788,6 +841,26 @@ TEST_F(SweepRunTest, RecordsOutsideTheClocksYearsOrOfTheWrongTypeAreNamed) {
     write_file(path, text);
   };
   ASSERT_EQ(error_reading(), "(no error)");
+  // start.json's time is Bluesky's, UNIX seconds.
+  const std::string bluesky_start = read_file(run / "start.json");
+  const auto set_start_time = [&](const nlohmann::json& time) {
+    nlohmann::json start = nlohmann::json::parse(bluesky_start);
+    start["time"] = time;
+    write_file(run / "start.json", start.dump(2));
+  };
+  set_start_time(1e10);
+  EXPECT_EQ(error_reading(), (run / "start.json").string() +
+                                 ": \"time\": 10000000000 seconds since 1970 is outside 1678 to 2261, the years "
+                                 "markerd's clock holds");
+  set_start_time("2026-12-01T06:15:00.000Z");
+  EXPECT_EQ(error_reading(), (run / "start.json").string() +
+                                 ": \"time\" must be seconds since 1970 (a number), got \"2026-12-01T06:15:00.000Z\"");
+  set_start_time(-9.3e9);  // 1675
+  EXPECT_NE(error_reading().find("is outside 1678 to 2261"), std::string::npos) << error_reading();
+  write_file(run / "start.json", bluesky_start);
+  ASSERT_EQ(error_reading(), "(no error)");
+  // Records of schema 1 keep UTC text, with the years it can say.
+  rewrite_as_schema_1(run);
   const std::string start = read_file(run / "start.json");
   const auto time_at = start.find("\"time\": \"");
   ASSERT_NE(time_at, std::string::npos) << start;
@@ -882,6 +955,169 @@ TEST_F(SweepRunTest, APlanBeyondTheRigsLimitsIsRefusedBeforeAnythingMoves) {
   EXPECT_TRUE(fs::is_empty(dir_ / "state/runs"));
   const rig::RigSnapshot s = d->rig()->snapshot();
   EXPECT_FALSE(s.rail.moving);
+}
+
+// A run's documents.jsonl is Bluesky's event model: every document valid by
+// the model's schemas, and together one run (check_documents.py). A run cut
+// off and resumed is one run still: its start uid stays, its events count on.
+TEST_F(SweepRunTest, ARunsDocumentsAreBlueskysEventModel) {
+  fs::path run;
+  std::string start_uid;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 3; }));
+    d->stop();
+    start_uid = nlohmann::json::parse(read_file(run / "start.json"))["uid"];
+  }
+  auto d = make_daemon();
+  ASSERT_EQ(runner(*d).wait_finished(120s), RunState::done) << runner(*d).progress().reason;
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  EXPECT_EQ(records.start.uid, start_uid);
+
+  const fs::path documents = run / sweep::kDocumentsFile;
+  ASSERT_TRUE(fs::exists(documents));
+  const test_support::Outcome checked = test_support::check_bluesky_documents(documents);
+  EXPECT_EQ(checked.code, 0) << checked.describe();
+  EXPECT_NE(checked.out.find(fmt::format("{} documents, all valid", records.points.size() + 3)), std::string::npos)
+      << checked.describe();
+
+  const std::vector<nlohmann::json> lines = read_json_lines(documents);
+  ASSERT_EQ(lines.size(), records.points.size() + 3);
+  // start.json and stop.json are the documents themselves: one source.
+  EXPECT_EQ(lines.front()[0], "start");
+  EXPECT_EQ(lines.front()[1], nlohmann::json::parse(read_file(run / "start.json")));
+  EXPECT_EQ(lines.front()[1]["uid"], start_uid);
+  EXPECT_EQ(lines[1][0], "descriptor");
+  EXPECT_EQ(lines[1][1]["name"], "primary");
+  EXPECT_EQ(lines[1][1]["data_keys"]["rail"]["units"], "mm");
+  EXPECT_EQ(lines.back()[0], "stop");
+  EXPECT_EQ(lines.back()[1], nlohmann::json::parse(read_file(run / "stop.json")));
+  EXPECT_EQ(lines.back()[1]["exit_status"], "success");
+  EXPECT_EQ(lines.back()[1]["num_events"]["primary"], records.points.size());
+  // An event per point, carrying the point's uid and its measurement.
+  for (std::size_t i = 0; i < records.points.size(); ++i) {
+    const sweep::PointRecord& p = records.points[i];
+    const nlohmann::json& event = lines[i + 2];
+    SCOPED_TRACE(event.dump());
+    EXPECT_EQ(event[0], "event");
+    EXPECT_EQ(event[1]["uid"], p.uid);
+    EXPECT_EQ(event[1]["seq_num"], i + 1);
+    EXPECT_EQ(event[1]["data"]["step"], p.step);
+    EXPECT_DOUBLE_EQ(event[1]["data"]["truth_distance_m"].get<double>(), p.truth_distance_m);
+    EXPECT_EQ(event[1]["data"]["frames"], 4);
+    EXPECT_EQ(event[1]["data"]["detection_rate"], 1.0);
+    EXPECT_LT(std::abs(event[1]["data"]["distance_error_mm"].get<double>()), 20 * p.distance_m);
+  }
+  // The documents made again are the same documents.
+  EXPECT_EQ(sweep::documents_jsonl(sweep::run_documents(records)), read_file(documents));
+
+  // The check fails what Bluesky's tools would refuse or misread.
+  const fs::path broken = dir_ / "broken.jsonl";
+  const auto check_broken = [&](const std::function<void(std::vector<nlohmann::json>&)>& breaking,
+                                const std::string& problem) {
+    std::vector<nlohmann::json> copy = lines;
+    breaking(copy);
+    write_json_lines(broken, copy);
+    const test_support::Outcome outcome = test_support::check_bluesky_documents(broken);
+    EXPECT_EQ(outcome.code, 1) << outcome.describe();
+    EXPECT_NE(outcome.out.find(problem), std::string::npos) << problem << "\n" << outcome.describe();
+  };
+  check_broken([](auto& c) { c.back()[1]["exit_status"] = "done"; }, "stop exit_status: 'done' is not one of");
+  check_broken([](auto& c) { c.front()[1].erase("uid"); }, "'uid' is a required property");
+  check_broken([](auto& c) { c[2][1]["schema"] = 2; }, "Additional properties are not allowed ('schema'");
+  check_broken([](auto& c) { c[2][1]["time"] = "2026-12-01T06:15:00.000Z"; }, "is not of type 'number'");
+  check_broken([](auto& c) { c[1][1]["data_keys"]["rail"]["dtype"] = "float"; }, "'float' is not one of");
+  check_broken([](auto& c) { c.front()[1]["config"]["a.b"] = 1; }, "'a.b' does not match");
+  check_broken([](auto& c) { c[1][1]["run_start"] = "another run"; }, "descriptor names run_start another run");
+  check_broken([](auto& c) { c[3][1]["descriptor"] = "nowhere"; }, "event names descriptor nowhere, none before it");
+  check_broken([](auto& c) { c.erase(c.begin() + 4); }, "seq_num 4, expected 3");
+  check_broken([](auto& c) { c.back()[1]["num_events"]["primary"] = 11; }, "num_events says 11 in 'primary'");
+  check_broken([](auto& c) { c[3][1]["uid"] = c[2][1]["uid"]; }, "is line 3's too");
+  check_broken([](auto& c) { c[3][1]["data"].erase("rail"); }, "the descriptor's are");
+}
+
+// A run recorded before markerd wrote Bluesky's documents (record schema 1:
+// no uids, UTC text times, exit status "aborted") still reads, summarises
+// and reports; its documents are refused, naming why.
+TEST_F(SweepRunTest, AnEndedRunRecordedBeforeUidsStillReports) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 2; }));
+    r.abort("enough");
+    ASSERT_EQ(r.wait_finished(10s), RunState::aborted);
+  }
+  // An aborted run's documents say so in Bluesky's word.
+  const test_support::Outcome checked = test_support::check_bluesky_documents(run / sweep::kDocumentsFile);
+  EXPECT_EQ(checked.code, 0) << checked.describe();
+  EXPECT_EQ(read_json_lines(run / sweep::kDocumentsFile).back()[1]["exit_status"], "abort");
+
+  const sweep::RunRecords before = sweep::read_run(run);
+  rewrite_as_schema_1(run);
+  ASSERT_EQ(nlohmann::json::parse(read_file(run / "stop.json"))["exit_status"], "aborted");
+  const sweep::RunRecords records = sweep::read_run(run);
+  EXPECT_TRUE(records.start.uid.empty());
+  EXPECT_EQ(records.start.time, std::chrono::floor<std::chrono::milliseconds>(before.start.time));
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::aborted);
+  EXPECT_EQ(records.stop->reason, "enough");
+  EXPECT_EQ(records.points.size(), before.points.size());
+  EXPECT_EQ(sweep::summarize(records).status, "aborted");
+  sweep::ReportOptions options;
+  options.output_directory = dir_ / "report";
+  options.plots = false;
+  (void)sweep::write_report({records}, options);
+  EXPECT_NE(read_file(dir_ / "report/report.md").find("aborted: enough"), std::string::npos);
+  try {
+    (void)sweep::run_documents(records);
+    ADD_FAILURE() << "documents made of records without uids";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("start.json has no uid"), std::string::npos) << e.what();
+  }
+  // Every old exit status reads as the new one.
+  for (const auto& [old_word, status] :
+       std::map<std::string, sweep::ExitStatus>{{"done", sweep::ExitStatus::done},
+                                                {"aborted", sweep::ExitStatus::aborted},
+                                                {"failed", sweep::ExitStatus::failed}}) {
+    EXPECT_EQ(
+        sweep::stop_from_json({{"schema", 1}, {"time", "2026-12-01T06:15:00.000Z"}, {"exit_status", old_word}}).status,
+        status);
+  }
+}
+
+// A run cut off while markerd wrote schema 1 records, resumed by this
+// markerd: it goes on to its end, its stop record in Bluesky's words, its
+// start record as it was (it has no uid to keep), and no documents.jsonl.
+TEST_F(SweepRunTest, ARunRecordedBeforeUidsIsResumed) {
+  fs::path run;
+  {
+    auto d = make_daemon();
+    auto& r = runner(*d);
+    run = r.start(sweep::parse_plan(kPlan, "small.toml"));
+    ASSERT_TRUE(eventually([&] { return r.progress().steps_done >= 3; }));
+    d->stop();
+  }
+  rewrite_as_schema_1(run);
+  const std::string old_start = read_file(run / "start.json");
+  const std::size_t old_points = sweep::read_run(run).points.size();
+  auto d = make_daemon();
+  ASSERT_EQ(runner(*d).wait_finished(120s), RunState::done) << runner(*d).progress().reason;
+  const sweep::RunRecords records = sweep::read_run(run);
+  expect_every_step_once(records);
+  EXPECT_EQ(read_file(run / "start.json"), old_start);
+  ASSERT_TRUE(records.stop.has_value());
+  EXPECT_EQ(records.stop->status, sweep::ExitStatus::done);
+  const nlohmann::json stop = nlohmann::json::parse(read_file(run / "stop.json"));
+  EXPECT_EQ(stop["exit_status"], "success");
+  EXPECT_FALSE(stop.contains("run_start")) << stop.dump();
+  for (std::size_t i = 0; i < records.points.size(); ++i) EXPECT_EQ(records.points[i].uid.empty(), i < old_points);
+  EXPECT_FALSE(fs::exists(run / sweep::kDocumentsFile));
+  EXPECT_TRUE(fs::exists(run / "report/report.md"));
 }
 
 }  // namespace

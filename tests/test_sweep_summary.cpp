@@ -66,7 +66,7 @@ struct RunBuilder {
                                 PlanGrid{"angle", {}, {}, SweepOrder::grid, SweepAxis::angle}};
     records.start.rig = {{"rail", {{"units_per_step", 0.025}}}};
     records.start.time = std::chrono::system_clock::from_time_t(1'796'105'700);  // 2026-12-01 06:15:00 UTC
-    records.stop = RunStop{std::chrono::system_clock::from_time_t(1'796'109'300), ExitStatus::done, "", 0};
+    records.stop = RunStop{std::chrono::system_clock::from_time_t(1'796'109'300), ExitStatus::done, "", 0, "", ""};
   }
 
   PointRecord& add(std::size_t grid, std::size_t point, double distance_m, double angle_deg,
@@ -160,7 +160,7 @@ TEST(SweepSummary, StatusIsIncompleteWithoutStopRecord) {
   RunBuilder run("cut-off");
   run.records.stop.reset();
   EXPECT_EQ(summarize(run.records).status, "incomplete");
-  run.records.stop = RunStop{{}, ExitStatus::aborted, "stopped by the operator", 0};
+  run.records.stop = RunStop{{}, ExitStatus::aborted, "stopped by the operator", 0, "", ""};
   EXPECT_EQ(summarize(run.records).status, "aborted");
 }
 

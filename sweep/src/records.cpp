@@ -203,10 +203,29 @@ std::size_t read_lines(const fs::path& path, Take&& take) {
   return 0;
 }
 
-void check_schema(const nlohmann::json& json) {
+// The record's schema, one this markerd reads.
+int check_schema(const nlohmann::json& json) {
   const int schema = optional_field<int>(json, "schema", 0);
-  if (schema != kRunRecordSchema) {
-    throw std::runtime_error(fmt::format("record schema {} (this markerd reads {})", schema, kRunRecordSchema));
+  if (schema < kOldestRunRecordSchema || schema > kRunRecordSchema) {
+    throw std::runtime_error(fmt::format("record schema {} (this markerd reads {} to {})", schema,
+                                         kOldestRunRecordSchema, kRunRecordSchema));
+  }
+  return schema;
+}
+
+// A start or stop document's time: UNIX seconds (Bluesky's), or in records
+// of schema 1 the UTC text every other record keeps.
+std::chrono::system_clock::time_point document_time(const nlohmann::json& json, int schema) {
+  if (schema == 1) return parse_utc_milliseconds(field<std::string>(json, "time"));
+  const nlohmann::json* value = find_field(json, "time");
+  if (value == nullptr) throw std::runtime_error("missing \"time\"");
+  if (!value->is_number()) {
+    throw std::runtime_error(fmt::format("\"time\" must be seconds since 1970 (a number), got {}", value->dump()));
+  }
+  try {
+    return from_unix_seconds(value->get<double>());
+  } catch (const std::exception& e) {
+    throw std::runtime_error(fmt::format("\"time\": {}", e.what()));
   }
 }
 
@@ -217,6 +236,15 @@ std::string_view to_string(ExitStatus status) {
     case ExitStatus::done: return "done";
     case ExitStatus::aborted: return "aborted";
     case ExitStatus::failed: return "failed";
+  }
+  return "?";
+}
+
+std::string_view document_word(ExitStatus status) {
+  switch (status) {
+    case ExitStatus::done: return "success";
+    case ExitStatus::aborted: return "abort";
+    case ExitStatus::failed: return "fail";
   }
   return "?";
 }
@@ -238,6 +266,7 @@ nlohmann::json to_json(const PointRecord& r) {
     frames.push_back(std::move(frame));
   }
   return {{"schema", kRunRecordSchema},
+          {"uid", r.uid},
           {"step", r.step},
           {"grid", r.grid},
           {"point", r.point},
@@ -257,6 +286,7 @@ nlohmann::json to_json(const PointRecord& r) {
 PointRecord point_from_json(const nlohmann::json& j) {
   check_schema(j);
   PointRecord r;
+  r.uid = optional_field<std::string>(j, "uid", "");
   r.step = field<std::size_t>(j, "step");
   r.grid = field<std::size_t>(j, "grid");
   r.point = field<std::size_t>(j, "point");
@@ -305,8 +335,9 @@ std::optional<Mounting> RunStart::marker_mounting() const {
 
 nlohmann::json to_json(const RunStart& s) {
   return {{"schema", kRunRecordSchema},
+          {"uid", s.uid},
           {"run_id", s.run_id},
-          {"time", to_iso(s.time)},
+          {"time", unix_seconds(s.time)},
           {"software_version", s.software_version},
           {"hostname", s.hostname},
           {"plan", {{"source", s.plan.source}, {"name", s.plan.name}, {"text", s.plan.text}}},
@@ -315,14 +346,16 @@ nlohmann::json to_json(const RunStart& s) {
           {"camera", s.camera},
           {"marker", s.marker},
           {"rig", s.rig},
-          {"detection_log", s.detection_log}};
+          {"detection_log", s.detection_log},
+          {"descriptors", {{"primary", s.primary_descriptor_uid}}}};
 }
 
 RunStart start_from_json(const nlohmann::json& j) {
-  check_schema(j);
+  const int schema = check_schema(j);
   RunStart s;
+  s.uid = optional_field<std::string>(j, "uid", "");
   s.run_id = field<std::string>(j, "run_id");
-  s.time = parse_utc_milliseconds(field<std::string>(j, "time"));
+  s.time = document_time(j, schema);
   s.software_version = optional_field<std::string>(j, "software_version", "");
   s.hostname = optional_field<std::string>(j, "hostname", "");
   const auto plan = field<nlohmann::json>(j, "plan");
@@ -335,6 +368,8 @@ RunStart start_from_json(const nlohmann::json& j) {
   s.marker = j.value("marker", nlohmann::json::object());  // older records: not kept
   s.rig = j.value("rig", nlohmann::json::object());
   s.detection_log = optional_field<std::string>(j, "detection_log", "");
+  const auto descriptors = optional_field<nlohmann::json>(j, "descriptors", nlohmann::json::object());
+  s.primary_descriptor_uid = optional_field<std::string>(descriptors, "primary", "");
   return s;
 }
 
@@ -357,26 +392,32 @@ RunEvent event_from_json(const nlohmann::json& j) {
 }
 
 nlohmann::json to_json(const RunStop& s) {
-  return {{"schema", kRunRecordSchema},
-          {"time", to_iso(s.time)},
-          {"exit_status", to_string(s.status)},
-          {"reason", s.reason},
-          {"steps_done", s.steps_done}};
+  nlohmann::json j{{"schema", kRunRecordSchema},   {"uid", s.uid},
+                   {"time", unix_seconds(s.time)}, {"exit_status", document_word(s.status)},
+                   {"reason", s.reason},           {"num_events", {{"primary", s.steps_done}}},
+                   {"steps_done", s.steps_done}};
+  // A run recorded before runs had uids has no start uid to name: better no
+  // reference than an empty one.
+  if (!s.run_start.empty()) j["run_start"] = s.run_start;
+  return j;
 }
 
 RunStop stop_from_json(const nlohmann::json& j) {
-  check_schema(j);
+  const int schema = check_schema(j);
   RunStop s;
-  s.time = parse_utc_milliseconds(field<std::string>(j, "time"));
+  s.uid = optional_field<std::string>(j, "uid", "");
+  s.run_start = optional_field<std::string>(j, "run_start", "");
+  s.time = document_time(j, schema);
   const std::string status = field<std::string>(j, "exit_status");
-  if (status == "done")
+  // Bluesky's words; markerd's own in stop records of schema 1.
+  if (status == "success" || status == "done")
     s.status = ExitStatus::done;
-  else if (status == "aborted")
+  else if (status == "abort" || status == "aborted")
     s.status = ExitStatus::aborted;
-  else if (status == "failed")
+  else if (status == "fail" || status == "failed")
     s.status = ExitStatus::failed;
   else
-    throw std::runtime_error(fmt::format("unknown exit_status \"{}\"", status));
+    throw std::runtime_error(fmt::format("unknown exit_status \"{}\" (success, abort or fail)", status));
   s.reason = optional_field<std::string>(j, "reason", "");
   s.steps_done = optional_field<std::size_t>(j, "steps_done", 0);
   return s;

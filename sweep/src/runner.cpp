@@ -4,7 +4,9 @@
 #include <spdlog/spdlog.h>
 
 #include "markerd/base/utc_time.hpp"
+#include "markerd/base/uuid.hpp"
 #include "markerd/rig/motion_profile.hpp"
+#include "markerd/sweep/documents.hpp"
 #include "markerd/sweep/report.hpp"
 #include "runner_internal.hpp"
 
@@ -108,6 +110,10 @@ fs::path SweepRunner::start(SweepPlan plan) {
   run->estimate_per_step = checked.estimated_duration / std::max<std::size_t>(1, checked.steps.size());
 
   RunStart start;
+  start.uid = new_uuid4();
+  start.primary_descriptor_uid = new_uuid4();
+  run->start_uid = start.uid;
+  run->stop_uid = new_uuid4();
   start.run_id = run->run_id;
   start.time = now;
   start.software_version = settings_.software_version;
@@ -531,6 +537,7 @@ void SweepRunner::collect(const PlanStep& step, std::chrono::system_clock::time_
   record.angle_deg = step.angle_deg;
   record.started = started;
   record.finished = std::chrono::system_clock::now();
+  record.uid = new_uuid4();
   run_->recorder.append_point(record);  // the step is done once this returns
 
   int detected = 0;
@@ -691,9 +698,12 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   record.status = exit_status(state);
   record.reason = reason;
   record.steps_done = run_->done;
+  record.uid = run_->stop_uid;
+  record.run_start = run_->start_uid;
   std::string ended_reason = reason;
   try {
     run_->recorder.finish(record);
+    write_run_documents(run_->directory);
     std::error_code ec;
     fs::remove(settings_.journal, ec);
   } catch (const std::exception& e) {
@@ -729,6 +739,20 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
     spdlog::info("sweep {}: done, {} steps; records in {}", run_->run_id, run_->done, run_->directory.string());
   } else {
     spdlog::warn("sweep {}: {} at step {}: {}", run_->run_id, to_string(state), run_->done, ended_reason);
+  }
+}
+
+void write_run_documents(const fs::path& run_directory) noexcept {
+  try {
+    const RunRecords records = read_run(run_directory);
+    if (records.start.uid.empty()) {
+      spdlog::info("sweep {}: no {}: the run began before markerd gave its records uids", records.start.run_id,
+                   kDocumentsFile);
+      return;
+    }
+    write_documents(records);
+  } catch (const std::exception& e) {
+    spdlog::error("sweep run {}: cannot write its {}: {}", run_directory.string(), kDocumentsFile, e.what());
   }
 }
 

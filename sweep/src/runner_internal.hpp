@@ -27,6 +27,8 @@ struct SweepRunner::Run {
   std::vector<PlanStep> steps;
   std::filesystem::path directory;
   std::string run_id;
+  std::string start_uid;  // its start document's (empty for a run recorded before runs had uids)
+  std::string stop_uid;   // made ahead, so that ending a run needs nothing that can fail
   RunRecorder recorder;
   std::size_t done = 0;
   bool start_paused = false;
@@ -54,6 +56,12 @@ nlohmann::json read_journal(const std::filesystem::path& path);
 // A run's end as its stop record says it, and back.
 ExitStatus exit_status(RunState state);
 RunState run_state(ExitStatus status);
+
+// A run that has ended: its documents.jsonl (documents.hpp) made from its
+// records. Before the journal is removed, so that a markerd killed in
+// between writes it at its start. A failure is logged, never thrown: the
+// run's records are whole without it, and it can be made again from them.
+void write_run_documents(const std::filesystem::path& run_directory) noexcept;
 
 // What a run's start record says of the machine and the rig.
 std::string this_hostname();

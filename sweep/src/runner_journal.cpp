@@ -10,6 +10,7 @@
 #include <system_error>
 
 #include "markerd/base/read_file.hpp"
+#include "markerd/base/uuid.hpp"
 #include "runner_internal.hpp"
 
 namespace markerd::sweep {
@@ -103,7 +104,9 @@ bool SweepRunner::resume_from_journal() {
   }
   RunRecords records = read_run(directory);
   if (records.stop) {
-    // The run ended but markerd stopped before it removed the journal.
+    // The run ended but markerd stopped before it removed the journal
+    // (maybe before it wrote the run's documents).
+    write_run_documents(directory);
     fs::remove(settings_.journal, ec);
     return false;
   }
@@ -125,6 +128,8 @@ bool SweepRunner::resume_from_journal() {
   }
   run->directory = directory;
   run->run_id = records.start.run_id;
+  run->start_uid = records.start.uid;
+  run->stop_uid = new_uuid4();
   run->done = records.points.size();
   run->done_at_begin = run->done;
   run->start_paused = journal.value("paused", false);
@@ -178,6 +183,9 @@ void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
       throw std::runtime_error(fmt::format("sweep journal {}: \"stop\": {}", settings_.journal.string(), e.what()));
     }
   }
+  // A journal written before runs had uids holds a stop without them.
+  if (stop.uid.empty()) stop.uid = new_uuid4();
+  if (stop.run_start.empty()) stop.run_start = records.start.uid;
   std::string shown = stop.reason;
   std::exception_ptr failure;
   if (!records.stop) {
@@ -193,7 +201,10 @@ void SweepRunner::finish_ended_run(const nlohmann::json& journal) {
       shown += fmt::format(" (its stop record could not be written: {}; the journal keeps it)", e.what());
     }
   }
-  if (!failure) fs::remove(settings_.journal, ec);
+  if (!failure) {
+    write_run_documents(directory);
+    fs::remove(settings_.journal, ec);
+  }
   spdlog::warn("sweep {}: {} at step {}, not resumed: {}", records.start.run_id, to_string(stop.status),
                stop.steps_done, shown);
   // The runner shows how that run ended, as if it had just ended here.
@@ -234,6 +245,8 @@ bool SweepRunner::record_end_in_journal(RunState state, const std::string& reaso
     stop.status = exit_status(state);
     stop.reason = journal_reason(reason);
     stop.steps_done = run_->done;
+    stop.uid = run_->stop_uid;
+    stop.run_start = run_->start_uid;
     const nlohmann::json journal{{"run_directory", run_->directory.string()},
                                  {"state", to_string(state)},
                                  {"paused", false},

@@ -1,21 +1,26 @@
 #pragma once
 // The records of one sweep run, in a directory of its own (docs/sweep.md):
 //
-//   start.json    the start document: plan, config, camera model, rig geometry,
-//                 software version; written once, atomically, before anything moves
-//   plan.toml     the plan's text as run
-//   points.jsonl  one point document per measurement done, in run order
-//   events.jsonl  what happened to the run: paused, resumed, suspended (and why),
-//                 restarted after markerd stopped
-//   stop.json     the stop document: exit status and reason; written once, atomically
+//   start.json      the start document: plan, config, camera model, rig geometry,
+//                   software version; written once, atomically, before anything moves
+//   plan.toml       the plan's text as run
+//   points.jsonl    one point document per measurement done, in run order
+//   events.jsonl    what happened to the run: paused, resumed, suspended (and why),
+//                   restarted after markerd stopped
+//   stop.json       the stop document: exit status and reason; written once, atomically
+//   documents.jsonl the run in Bluesky's event model, made from the others when
+//                   the run ends (documents.hpp)
 //
-// Like Bluesky's event model, a run is a start document, a stream of event
-// documents and a stop document; unlike it, the documents are files a person
-// can read. points.jsonl doubles as the run's journal: a measurement is done
-// when its line is on disk (each line is written whole, in one write() to a
-// file opened O_APPEND, and synced before the run moves on), so a restart
-// continues at the first measurement without a line, and nothing is recorded
-// twice.
+// start.json and stop.json are Bluesky's RunStart and RunStop documents
+// (uid, time in UNIX seconds, exit_status success/abort/fail) with markerd's
+// own fields beside Bluesky's. A point document is markerd's, with every
+// frame in it; it carries the uid of the Event document it becomes in
+// documents.jsonl, so that the documents made again are the same documents.
+// points.jsonl doubles as the run's journal: a measurement is done when its
+// line is on disk (each line is written whole, in one write() to a file
+// opened O_APPEND, and synced before the run moves on), so a restart
+// continues at the first measurement without a line, and nothing is
+// recorded twice.
 
 #include <array>
 #include <chrono>
@@ -32,7 +37,12 @@
 
 namespace markerd::sweep {
 
-inline constexpr int kRunRecordSchema = 1;
+// 2: start.json and stop.json are Bluesky's documents (uids, UNIX times,
+// its exit statuses), points carry their event's uid. Records of schema 1
+// (no uids, ISO times, exit status done/aborted/failed) are still read, so
+// that runs recorded before still report and resume.
+inline constexpr int kRunRecordSchema = 2;
+inline constexpr int kOldestRunRecordSchema = 1;
 
 // One frame collected for a measurement, reduced to what the summaries need:
 // whether the marker under test was found, and its pose and errors if so.
@@ -52,6 +62,7 @@ struct FrameSample {
 
 // The point document: one measurement (a repeat at a point).
 struct PointRecord {
+  std::string uid;       // its Event document's (empty in records of schema 1)
   std::size_t step = 0;  // PlanStep::index
   std::size_t grid = 0;
   std::size_t point = 0;
@@ -73,6 +84,7 @@ struct PointRecord {
 
 // The start document.
 struct RunStart {
+  std::string uid;     // the RunStart document's, uuid4 (empty in records of schema 1)
   std::string run_id;  // "20261201T061500Z-thesis"
   std::chrono::system_clock::time_point time{};
   std::string software_version;
@@ -84,6 +96,9 @@ struct RunStart {
   nlohmann::json marker;      // the marker markerd's config describes: family, id, size, mounting, frame
   nlohmann::json rig;         // geometry, axes' units, units_per_step, limits, backends
   std::string detection_log;  // where the daemon's detection stream went when the run started
+  // The uid of the descriptor of the run's stream of points (documents.hpp),
+  // made with the run's own so that it stays one across resumes.
+  std::string primary_descriptor_uid;
 
   // What the measured marker was mounted on: the plan's word, else (a plan
   // that does not say) markerd's config's, as `marker` keeps it; nothing for
@@ -100,15 +115,21 @@ struct RunEvent {
   std::size_t step = 0;  // the step the run was at
 };
 
+// How a run ended, in markerd's words (the run states': what reports,
+// logs and `sweep status` say).
 enum class ExitStatus : std::uint8_t { done, aborted, failed };
 [[nodiscard]] std::string_view to_string(ExitStatus status);
+// The same in the stop document's words, Bluesky's: "success", "abort", "fail".
+[[nodiscard]] std::string_view document_word(ExitStatus status);
 
 // The stop document.
 struct RunStop {
   std::chrono::system_clock::time_point time{};
   ExitStatus status = ExitStatus::done;
   std::string reason;
-  std::size_t steps_done = 0;
+  std::size_t steps_done = 0;  // also its num_events: a point is an event
+  std::string uid;             // the RunStop document's (empty in records of schema 1)
+  std::string run_start;       // the start document's uid (empty when that has none)
 };
 
 // Everything read back from a run directory.
