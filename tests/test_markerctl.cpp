@@ -319,6 +319,17 @@ TEST_F(Markerctl, BadLengthIsAUsageError) {
   EXPECT_NE(not_a_number.err.find("--dist"), std::string::npos) << not_a_number.describe();
 }
 
+// The detector's own range, not a grey level's: an offset it would refuse
+// is a usage error naming the option, not a failure after the image is read.
+TEST_F(Markerctl, ThresholdOffsetOutsideTheDetectorsRangeIsAUsageError) {
+  for (const char* offset : {"0", "101"}) {
+    const Outcome r = run({"detect", "--threshold-offset", offset, path("none.png")});
+    EXPECT_EQ(r.code, 2) << r.describe();
+    EXPECT_NE(r.err.find("--threshold-offset"), std::string::npos) << r.describe();
+    EXPECT_NE(r.err.find("1 to 100"), std::string::npos) << r.describe();
+  }
+}
+
 TEST_F(Markerctl, UnknownFamilyIsAUsageError) {
   const Outcome r = run({"marker", "--family", "qr", "--id", "1", "--size", "80mm", "-o", path("m.svg")});
   EXPECT_EQ(r.code, 2) << r.describe();

@@ -176,7 +176,8 @@ void add_detect_command(CLI::App& parent, Commands& commands) {
       ->check(CLI::Range(0, 8));
   app->add_option("--threshold-offset", o->threshold_offset, "frame8: adaptive threshold offset, grey levels")
       ->capture_default_str()
-      ->check(CLI::Range(0, 255));
+      ->check(CLI::Range(markerd::detector::Frame8Options::kMinThresholdOffset,
+                         markerd::detector::Frame8Options::kMaxThresholdOffset));
   app->add_option("--min-margin", o->min_margin, "frame8: least decoding margin (0..1)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
