@@ -69,12 +69,19 @@ std::string number_text(const json& value, int decimals) {
   return value.is_number() ? fmt::format("{:.{}f}", value.get<double>(), decimals) : "?";
 }
 
+// True where `key` is there and true: a status from another version may
+// lack any key, and the summary reads every one through at().
+bool flag(const json& document, const char* key) {
+  const json& value = at(document, {key});
+  return value.is_boolean() && value.get<bool>();
+}
+
 std::string axis_summary(const json& axis) {
-  std::string text =
-      fmt::format("{} {}, {}", number_text(axis["position"], 3), text_of(axis["unit"], ""), text_of(axis["state"]));
-  text += axis.value("homed", false) ? ", homed" : ", not homed";
-  if (axis.value("settled", false)) text += ", settled";
-  if (!at(axis, {"fault"}).is_null()) text += "; fault: " + text_of(axis["fault"]);
+  std::string text = fmt::format("{} {}, {}", number_text(at(axis, {"position"}), 3), text_of(at(axis, {"unit"}), ""),
+                                 text_of(at(axis, {"state"})));
+  text += flag(axis, "homed") ? ", homed" : ", not homed";
+  if (flag(axis, "settled")) text += ", settled";
+  if (const json& fault = at(axis, {"fault"}); !fault.is_null()) text += "; fault: " + text_of(fault);
   return text;
 }
 
@@ -86,20 +93,20 @@ std::string status_summary(const json& s) {
   const auto line = [&out](std::string_view label, const std::string& text) {
     out += fmt::format("{:<10} {}\n", label, text);
   };
-  line("markerd", at(s, {"responsive"}).is_boolean() && !s["responsive"].get<bool>() ? "NOT responsive" : "responsive");
+  line("markerd", at(s, {"responsive"}).is_boolean() && !flag(s, "responsive") ? "NOT responsive" : "responsive");
 
   const json& camera = at(s, {"camera"});
   std::string camera_text =
       fmt::format("{}, {}; {} frames, {} dropped", text_of(at(camera, {"state"})), text_of(at(camera, {"source"})),
                   text_of(at(camera, {"frames"})), text_of(at(s, {"pipeline", "dropped"})));
-  if (at(camera, {"corrupt"}).is_number() && camera["corrupt"].get<double>() > 0) {
-    camera_text += fmt::format(", {} corrupt", text_of(camera["corrupt"]));
+  if (const json& corrupt = at(camera, {"corrupt"}); corrupt.is_number() && corrupt.get<double>() > 0) {
+    camera_text += fmt::format(", {} corrupt", text_of(corrupt));
   }
-  if (at(camera, {"last_frame_age_ms"}).is_number()) {
-    camera_text += fmt::format(", last {} ms ago", number_text(camera["last_frame_age_ms"], 0));
+  if (const json& age = at(camera, {"last_frame_age_ms"}); age.is_number()) {
+    camera_text += fmt::format(", last {} ms ago", number_text(age, 0));
   }
   line("camera", camera_text);
-  if (!at(camera, {"last_error"}).is_null()) line("", "last error: " + text_of(camera["last_error"]));
+  if (const json& error = at(camera, {"last_error"}); !error.is_null()) line("", "last error: " + text_of(error));
 
   const json& pipeline = at(s, {"pipeline"});
   line("detector", fmt::format("{} frames, {} failed; {} ms p50, {} ms p99; workers {}, {}",
@@ -110,11 +117,11 @@ std::string status_summary(const json& s) {
 
   const json& log = at(s, {"log"});
   std::string log_text = fmt::format("{}; {} lines", text_of(at(log, {"file"}), "none"), text_of(at(log, {"lines"})));
-  if (at(log, {"lines_lost"}).is_number() && log["lines_lost"].get<double>() > 0) {
-    log_text += fmt::format(", {} lost", text_of(log["lines_lost"]));
+  if (const json& lost = at(log, {"lines_lost"}); lost.is_number() && lost.get<double>() > 0) {
+    log_text += fmt::format(", {} lost", text_of(lost));
   }
   line("log", log_text);
-  if (!at(log, {"last_error"}).is_null()) line("", "last error: " + text_of(log["last_error"]));
+  if (const json& error = at(log, {"last_error"}); !error.is_null()) line("", "last error: " + text_of(error));
 
   const json& rig = at(s, {"rig"});
   if (!rig.is_object()) {

@@ -72,7 +72,14 @@ std::string sweep_progress_line(const json& p) {
   std::string line = fmt::format("[{}{}] {:>4}/{:<4} {}", std::string(static_cast<std::size_t>(filled), '#'),
                                  std::string(static_cast<std::size_t>(kWidth - filled), '-'), done, total,
                                  p.value("state", std::string("?")));
-  const json& step = p["step"];
+  // A key a status lacks (another version's, or a run that has not got
+  // that far) is null: a const json's operator[] has no such key to give.
+  static const json none;
+  const auto key = [&p](const char* name) -> const json& {
+    const auto it = p.find(name);
+    return it == p.end() ? none : *it;
+  };
+  const json& step = key("step");
   if (step.is_object()) {
     line += fmt::format("  {:.2f} m {:.1f} deg #{}", step.value("distance_m", 0.0), step.value("angle_deg", 0.0),
                         step.value("repeat", 0) + 1);
@@ -83,8 +90,12 @@ std::string sweep_progress_line(const json& p) {
   } else if (!phase.empty()) {
     line += "  " + phase;
   }
-  if (p["last_rate"].is_number()) line += fmt::format("  rate {:.0f}%", 100 * p["last_rate"].get<double>());
-  if (p["remaining_s"].is_number()) line += "  about " + duration_text(p["remaining_s"].get<double>()) + " left";
+  if (const json& rate = key("last_rate"); rate.is_number()) {
+    line += fmt::format("  rate {:.0f}%", 100 * rate.get<double>());
+  }
+  if (const json& left = key("remaining_s"); left.is_number()) {
+    line += "  about " + duration_text(left.get<double>()) + " left";
+  }
   const std::string reason = p.value("reason", std::string());
   if (!reason.empty()) line += "  (" + reason + ")";
   return line;
