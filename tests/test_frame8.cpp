@@ -905,6 +905,28 @@ TEST(Frame8, CellsOfThreeToFourPixelsUnderADefocusDiscAreRead) {
   EXPECT_GE(t.detected, 194) << "of " << t.frames;
 }
 
+// Ids of each bit pattern: top bit set and clear, runs of white and of
+// black cells, alternating.
+constexpr std::array<int, 6> kBitPatternIds{0b10000001, 0b01111110, 0b11110000, 0b00001111, 0b10101010, 0b01010101};
+
+// The phase tests' count: frames of one marker each, found with its id or
+// not, and any other id read.
+struct PhaseTally {
+  int frames = 0, found = 0, wrong = 0;
+  std::string missed;
+
+  void look(MarkerDetector& det, const Scene& s, const std::string& where) {
+    ++frames;
+    bool right = false;
+    for (const Detection& d : detect(det, render_scene(kCamera, s))) {
+      right = right || d.id == s.id;
+      wrong += d.id != s.id;
+    }
+    found += right;
+    if (!right) missed += " id " + std::to_string(s.id) + " " + where + ";";
+  }
+};
+
 // Issue 19's phase invariance: a marker moved across a whole pixel in
 // steps of 0.05 px, in x and in y, is found at every phase, for ids of
 // each bit pattern: top bit set and clear, runs of white and of black
@@ -917,36 +939,26 @@ TEST(Frame8, EverySubPixelPhaseIsReadForEveryBitPattern) {
     double distance_m;
     BlurModel blur;
   };
-  int frames = 0, found = 0, wrong = 0;
-  std::string missed;
+  PhaseTally t;
   for (const Case c : {Case{1.25, BlurModel::gaussian}, Case{1.25, BlurModel::disc}, Case{1.9, BlurModel::gaussian}}) {
-    for (const int id : {0b10000001, 0b01111110, 0b11110000, 0b00001111, 0b10101010, 0b01010101}) {
+    for (const int id : kBitPatternIds) {
       for (int axis = 0; axis < 2; ++axis) {
         for (int step = 0; step < 20; ++step) {
           const double shift_m = 0.05 * step * c.distance_m / kCamera.fx;
-          Scene s = scene(id, c.distance_m, 0, 0, 1000 + static_cast<std::uint64_t>(frames));
+          Scene s = scene(id, c.distance_m, 0, 0, 1000 + static_cast<std::uint64_t>(t.frames));
           s.pose = facing_pose(c.distance_m, 0, 0, 0, axis == 0 ? shift_m : 0, axis == 1 ? shift_m : 0);
           s.paper_margin_m = 0.010;
           s.blur_model = c.blur;
-          ++frames;
-          bool right = false;
-          for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
-            right = right || d.id == id;
-            wrong += d.id != id;
-          }
-          found += right;
-          if (!right) {
-            missed += " " + std::to_string(c.distance_m) + " m id " + std::to_string(id) + (axis ? " y+" : " x+") +
-                      std::to_string(0.05 * step) + " px;";
-          }
+          t.look(*det, s,
+                 std::to_string(c.distance_m) + " m" + (axis ? " y+" : " x+") + std::to_string(0.05 * step) + " px");
         }
       }
     }
   }
-  EXPECT_EQ(wrong, 0);
+  EXPECT_EQ(t.wrong, 0);
   // 99% at every phase: at most 7 misses in the 720 frames. Measured: 717
   // (694 with the confident share of resolved cells from 3 px).
-  EXPECT_GE(found, frames - frames / 100) << "of " << frames << ", missed:" << missed;
+  EXPECT_GE(t.found, t.frames - t.frames / 100) << "of " << t.frames << ", missed:" << t.missed;
 }
 
 // Issue 19's phase invariance through distance and in-plane turns: the
@@ -958,31 +970,20 @@ TEST(Frame8, EverySubPixelPhaseIsReadForEveryBitPattern) {
 // pattern, printed with the paper margin.
 TEST(Frame8, EveryMillimetreAndInPlaneTurnIsReadForEveryBitPattern) {
   auto det = make_detector(posed_config());
-  int frames = 0, found = 0, wrong = 0;
-  std::string missed;
+  PhaseTally t;
   auto look_at = [&](int id, double distance_m, double roll_deg) {
-    Scene s = scene(id, distance_m, 0, roll_deg, 5000 + static_cast<std::uint64_t>(frames));
+    Scene s = scene(id, distance_m, 0, roll_deg, 5000 + static_cast<std::uint64_t>(t.frames));
     s.paper_margin_m = 0.010;
-    ++frames;
-    bool right = false;
-    for (const Detection& d : detect(*det, render_scene(kCamera, s))) {
-      right = right || d.id == id;
-      wrong += d.id != id;
-    }
-    found += right;
-    if (!right) {
-      missed += " id " + std::to_string(id) + " at " + std::to_string(distance_m) + " m, roll " +
-                std::to_string(roll_deg) + ";";
-    }
+    t.look(*det, s, "at " + std::to_string(distance_m) + " m, roll " + std::to_string(roll_deg));
   };
-  for (const int id : {0b10000001, 0b01111110, 0b11110000, 0b00001111, 0b10101010, 0b01010101}) {
+  for (const int id : kBitPatternIds) {
     for (int mm = 1090; mm <= 1130; ++mm) look_at(id, mm / 1000.0, 0);
     for (const double distance_m : {1.1, 1.3}) {
       for (int roll = 0; roll < 90; roll += 3) look_at(id, distance_m, roll);
     }
   }
-  EXPECT_EQ(wrong, 0);
-  EXPECT_GE(found, frames - frames / 100) << "of " << frames << ", missed:" << missed;
+  EXPECT_EQ(t.wrong, 0);
+  EXPECT_GE(t.found, t.frames - t.frames / 100) << "of " << t.frames << ", missed:" << t.missed;
 }
 
 // The print with its hole cut out (issue 18), the ground showing through:

@@ -333,6 +333,18 @@ inline CellSize cell_size_of(const std::array<Point2, 4>& hole) {
   return {across / kInnerSide, perimeter / 4 / kInnerSide};
 }
 
+// A quad's shortest side over its longest: how far a square seen so is
+// squeezed (a tenth at about 82 deg).
+inline double short_to_long_sides(const std::array<Point2, 4>& quad) {
+  double shortest = std::numeric_limits<double>::infinity(), longest = 0;
+  for (std::size_t i = 0; i < 4; ++i) {
+    const double len = distance(quad[i], quad[(i + 1) % 4]);
+    shortest = std::min(shortest, len);
+    longest = std::max(longest, len);
+  }
+  return shortest / longest;
+}
+
 // The cell sizes (pixels per cell) at which stages change how they work.
 // Cells below kMinCells (the mean over the marker) are not read: beyond
 // 3.3 m for the thesis's marker and camera. Clutter offers many such small

@@ -250,13 +250,7 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // A square seen at up to about 82 degrees keeps its short sides above a
   // tenth of its long ones (kMinSideRatio); slivers beyond that are not
   // worth a read.
-  double shortest = std::numeric_limits<double>::infinity(), longest = 0;
-  for (int i = 0; i < 4; ++i) {
-    const double len = distance(inner[static_cast<std::size_t>(i)], inner[static_cast<std::size_t>((i + 1) % 4)]);
-    shortest = std::min(shortest, len);
-    longest = std::max(longest, len);
-  }
-  if (shortest < kMinSideRatio * longest) return Rejection::sliver;
+  if (short_to_long_sides(inner) < kMinSideRatio) return Rejection::sliver;
   const CellSize cell_size = cell_size_of(inner);
   Homography H;
   if (!Homography::from_unit_square(inner, H)) return Rejection::degenerate_quad;

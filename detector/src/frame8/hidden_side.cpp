@@ -37,18 +37,6 @@ constexpr std::array<double, 12> kHiddenDepth{1.0, 1.5, 1.75, 2.0, 2.25, 2.5, 2.
 // white corner seen.
 constexpr double kMinAmbiguousHiddenSideRatio = 0.4;
 
-namespace {
-double short_to_long_sides(const std::array<Point2, 4>& q) {
-  double shortest = std::numeric_limits<double>::infinity(), longest = 0;
-  for (std::size_t i = 0; i < 4; ++i) {
-    const double len = distance(q[i], q[(i + 1) % 4]);
-    shortest = std::min(shortest, len);
-    longest = std::max(longest, len);
-  }
-  return shortest / longest;
-}
-}  // namespace
-
 // Beyond a seen side the line gives way to the ring, whose light cells
 // are as light as the hole; beyond a covered side, out to where the ring
 // would be, all is the cover's one grey, darker than the hole. `into_hole`:

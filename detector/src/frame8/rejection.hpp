@@ -79,7 +79,7 @@ enum class Rejection : std::uint8_t {
   hole_not_lighter,           // a cell outvoted, and the hole no lighter than its line on two sides or more
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
-  covered_side_unread,        // second look: cells outvoted beside a covered side, which read hidden reads nothing
+  covered_side_unread,        // (second look, near-uniform ids) cells outvoted, the covered side unread hidden
   second_pass_disagrees,      // the sides measured again knowing the code read another id
   unconfirmed_correction,     // bits corrected twice or more, and the second pass fails
   unconfirmed_small_cells,    // cells under 2.5 px read once, the second measurement reading nothing
