@@ -40,5 +40,21 @@ TEST(WilsonInterval, NoTrialsSayNothing) {
   EXPECT_DOUBLE_EQ(none.high, 1);
 }
 
+// The count a rate needs before its interval tells it from a threshold:
+// 100% at a threshold of 90% needs 35 frames (0.9 z^2 / 0.1 = 34.6), and
+// 80% the same (z^2 0.09 / 0.01); 34 of 34 still reaches below 90%.
+TEST(WilsonTrialsToExclude, TheCountWhereTheIntervalLeavesTheThresholdOut) {
+  EXPECT_EQ(wilson_trials_to_exclude(1.0, 0.9), 35);
+  EXPECT_GE(wilson_interval(35, 35).low, 0.9);
+  EXPECT_LT(wilson_interval(34, 34).low, 0.9);
+  EXPECT_EQ(wilson_trials_to_exclude(0.8, 0.9), 35);
+  EXPECT_LT(wilson_interval(28, 35).high, 0.9);
+  EXPECT_GE(wilson_interval(24, 30).high, 0.9);
+  // Far from the threshold a frame or two is enough; on it, nothing is.
+  EXPECT_EQ(wilson_trials_to_exclude(0.0, 0.9), 1);
+  EXPECT_EQ(wilson_trials_to_exclude(0.9, 0.9), std::nullopt);
+  EXPECT_EQ(wilson_trials_to_exclude(0.93, 0.9), 385);  // z^2 0.09 / 0.0009 = 384.2
+}
+
 }  // namespace
 }  // namespace markerd::base

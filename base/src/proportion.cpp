@@ -15,4 +15,13 @@ ProportionInterval wilson_interval(std::int64_t successes, std::int64_t trials, 
   return {std::max(0.0, centre - half), std::min(1.0, centre + half)};
 }
 
+std::optional<std::int64_t> wilson_trials_to_exclude(double proportion, double threshold, double z) {
+  const double gap = proportion - threshold;
+  if (gap == 0) return std::nullopt;
+  const double trials = z * z * threshold * (1 - threshold) / (gap * gap);
+  // Past any count a run could collect; also keeps the cast defined.
+  constexpr double kMost = 1e15;
+  return std::max<std::int64_t>(1, static_cast<std::int64_t>(std::ceil(std::min(trials, kMost))));
+}
+
 }  // namespace markerd::base
