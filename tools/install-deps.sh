@@ -52,8 +52,12 @@ packages=(
   # container image may lack both
   man-db groff-base
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
-  # renders SVG from the scripts the report writes; -nox leaves out X and Qt
+  # renders SVG and PDF (its pdfcairo terminal) from the scripts the report
+  # writes; -nox leaves out X and Qt
   gnuplot-nox
+  # the report's PDF plots read back as a PDF reader sees them (pdfinfo,
+  # pdftotext: test_sweep_summary)
+  poppler-utils
   # markerctl's live lines as a user sees them (test_markerctl_rig,
   # test_control_streams): the tests run it inside tmux at 80x24 and read the
   # screen back, which a pipe cannot show; without tmux they fail

@@ -1,10 +1,6 @@
 #include "markerd/sweep/report.hpp"
 
-#include <fcntl.h>
 #include <fmt/format.h>
-#include <spawn.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -19,12 +15,9 @@
 #include <utility>
 #include <vector>
 
-#include "markerd/base/errno_text.hpp"
-#include "markerd/base/unique_fd.hpp"
 #include "markerd/base/utc_time.hpp"
 #include "markerd/detector/family.hpp"
-
-extern char** environ;
+#include "report_plots.hpp"
 
 namespace markerd::sweep {
 
@@ -32,363 +25,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
-constexpr const char* kRateVsDistance = "rate-vs-distance";
-constexpr const char* kPoseErrorVsDistance = "pose-error-vs-distance";
-constexpr const char* kRateMap = "rate-map";
 constexpr std::string_view kNone = "—";
 
-// Colours that stay apart in print and for the colour-blind; a run keeps its
-// colour in every plot.
-constexpr std::array<const char*, 6> kRunColours = {"#0072b2", "#d55e00", "#009e73", "#cc79a7", "#e69f00", "#56b4e9"};
-
-const char* run_colour(std::size_t run) { return kRunColours[run % kRunColours.size()]; }
-
-void write_text(const fs::path& path, std::string_view text) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (out) out.write(text.data(), static_cast<std::streamsize>(text.size()));
-  if (out) out.close();
-  if (!out) throw std::runtime_error(fmt::format("{}: cannot write: {}", path.string(), errno_text(errno)));
-}
+using plots::write_report_file;
 
 double norm(const std::array<double, 3>& v) { return std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]); }
-
-std::string trimmed(std::string text) {
-  while (!text.empty() && (text.back() == '\n' || text.back() == ' ' || text.back() == '\r')) text.pop_back();
-  return text;
-}
-
-// ---------------------------------------------------------------------------
-// gnuplot
-
-// Runs `program script` in `directory`, where the script and its data files
-// are, so the script names them relatively and a user can re-run it there.
-// posix_spawn rather than system(): no shell to quote a path for, and the
-// program's own exit status and stderr come back unaltered.
-void run_gnuplot(const std::string& program, const fs::path& directory, const std::string& script) {
-  // A relative program path would be looked up from the new working directory.
-  const std::string executable = program.find('/') == std::string::npos ? program : fs::absolute(program).string();
-  int stderr_pipe[2];
-  if (::pipe2(stderr_pipe, O_CLOEXEC) != 0) {
-    throw std::runtime_error(fmt::format("gnuplot: cannot make a pipe: {}", errno_text(errno)));
-  }
-  UniqueFd read_end(stderr_pipe[0]);
-  UniqueFd write_end(stderr_pipe[1]);
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
-  posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
-  posix_spawn_file_actions_adddup2(&actions, write_end.get(), STDERR_FILENO);
-  posix_spawn_file_actions_addchdir_np(&actions, directory.c_str());
-  std::string script_argument = script;
-  std::vector<char*> argv = {const_cast<char*>(executable.c_str()), script_argument.data(), nullptr};
-  pid_t pid = 0;
-  const int spawn_error = ::posix_spawnp(&pid, executable.c_str(), &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
-  write_end.reset();  // gnuplot's copy is the only writer left: its end is our end of file
-  if (spawn_error != 0) {
-    throw std::runtime_error(fmt::format("gnuplot: cannot run '{}': {} (install gnuplot-nox, or leave the plots out)",
-                                         program, errno_text(spawn_error)));
-  }
-  std::string messages;
-  char buffer[4096];
-  for (;;) {
-    const ssize_t n = ::read(read_end.get(), buffer, sizeof buffer);
-    if (n > 0) {
-      messages.append(buffer, static_cast<std::size_t>(n));
-    } else if (n == 0 || errno != EINTR) {
-      break;
-    }
-  }
-  read_end.reset();
-  int status = 0;
-  while (::waitpid(pid, &status, 0) < 0) {
-    if (errno != EINTR) {
-      throw std::runtime_error(fmt::format("gnuplot: waiting for '{}': {}", program, errno_text(errno)));
-    }
-  }
-  if (WIFEXITED(status) && WEXITSTATUS(status) == 0) return;
-  const std::string how = WIFEXITED(status) ? fmt::format("exit status {}", WEXITSTATUS(status))
-                                            : fmt::format("killed by signal {}", WTERMSIG(status));
-  messages = trimmed(std::move(messages));
-  // The end of a long complaint holds the line that failed.
-  constexpr std::size_t kKeep = 2000;
-  if (messages.size() > kKeep) messages = "..." + messages.substr(messages.size() - kKeep);
-  throw std::runtime_error(fmt::format("gnuplot '{}' failed on {}: {}{}{}", program, (directory / script).string(), how,
-                                       messages.empty() ? "" : ": ", messages));
-}
-
-// A gnuplot string literal: single quotes take everything but a single quote,
-// which doubles.
-std::string gp_string(std::string_view text) {
-  std::string quoted = "'";
-  for (const char c : text) {
-    if (c == '\'') quoted += '\'';
-    quoted += c;
-  }
-  return quoted + "'";
-}
-
-std::string gp_preamble(const std::string& name, int width, int height) {
-  return fmt::format(
-      "# Drawn by markerd's sweep report from the .dat files beside it; to draw it again:\n"
-      "#   gnuplot {0}.gp   (in this directory)\n"
-      "set encoding utf8\n"
-      // noenhanced: run ids and grid names keep their underscores.
-      "set terminal svg size {1},{2} dynamic noenhanced font 'sans,12' background '#ffffff'\n"
-      "set output '{0}.svg'\n"
-      "set grid\n",
-      name, width, height);
-}
-
-// What a panel with nothing to draw shows instead of failing: gnuplot
-// refuses an empty plot command and cannot autoscale over no data.
-std::string gp_empty_panel(std::string_view why) {
-  return fmt::format(
-      "set xrange [0:1]\nset yrange [0:1]\nset label 1 {} at graph 0.5,0.5 center\nplot NaN notitle\nunset label 1\n",
-      gp_string(why));
-}
-
-struct Range {
-  double low = 0;
-  double high = 0;
-  bool empty = true;
-  void add(double value) {
-    low = empty ? value : std::min(low, value);
-    high = empty ? value : std::max(high, value);
-    empty = false;
-  }
-  // Room around the points so the first and last are not on the frame.
-  [[nodiscard]] std::string gp(double margin_fraction, double minimum_margin) const {
-    const double margin = std::max((high - low) * margin_fraction, minimum_margin);
-    return fmt::format("[{:.6g}:{:.6g}]", low - margin, high + margin);
-  }
-};
-
-std::vector<const PointSummary*> facing_by_distance(const RunSummary& run) {
-  std::vector<const PointSummary*> facing;
-  for (const auto& p : run.points) {
-    if (is_facing(p)) facing.push_back(&p);
-  }
-  std::stable_sort(facing.begin(), facing.end(),
-                   [](const PointSummary* a, const PointSummary* b) { return a->distance_m < b->distance_m; });
-  return facing;
-}
-
-std::string threshold_lines(const std::vector<RunSummary>& runs) {
-  std::set<double> thresholds;
-  for (const auto& run : runs) thresholds.insert(run.detection_threshold);
-  std::string plots;
-  for (const double t : thresholds) {
-    plots += fmt::format(", \\\n     {:.6g} with lines dt 2 lw 1.5 lc rgb '#555555' title 'threshold {:.4g} %'",
-                         100 * t, 100 * t);
-  }
-  return plots;
-}
-
-struct PlotFile {
-  std::string name;  // without extension: NAME.gp draws NAME.svg
-  std::string script;
-  std::vector<std::pair<std::string, std::string>> data;  // file name, contents
-};
-
-PlotFile rate_vs_distance_plot(const std::vector<RunSummary>& runs) {
-  PlotFile plot{kRateVsDistance, gp_preamble(kRateVsDistance, 800, 500), {}};
-  std::string curves;
-  Range distances;
-  for (std::size_t r = 0; r < runs.size(); ++r) {
-    const auto facing = facing_by_distance(runs[r]);
-    if (facing.empty()) continue;
-    std::string data = fmt::format("# {}: facing points\n# distance_m rate_pct frames detected\n", runs[r].run_id);
-    for (const auto* p : facing) {
-      data += fmt::format("{:.4f} {:.3f} {} {}\n", p->distance_m, 100 * p->rate, p->frames, p->detected);
-      distances.add(p->distance_m);
-    }
-    const std::string file = fmt::format("{}-{}.dat", kRateVsDistance, r + 1);
-    plot.data.emplace_back(file, data);
-    curves +=
-        fmt::format("{}{} using 1:2 with linespoints lw 2 pt 7 ps 0.8 lc rgb '{}' title {}",
-                    curves.empty() ? "" : ", \\\n     ", gp_string(file), run_colour(r), gp_string(runs[r].run_id));
-  }
-  plot.script +=
-      "set title 'Detection rate of the facing points (|angle| < 0.5°) against distance'\n"
-      "set xlabel 'distance (m)'\nset ylabel 'detection rate (%)'\nset key bottom left opaque box\n";
-  if (curves.empty()) {
-    plot.script += gp_empty_panel("no facing points in the run");
-    return plot;
-  }
-  plot.script += fmt::format("set xrange {}\nset yrange [0:105]\nplot {}{}\n", distances.gp(0.05, 0.02), curves,
-                             threshold_lines(runs));
-  return plot;
-}
-
-PlotFile pose_error_plot(const std::vector<RunSummary>& runs) {
-  PlotFile plot{kPoseErrorVsDistance, gp_preamble(kPoseErrorVsDistance, 800, 700), {}};
-  std::string distance_curves;
-  std::string translation_curves;
-  Range distances;
-  for (std::size_t r = 0; r < runs.size(); ++r) {
-    std::string data = fmt::format(
-        "# {}: facing points with a pose error, medians over their frames\n"
-        "# distance_m median_abs_distance_error_pct median_translation_error_mm\n",
-        runs[r].run_id);
-    bool any = false;
-    for (const auto* p : facing_by_distance(runs[r])) {
-      if (!p->median_distance_error_pct || !p->median_translation_error_mm) continue;
-      data += fmt::format("{:.4f} {:.4f} {:.3f}\n", p->distance_m, *p->median_distance_error_pct,
-                          *p->median_translation_error_mm);
-      distances.add(p->distance_m);
-      any = true;
-    }
-    if (!any) continue;
-    const std::string file = fmt::format("{}-{}.dat", kPoseErrorVsDistance, r + 1);
-    plot.data.emplace_back(file, data);
-    const std::string style =
-        fmt::format("with linespoints lw 2 pt 7 ps 0.8 lc rgb '{}' title {}", run_colour(r), gp_string(runs[r].run_id));
-    distance_curves +=
-        fmt::format("{}{} using 1:2 {}", distance_curves.empty() ? "" : ", \\\n     ", gp_string(file), style);
-    translation_curves +=
-        fmt::format("{}{} using 1:3 {}", translation_curves.empty() ? "" : ", \\\n     ", gp_string(file), style);
-  }
-  // Two panels over one distance axis: percent and millimetres would fight
-  // over a shared y axis, and a second y axis is easy to misread.
-  plot.script +=
-      "set multiplot layout 2,1 title 'Pose error of the facing points against distance (medians over each point''s "
-      "frames)'\n"
-      "set key top left opaque box\nset xlabel 'distance (m)'\n";
-  if (distance_curves.empty()) {
-    plot.script += gp_empty_panel("no pose errors (no pose, or no ground truth)");
-    plot.script += gp_empty_panel("no pose errors (no pose, or no ground truth)");
-  } else {
-    const std::string x_range = distances.gp(0.05, 0.02);
-    plot.script += fmt::format(
-        "set xrange {0}\nset yrange [0:*]\nset offsets 0, 0, graph 0.08, 0\nset ylabel '|distance error| (% of the "
-        "true distance)'\nplot {1}\n"
-        "set ylabel 'translation error (mm)'\nplot {2}\n",
-        x_range, distance_curves, translation_curves);
-  }
-  plot.script += "unset multiplot\n";
-  return plot;
-}
-
-// The rate map chooses per run. A plan shaped like the thesis's sweeps
-// distance at 0° and angle at one or two distances: as a heat map that is a
-// row and a column or two of cells in an empty field, and the shape of the
-// fall-off is hard to read from colours; as curves of rate against angle,
-// one per distance, it reads at a glance and the threshold can be drawn.
-// Past a handful of distances swept over angle the curves tangle, and the
-// points fill distance x angle well enough for a heat map to read better.
-constexpr std::size_t kMostAngleCurves = 4;
-
-bool fills_a_heat_map(const RunSummary& run) { return run.max_angle.size() > kMostAngleCurves; }
-
-// Half the smallest gap between distinct values: the half-width of a cell.
-double half_cell(std::vector<double> values, double fallback) {
-  std::sort(values.begin(), values.end());
-  double smallest = 0;
-  for (std::size_t i = 1; i < values.size(); ++i) {
-    const double gap = values[i] - values[i - 1];
-    if (gap > 1e-9 && (smallest == 0 || gap < smallest)) smallest = gap;
-  }
-  return smallest > 0 ? smallest / 2 : fallback;
-}
-
-std::string heat_map_panel(const RunSummary& run, std::size_t index, PlotFile& plot) {
-  std::string data = fmt::format("# {}: every point\n# distance_m angle_deg rate_pct\n", run.run_id);
-  std::vector<double> distances;
-  std::vector<double> angles;
-  for (const auto& p : run.points) {
-    data += fmt::format("{:.4f} {:.3f} {:.3f}\n", p.distance_m, p.angle_deg, 100 * p.rate);
-    distances.push_back(p.distance_m);
-    angles.push_back(p.angle_deg);
-  }
-  const std::string file = fmt::format("{}-{}.dat", kRateMap, index + 1);
-  plot.data.emplace_back(file, data);
-  // Boxes centred on the points rather than `with image`, which needs a
-  // complete regular grid; a plan's blocks need not form one.
-  const double dx = half_cell(distances, 0.025);
-  const double dy = half_cell(angles, 2.5);
-  return fmt::format(
-      "set title {}\nset xlabel 'distance (m)'\nset ylabel 'viewing angle (°)'\n"
-      "set xrange [*:*]\nset yrange [*:*]\nunset key\nset colorbox\nset cblabel 'detection rate (%)'\n"
-      "plot {} using 1:2:({:.6g}):({:.6g}):3 with boxxyerror fs solid 1.0 noborder lc palette notitle\n",
-      gp_string(run.run_id + ": detection rate over distance and angle"), gp_string(file), dx, dy);
-}
-
-std::string angle_curves_panel(const RunSummary& run, std::size_t index, PlotFile& plot) {
-  std::vector<const PointSummary*> swept;
-  for (const auto& entry : run.max_angle) {
-    std::vector<const PointSummary*> at_distance;
-    for (const auto& p : run.points) {
-      if (std::abs(p.distance_m - entry.distance_m) <= 0.0005) at_distance.push_back(&p);
-    }
-    std::stable_sort(at_distance.begin(), at_distance.end(),
-                     [](const PointSummary* a, const PointSummary* b) { return a->angle_deg < b->angle_deg; });
-    swept.insert(swept.end(), at_distance.begin(), at_distance.end());
-    swept.push_back(nullptr);  // the end of one distance's block
-  }
-  const std::string title = run.run_id + ": detection rate against viewing angle, one curve per distance";
-  if (swept.empty())
-    return fmt::format("set title {}\n", gp_string(title)) + gp_empty_panel("no angle sweep in the run");
-
-  const std::string file = fmt::format("{}-{}.dat", kRateMap, index + 1);
-  std::string data = fmt::format(
-      "# {}: one block per distance swept over angle (gnuplot's index)\n# angle_deg rate_pct distance_m\n", run.run_id);
-  std::string curves;
-  Range angles;
-  std::size_t block = 0;
-  const PointSummary* block_first = nullptr;
-  for (const auto* p : swept) {
-    if (p == nullptr) {
-      data += "\n\n";
-      curves += fmt::format("{}{} index {} using 1:2 with linespoints lw 2 pt 7 ps 0.8 lc {} title {}",
-                            curves.empty() ? "" : ", \\\n     ", gp_string(file), block, block + 1,
-                            gp_string(fmt::format("{:.3f} m", block_first->distance_m)));
-      ++block;
-      block_first = nullptr;
-      continue;
-    }
-    if (block_first == nullptr) block_first = p;
-    data += fmt::format("{:.3f} {:.3f} {:.4f}\n", p->angle_deg, 100 * p->rate, p->distance_m);
-    angles.add(p->angle_deg);
-  }
-  plot.data.emplace_back(file, data);
-  return fmt::format(
-      "set title {}\nset xlabel 'viewing angle (°)'\nset ylabel 'detection rate (%)'\n"
-      "set xrange {}\nset yrange [0:105]\nunset colorbox\nset key outside right top box\n"
-      "plot {}, \\\n     {:.6g} with lines dt 2 lw 1.5 lc rgb '#555555' title 'threshold {:.4g} %'\n",
-      gp_string(title), angles.gp(0.05, 2), curves, 100 * run.detection_threshold, 100 * run.detection_threshold);
-}
-
-PlotFile rate_map_plot(const std::vector<RunSummary>& runs) {
-  const int panels = static_cast<int>(std::max<std::size_t>(runs.size(), 1));
-  PlotFile plot{kRateMap, gp_preamble(kRateMap, 800, 450 * panels), {}};
-  plot.script +=
-      "set cbrange [0:100]\n"
-      // Viridis: ordered in lightness, so it reads in grey and for the colour-blind.
-      "set palette defined (0 '#440154', 25 '#3b528b', 50 '#21918c', 75 '#5ec962', 100 '#fde725')\n";
-  plot.script += fmt::format("set multiplot layout {},1\n", panels);
-  if (runs.empty()) plot.script += gp_empty_panel("no runs");
-  for (std::size_t r = 0; r < runs.size(); ++r) {
-    plot.script += fills_a_heat_map(runs[r]) ? heat_map_panel(runs[r], r, plot) : angle_curves_panel(runs[r], r, plot);
-  }
-  plot.script += "unset multiplot\n";
-  return plot;
-}
-
-fs::path draw(const PlotFile& plot, const ReportOptions& options) {
-  for (const auto& [file, contents] : plot.data) write_text(options.output_directory / file, contents);
-  const std::string script = plot.name + ".gp";
-  write_text(options.output_directory / script, plot.script);
-  const fs::path svg = options.output_directory / (plot.name + ".svg");
-  // An earlier report's plot must not pass for this one's.
-  std::error_code ignored;
-  fs::remove(svg, ignored);
-  run_gnuplot(options.gnuplot, options.output_directory, script);
-  if (!fs::exists(svg)) {
-    throw std::runtime_error(fmt::format("gnuplot '{}' wrote no {}", options.gnuplot, svg.string()));
-  }
-  return svg;
-}
 
 // ---------------------------------------------------------------------------
 // report.md
@@ -409,12 +50,6 @@ std::string cell(std::string_view text) {
 
 std::string vector_text(const std::array<double, 3>& v) {
   return fmt::format("[{:.4f}, {:.4f}, {:.4f}]", v[0], v[1], v[2]);
-}
-
-std::string spread_text(const Spread& s, int decimals) {
-  if (s.n == 0) return std::string(kNone);
-  if (s.n == 1) return fmt::format("{:.{}f}", s.mean, decimals);
-  return fmt::format("{:.{}f} ± {:.{}f}", s.mean, decimals, s.stddev, decimals);
 }
 
 std::string cm_text(double metres) {
@@ -498,23 +133,47 @@ std::string runs_table(const std::vector<const RunRecords*>& runs, const std::ve
   return table;
 }
 
+// A median over a point's frames and its 95% interval, "0.12 [0.10, 0.15]".
+std::string median_text(const std::optional<MedianEstimate>& m, int decimals) {
+  if (!m) return std::string(kNone);
+  if (!m->low || !m->high) return fmt::format("{:.{}f}", m->median, decimals);
+  return fmt::format("{:.{}f} [{:.{}f}, {:.{}f}]", m->median, decimals, *m->low, decimals, *m->high, decimals);
+}
+
+std::string detected_text(const PointSummary& p) {
+  const char* reached = p.reached ? "yes" : "no";
+  if (p.call != RateCall::uncertain) return reached;
+  if (!p.frames_to_decide) return fmt::format("{}, in doubt (on the threshold)", reached);
+  return fmt::format("{}, in doubt ({} frames would tell)", reached, *p.frames_to_decide);
+}
+
 std::string points_table(const RunSummary& s) {
   if (s.points.empty()) return "No measurement recorded.\n";
   std::string table =
-      "| Grid | Distance (m) | Angle (°) | Frames | Rate | Detected | Mean tvec (m) | Distance error (%) | Rotation "
-      "error (°) |\n| --- | ---: | ---: | ---: | ---: | :---: | --- | ---: | ---: |\n";
+      "| Grid | Distance (m) | Angle (°) | Frames | Rate [95% interval] | Detected | Mean tvec (m) | \\|Distance "
+      "error\\| (%) | Translation error (mm) | Rotation error (°) | Jitter of the distance (mm) |\n"
+      "| --- | ---: | ---: | ---: | ---: | :---: | --- | ---: | ---: | ---: | ---: |\n";
   for (const auto& p : s.points) {
     const std::string tvec =
         p.tvec_m[0].n > 0 ? vector_text({p.tvec_m[0].mean, p.tvec_m[1].mean, p.tvec_m[2].mean}) : std::string(kNone);
-    table += fmt::format("| {} | {:.3f} | {} | {} | {:.1f} % | {} | {} | {} | {} |\n",
-                         cell(p.grid_name.empty() ? fmt::format("{}", p.grid) : p.grid_name), p.distance_m,
-                         angle_text(p.angle_deg), p.frames, 100 * p.rate, p.reached ? "yes" : "no", tvec,
-                         spread_text(p.distance_error_pct, 2), spread_text(p.rotation_error_deg, 2));
+    const std::string jitter =
+        p.distance_m_estimated.n > 1 ? fmt::format("{:.2f}", 1000 * p.distance_m_estimated.stddev) : std::string(kNone);
+    table +=
+        fmt::format("| {} | {:.3f} | {} | {} | {:.1f} % [{:.1f}, {:.1f}] | {} | {} | {} | {} | {} | {} |\n",
+                    cell(p.grid_name.empty() ? fmt::format("{}", p.grid) : p.grid_name), p.distance_m,
+                    angle_text(p.angle_deg), p.frames, 100 * p.rate, 100 * p.rate_interval.low,
+                    100 * p.rate_interval.high, detected_text(p), tvec, median_text(p.median_distance_error_pct, 2),
+                    median_text(p.median_translation_error_mm, 2), median_text(p.median_rotation_error_deg, 2), jitter);
   }
-  table +=
-      "\nRate: frames that found the marker; Detected: rate at or above the threshold. Mean tvec: over the frames "
-      "with a pose. Errors: mean ± sample standard deviation over the frames with a pose and ground truth; the "
-      "distance error is signed (|t| − |t_true|), of the true distance.\n";
+  table += fmt::format(
+      "\nRate: frames that found the marker, with its 95% interval (Wilson). Detected: rate at or above {:.4g} %; "
+      "in doubt when the interval holds the threshold, with the frames a point at that rate would need for it not "
+      "to. Mean tvec: over the frames with a pose. Errors: the median over the frames with a pose and ground "
+      "truth, with the median's 95% interval (from the order statistics; none under 6 frames); the distance "
+      "error as |(|t| − |t_true|)| of the true distance. This is the accuracy at the point. Jitter: the standard "
+      "deviation of the estimated distance |t| over the point's frames, of one scene that does not move: how "
+      "well a measurement repeats, not how far it is from the truth.\n",
+      100 * s.detection_threshold);
   return table;
 }
 
@@ -583,12 +242,12 @@ std::string file_stem(const std::string& run_id, std::set<std::string>& taken) {
 namespace {
 
 // The report of `runs` (their summaries beside them) around `table` as its
-// Table 6.1: one column or curve per run everywhere else. `columns`: empty,
-// or the Table 6.1 column each run is in; `preface`: what precedes the runs'
-// table.
+// Table 6.1, `calls` as the threshold calls behind its limits: one column or
+// curve per run everywhere else. `columns`: empty, or the Table 6.1 column
+// each run is in; `preface`: what precedes the runs' table.
 ReportFiles write_runs_report(const std::vector<const RunRecords*>& runs, const std::vector<RunSummary>& summaries,
-                              std::string table, const std::vector<std::string>& columns, const std::string& preface,
-                              const ReportOptions& options) {
+                              std::string table, std::string calls, const std::vector<std::string>& columns,
+                              const std::string& preface, const ReportOptions& options) {
   std::error_code error;
   fs::create_directories(options.output_directory, error);
   if (error) {
@@ -608,17 +267,13 @@ ReportFiles write_runs_report(const std::vector<const RunRecords*>& runs, const 
     }
   }
   for (std::size_t r = 0; r < summaries.size(); ++r) {
-    write_text(options.output_directory / csv_names[r].first, points_csv(summaries[r]));
-    write_text(options.output_directory / csv_names[r].second, translation_csv(summaries[r]));
+    write_report_file(options.output_directory / csv_names[r].first, points_csv(summaries[r]));
+    write_report_file(options.output_directory / csv_names[r].second, translation_csv(summaries[r]));
     files.csv.push_back(options.output_directory / csv_names[r].first);
     files.csv.push_back(options.output_directory / csv_names[r].second);
   }
 
-  if (options.plots) {
-    for (const auto& plot : {rate_vs_distance_plot(summaries), pose_error_plot(summaries), rate_map_plot(summaries)}) {
-      files.plots.push_back(draw(plot, options));
-    }
-  }
+  if (options.plots) files.plots = plots::draw_all(summaries, options);
 
   std::string ids;
   for (const auto& s : summaries) ids += (ids.empty() ? "" : ", ") + s.run_id;
@@ -627,17 +282,24 @@ ReportFiles write_runs_report(const std::vector<const RunRecords*>& runs, const 
   md += preface;
   md += runs_table(runs, summaries, columns);
   md += "\n## Table 6.1\n\n" + table;
+  md += "\n## Threshold calls\n\n" + calls;
 
   if (options.plots) {
+    md += "\n## Plots\n\n";
+    std::string pdfs;
+    for (const auto& plot : plots::plot_names()) {
+      md += fmt::format("![{}]({}.svg)\n\n", plot.caption, plot.name);
+      pdfs += fmt::format("{}`{}.pdf`", pdfs.empty() ? "" : ", ", plot.name);
+    }
     md += fmt::format(
-        "\n## Plots\n\n"
-        "![Detection rate against distance]({0}.svg)\n\n"
-        "![Pose error against distance]({1}.svg)\n\n"
-        "![Detection rate over distance and angle]({2}.svg)\n\n"
-        "Each plot is drawn by gnuplot from the `.gp` script and `.dat` files beside it (`gnuplot {0}.gp` in this "
-        "directory draws it again). The rate over distance and angle is drawn as curves of rate against angle, one "
-        "per distance swept over angle, or as a heat map for a run that sweeps angle at more than {3} distances.\n",
-        kRateVsDistance, kPoseErrorVsDistance, kRateMap, kMostAngleCurves);
+        "Error bars: 95% intervals, Wilson's for the rates, the order statistics' for the median errors (whose "
+        "bars cover the jitter of a point's frames, not a bias they share). Dotted lines: the thesis's limits for "
+        "the marker measured (its maximum distance, its maximum angle at each distance it measured); dashed: the "
+        "detection threshold. Each plot is drawn by gnuplot from the `.gp` script and `.dat` files beside it "
+        "(`gnuplot NAME.gp` in this directory draws it again), as SVG for this page and as PDF for a paper "
+        "({}). The rate over distance and angle is drawn as curves of rate against angle, one per distance swept "
+        "over angle, or as a heat map for a run that sweeps angle at more than {} distances.\n",
+        pdfs, plots::kMostAngleCurves);
   }
 
   for (std::size_t r = 0; r < summaries.size(); ++r) {
@@ -654,8 +316,9 @@ ReportFiles write_runs_report(const std::vector<const RunRecords*>& runs, const 
   }
 
   files.report = options.output_directory / "report.md";
-  write_text(files.report, md);
+  write_report_file(files.report, md);
   files.table_6_1 = std::move(table);
+  files.threshold_calls = std::move(calls);
   return files;
 }
 
@@ -670,7 +333,9 @@ ReportFiles write_report(const std::vector<RunRecords>& runs, const ReportOption
     summaries.push_back(summarize(run));
   }
   const std::string preface = runs.size() > 1 ? "Runs side by side, one column or curve each.\n\n" : "";
-  return write_runs_report(pointers, summaries, table_6_1(summaries), {}, preface, options);
+  std::vector<const RunSummary*> called;
+  for (const auto& s : summaries) called.push_back(&s);
+  return write_runs_report(pointers, summaries, table_6_1(summaries), threshold_calls(called), {}, preface, options);
 }
 
 ReportFiles write_report_by_marker(const std::vector<MarkerRuns>& markers, const ReportOptions& options) {
@@ -698,7 +363,10 @@ ReportFiles write_report_by_marker(const std::vector<MarkerRuns>& markers, const
   preface +=
       ".\n\nTable 6.1 has a column for each marker's runs taken together, beside the thesis's column for that "
       "marker; the other tables and the plots have one column or curve per run.\n\n";
-  return write_runs_report(pointers, summaries, table_6_1_by_marker(table_columns), columns, preface, options);
+  std::vector<const RunSummary*> called;
+  for (const auto& column : table_columns) called.push_back(&column.runs);
+  return write_runs_report(pointers, summaries, table_6_1_by_marker(table_columns), threshold_calls(called), columns,
+                           preface, options);
 }
 
 }  // namespace markerd::sweep

@@ -8,6 +8,7 @@
 #include <numeric>
 #include <set>
 #include <stdexcept>
+#include <tuple>
 #include <utility>
 
 #include "markerd/detector/family.hpp"
@@ -34,6 +35,23 @@ Spread spread_of(const std::vector<double>& values) {
     s.stddev = std::sqrt(squares / static_cast<double>(s.n - 1));
   }
   return s;
+}
+
+// The largest rank k (from 1) with P(B < k) <= 2.5% for B ~ Bin(n, 1/2):
+// the values of ranks k and n + 1 - k hold the median with at least 95%.
+// 0 when even the extremes do not (n < 6).
+std::size_t median_interval_rank(std::size_t n) {
+  const auto count = static_cast<double>(n);
+  const double log_half_n = count * std::log(0.5);
+  double below = 0;  // P(B <= i - 1)
+  std::size_t i = 0;
+  for (; i < n; ++i) {
+    const auto k = static_cast<double>(i);
+    const double pmf = std::exp(std::lgamma(count + 1) - std::lgamma(k + 1) - std::lgamma(count - k + 1) + log_half_n);
+    if (below + pmf > 0.025) break;
+    below += pmf;
+  }
+  return i;
 }
 
 std::optional<double> median_of(std::vector<double> values) {
@@ -80,41 +98,85 @@ std::vector<std::vector<T>> group_sorted(const std::vector<T>& sorted, Key key, 
   return groups;
 }
 
-bool all_reached(const std::vector<const PointSummary*>& points) {
-  return std::all_of(points.begin(), points.end(), [](const PointSummary* p) { return p->reached; });
+using Group = std::vector<const PointSummary*>;
+
+// The groups of points met walking outwards, a group a place (points at the
+// same place count as reached only when each of them is).
+struct Walk {
+  std::optional<double> limit;    // the last group reached's key
+  std::size_t groups_walked = 0;  // up to and with the first group that failed
+};
+
+template <typename Passes, typename Key>
+Walk walk_outwards(const std::vector<Group>& groups, Passes passes, Key key) {
+  Walk walk;
+  for (const auto& group : groups) {
+    ++walk.groups_walked;
+    if (!std::all_of(group.begin(), group.end(), [&](const PointSummary* p) { return passes(*p); })) break;
+    walk.limit = key(group.front());
+  }
+  return walk;
 }
 
-std::optional<double> max_distance(const std::vector<PointSummary>& points) {
+// The walk as the threshold decides it, and its call by the rates' intervals.
+template <typename Key>
+std::pair<std::optional<double>, LimitCall> limit_of(const std::vector<Group>& groups, Key key,
+                                                     const std::vector<PointSummary>& points) {
+  const Walk estimate = walk_outwards(
+      groups, [](const PointSummary& p) { return p.reached; }, key);
+  LimitCall call;
+  call.surely = walk_outwards(
+                    groups, [](const PointSummary& p) { return p.call == RateCall::above; }, key)
+                    .limit;
+  call.possibly = walk_outwards(
+                      groups, [](const PointSummary& p) { return p.call != RateCall::below; }, key)
+                      .limit;
+  if (call.uncertain()) {
+    bool decidable = true;
+    std::int64_t most = 0;
+    for (std::size_t g = 0; g < estimate.groups_walked; ++g) {
+      for (const PointSummary* p : groups[g]) {
+        if (p->call != RateCall::uncertain) continue;
+        call.deciding.push_back(static_cast<std::size_t>(p - points.data()));
+        if (p->frames_to_decide) {
+          most = std::max(most, *p->frames_to_decide);
+        } else {
+          decidable = false;
+        }
+      }
+    }
+    if (decidable && !call.deciding.empty()) call.frames_to_decide = most;
+  }
+  return {estimate.limit, std::move(call)};
+}
+
+std::vector<const PointSummary*> facing_nearest_first(const std::vector<PointSummary>& points) {
   std::vector<const PointSummary*> facing;
   for (const auto& p : points) {
     if (is_facing(p)) facing.push_back(&p);
   }
   std::stable_sort(facing.begin(), facing.end(),
                    [](const PointSummary* a, const PointSummary* b) { return a->distance_m < b->distance_m; });
-  std::optional<double> farthest;
-  for (const auto& same_distance : group_sorted(
-           facing, [](const PointSummary* p) { return p->distance_m; }, kSameDistanceM)) {
-    if (!all_reached(same_distance)) break;
-    farthest = same_distance.front()->distance_m;
-  }
-  return farthest;
+  return facing;
+}
+
+std::pair<std::optional<double>, LimitCall> max_distance(const std::vector<PointSummary>& points) {
+  const auto facing = facing_nearest_first(points);
+  const auto distance = [](const PointSummary* p) { return p->distance_m; };
+  return limit_of(group_sorted(facing, distance, kSameDistanceM), distance, points);
 }
 
 // One side of an angle sweep at one distance, its points ordered from the
 // one nearest facing outwards.
-std::optional<double> max_angle_on_side(std::vector<const PointSummary*> side) {
+std::pair<std::optional<double>, LimitCall> max_angle_on_side(std::vector<const PointSummary*> side,
+                                                              const std::vector<PointSummary>& points) {
   const bool swept = std::any_of(side.begin(), side.end(), [](const PointSummary* p) { return !is_facing(*p); });
-  if (!swept) return std::nullopt;
+  if (!swept) return {};
   std::stable_sort(side.begin(), side.end(), [](const PointSummary* a, const PointSummary* b) {
     return std::abs(a->angle_deg) < std::abs(b->angle_deg);
   });
-  std::optional<double> widest;
-  for (const auto& same_angle : group_sorted(
-           side, [](const PointSummary* p) { return std::abs(p->angle_deg); }, kSameAngleDeg)) {
-    if (!all_reached(same_angle)) break;
-    widest = std::abs(same_angle.front()->angle_deg);
-  }
-  return widest;
+  const auto magnitude = [](const PointSummary* p) { return std::abs(p->angle_deg); };
+  return limit_of(group_sorted(side, magnitude, kSameAngleDeg), magnitude, points);
 }
 
 std::vector<MaxAngle> max_angles(const std::vector<PointSummary>& points) {
@@ -142,9 +204,9 @@ std::vector<MaxAngle> max_angles(const std::vector<PointSummary>& points) {
     }
     MaxAngle entry;
     entry.distance_m = same_distance.front()->distance_m;
-    entry.positive_deg = max_angle_on_side(std::move(positive));
-    entry.negative_deg = max_angle_on_side(std::move(negative));
-    result.push_back(entry);
+    std::tie(entry.positive_deg, entry.positive_call) = max_angle_on_side(std::move(positive), points);
+    std::tie(entry.negative_deg, entry.negative_call) = max_angle_on_side(std::move(negative), points);
+    result.push_back(std::move(entry));
   }
   return result;
 }
@@ -225,11 +287,26 @@ PointSummary summarize_point(const std::vector<const PointRecord*>& records, con
   s.distance_error_pct = spread_of(distance_error_pct);
   s.rotation_error_deg = spread_of(rotation_error);
   s.reprojection_error_px = spread_of(reprojection_error);
-  s.median_translation_error_mm = median_of(translation_error);
-  s.median_distance_error_pct = median_of(abs_distance_error_pct);
-  s.median_rotation_error_deg = median_of(rotation_error);
+  std::sort(translation_error.begin(), translation_error.end());
+  std::sort(abs_distance_error_pct.begin(), abs_distance_error_pct.end());
+  std::sort(rotation_error.begin(), rotation_error.end());
+  s.median_translation_error_mm = median_estimate(translation_error);
+  s.median_distance_error_pct = median_estimate(abs_distance_error_pct);
+  s.median_rotation_error_deg = median_estimate(rotation_error);
+  s.translation_errors_mm = std::move(translation_error);
+  s.abs_distance_errors_pct = std::move(abs_distance_error_pct);
+  s.rotation_errors_deg = std::move(rotation_error);
+
+  const double threshold = start.plan.detection_threshold;
   s.rate = s.frames > 0 ? static_cast<double>(s.detected) / s.frames : 0.0;
-  s.reached = s.frames > 0 && s.rate >= start.plan.detection_threshold;
+  s.reached = s.frames > 0 && s.rate >= threshold;
+  s.rate_interval = base::wilson_interval(s.detected, s.frames);
+  if (s.frames > 0 && s.rate_interval.low >= threshold) {
+    s.call = RateCall::above;
+  } else if (s.frames > 0 && s.rate_interval.high < threshold) {
+    s.call = RateCall::below;
+  }
+  s.frames_to_decide = base::wilson_trials_to_exclude(s.rate, threshold);
   return s;
 }
 
@@ -244,13 +321,18 @@ std::string csv_field(std::string_view text) {
   return quoted + '"';
 }
 
-std::string csv_number(double value, int decimals) { return fmt::format("{:.{}f}", value, decimals); }
-std::string csv_number(const std::optional<double>& value, int decimals) {
-  return value ? csv_number(*value, decimals) : std::string();
-}
-std::string csv_mean(const Spread& s, int decimals) { return s.n > 0 ? csv_number(s.mean, decimals) : std::string(); }
-std::string csv_stddev(const Spread& s, int decimals) {
-  return s.n > 1 ? csv_number(s.stddev, decimals) : std::string();
+// Numbers in full: the shortest text that reads back as the same double,
+// so a CSV loses nothing of what was measured (a spread of 3e-05 m is not
+// "0.0000").
+std::string csv_number(double value) { return fmt::format("{}", value); }
+std::string csv_number(const std::optional<double>& value) { return value ? csv_number(*value) : std::string(); }
+std::string csv_mean(const Spread& s) { return s.n > 0 ? csv_number(s.mean) : std::string(); }
+std::string csv_stddev(const Spread& s) { return s.n > 1 ? csv_number(s.stddev) : std::string(); }
+std::string csv_stddev(const Spread& s, double scale) { return s.n > 1 ? csv_number(s.stddev * scale) : std::string(); }
+// The median and its interval's ends, three fields.
+std::string csv_median(const std::optional<MedianEstimate>& m) {
+  if (!m) return ",,";
+  return fmt::format("{},{},{}", csv_number(m->median), csv_number(m->low), csv_number(m->high));
 }
 std::string csv_steps(const std::optional<std::int64_t>& steps) {
   return steps ? fmt::format("{}", *steps) : std::string();
@@ -285,15 +367,20 @@ constexpr std::string_view kNotReached = "not reached";
 // still detected, so the marker may well be detected beyond it.
 constexpr std::string_view kAtSweepEnd = "≥";
 
+constexpr std::string_view kUncertain = " (uncertain)";
+
+std::string_view uncertain_mark(const LimitCall& call) { return call.uncertain() ? kUncertain : ""; }
+
 std::string max_distance_cell(const RunSummary& run, std::string_view not_swept) {
   std::optional<double> farthest_facing;
   for (const auto& p : run.points) {
     if (is_facing(p)) farthest_facing = std::max(farthest_facing.value_or(p.distance_m), p.distance_m);
   }
   if (!farthest_facing) return std::string(not_swept);
-  if (!run.max_distance_m) return std::string(kNotReached);
+  if (!run.max_distance_m) return fmt::format("{}{}", kNotReached, uncertain_mark(run.max_distance_call));
   const bool at_end = *run.max_distance_m >= *farthest_facing - kSameDistanceM;
-  return fmt::format("{}{} cm", at_end ? kAtSweepEnd : "", one_decimal_or_whole(*run.max_distance_m * 100));
+  return fmt::format("{}{} cm{}", at_end ? kAtSweepEnd : "", one_decimal_or_whole(*run.max_distance_m * 100),
+                     uncertain_mark(run.max_distance_call));
 }
 
 // One side's maximum angle; `sign` +1 or -1.
@@ -304,14 +391,20 @@ std::string side_text(const RunSummary& run, const MaxAngle& entry, double wides
     if ((p.angle_deg > 0) == (sign > 0)) widest_swept = std::max(widest_swept, std::abs(p.angle_deg));
   }
   const bool at_end = widest >= widest_swept - kSameAngleDeg;
-  return fmt::format("{}{}°", at_end ? kAtSweepEnd : "", one_decimal_or_whole(widest));
+  return fmt::format("{}{}°{}", at_end ? kAtSweepEnd : "", one_decimal_or_whole(widest),
+                     uncertain_mark(sign > 0 ? entry.positive_call : entry.negative_call));
 }
 
-std::string max_angle_cell(const RunSummary& run, double distance_m, std::string_view not_swept) {
+const MaxAngle* max_angle_at(const RunSummary& run, double distance_m) {
   const auto entry = std::find_if(run.max_angle.begin(), run.max_angle.end(), [&](const MaxAngle& a) {
     return std::abs(a.distance_m - distance_m) <= kTableDistanceToleranceM;
   });
-  if (entry == run.max_angle.end()) return std::string(not_swept);
+  return entry == run.max_angle.end() ? nullptr : &*entry;
+}
+
+std::string max_angle_cell(const RunSummary& run, double distance_m, std::string_view not_swept) {
+  const MaxAngle* entry = max_angle_at(run, distance_m);
+  if (entry == nullptr) return std::string(not_swept);
   const auto& positive = entry->positive_deg;
   const auto& negative = entry->negative_deg;
   if (positive && negative) {
@@ -319,64 +412,168 @@ std::string max_angle_cell(const RunSummary& run, double distance_m, std::string
   }
   if (positive) return side_text(run, *entry, *positive, +1);
   if (negative) return "−" + side_text(run, *entry, *negative, -1);
-  return std::string(kNotReached);
+  const bool uncertain = entry->positive_call.uncertain() || entry->negative_call.uncertain();
+  return fmt::format("{}{}", kNotReached, uncertain ? kUncertain : "");
 }
 
-std::string optional_cell(const std::optional<double>& value, std::string_view unit) {
-  if (!value) return std::string(kNotSwept);
-  return fmt::format("{:.1f}{}", *value, unit);
+// A figure Table 6.1 quotes: a median with its 95% interval when it has one
+// (or a value without, the jitter).
+struct Figure {
+  double value = 0;
+  std::optional<double> low;
+  std::optional<double> high;
+};
+
+std::optional<Figure> figure_of(const std::optional<MedianEstimate>& m) {
+  if (!m) return std::nullopt;
+  return Figure{m->median, m->low, m->high};
 }
 
+// Decimals enough for two significant digits of small errors, one decimal
+// from 1 up: a simulated rig's 0.04 % does not round to 0.0.
+int decimals_for(double value) {
+  const double magnitude = std::abs(value);
+  return magnitude >= 1 ? 1 : magnitude >= 0.1 ? 2 : 3;
+}
+
+std::string figure_text(const Figure& f, double scale, std::string_view unit) {
+  const int decimals = decimals_for(f.value * scale);
+  std::string text = fmt::format("{:.{}f}{}", f.value * scale, decimals, unit);
+  if (f.low && f.high) text += fmt::format(" [{:.{}f}, {:.{}f}]", *f.low * scale, decimals, *f.high * scale, decimals);
+  return text;
+}
+
+std::string percent_text(const Figure& f) { return figure_text(f, 1, " %"); }
+std::string degrees_text(const Figure& f) { return figure_text(f, 1, "°"); }
 // In cm as the thesis measures; below a centimetre in mm, where one decimal
 // of a centimetre would round a simulated rig's errors to nothing.
-std::string translation_error_cell(const std::optional<double>& value_mm) {
-  if (!value_mm) return std::string(kNotSwept);
-  return *value_mm < 10 ? fmt::format("{:.1f} mm", *value_mm) : fmt::format("{:.1f} cm", *value_mm / 10);
+std::string millimetres_text(const Figure& f) {
+  return f.value < 10 ? figure_text(f, 1, " mm") : figure_text(f, 0.1, " cm");
+}
+
+// How one row of Table 6.1 takes its figure from the facing points at one
+// distance (several when runs or grids share it).
+using FigureOf = std::optional<Figure> (*)(const std::vector<const PointSummary*>&);
+
+std::vector<double> pooled(const std::vector<const PointSummary*>& points, std::vector<double> PointSummary::*values) {
+  std::vector<double> all;
+  for (const auto* p : points) all.insert(all.end(), (p->*values).begin(), (p->*values).end());
+  return all;
+}
+
+std::optional<Figure> distance_error_of(const std::vector<const PointSummary*>& points) {
+  return figure_of(median_estimate(pooled(points, &PointSummary::abs_distance_errors_pct)));
+}
+std::optional<Figure> translation_error_of(const std::vector<const PointSummary*>& points) {
+  return figure_of(median_estimate(pooled(points, &PointSummary::translation_errors_mm)));
+}
+std::optional<Figure> rotation_error_of(const std::vector<const PointSummary*>& points) {
+  return figure_of(median_estimate(pooled(points, &PointSummary::rotation_errors_deg)));
+}
+// The standard deviation of the estimated distance over a point's frames,
+// in mm; of several points, pooled (the root of their mean variance,
+// weighted by their degrees of freedom).
+std::optional<Figure> distance_jitter_of(const std::vector<const PointSummary*>& points) {
+  double squares = 0;
+  double freedom = 0;
+  for (const auto* p : points) {
+    const Spread& s = p->distance_m_estimated;
+    if (s.n < 2) continue;
+    squares += s.stddev * s.stddev * static_cast<double>(s.n - 1);
+    freedom += static_cast<double>(s.n - 1);
+  }
+  if (freedom == 0) return std::nullopt;
+  return Figure{1000 * std::sqrt(squares / freedom), std::nullopt, std::nullopt};
+}
+
+// The facing points grouped by distance, nearest first.
+std::vector<Group> facing_groups(const RunSummary& run) {
+  return group_sorted(
+      facing_by_distance(run), [](const PointSummary* p) { return p->distance_m; }, kSameDistanceM);
+}
+
+// One figure at distance `d`: from the facing points there (within 1 cm);
+// else interpolated linearly between the nearest measured below and above
+// (the interval's ends too, when both have one); else from the nearest
+// within 5 cm. Said which in `how`.
+std::optional<std::pair<Figure, std::string>> figure_at(const std::vector<Group>& groups, double d,
+                                                        FigureOf figure_of_points) {
+  constexpr double kNearestWithinM = 0.05;
+  Group at_d;
+  for (const auto& group : groups) {
+    if (std::abs(group.front()->distance_m - d) <= kTableDistanceToleranceM) {
+      at_d.insert(at_d.end(), group.begin(), group.end());
+    }
+  }
+  if (const auto figure = figure_of_points(at_d)) return std::pair{*figure, std::string()};
+  std::optional<std::pair<double, Figure>> below;
+  std::optional<std::pair<double, Figure>> above;
+  for (const auto& group : groups) {
+    const double at = group.front()->distance_m;
+    const auto figure = figure_of_points(group);
+    if (!figure || std::abs(at - d) <= kTableDistanceToleranceM) continue;
+    if (at < d) below = std::pair{at, *figure};
+    if (at > d && !above) above = std::pair{at, *figure};
+  }
+  const auto cm = [](double m) { return one_decimal_or_whole(m * 100); };
+  if (below && above) {
+    const double t = (d - below->first) / (above->first - below->first);
+    const auto lerp = [t](double a, double b) { return a + t * (b - a); };
+    const Figure& a = below->second;
+    const Figure& b = above->second;
+    Figure f{lerp(a.value, b.value), std::nullopt, std::nullopt};
+    if (a.low && b.low && a.high && b.high) {
+      f.low = lerp(*a.low, *b.low);
+      f.high = lerp(*a.high, *b.high);
+    }
+    return std::pair{f, fmt::format("interpolated from {} and {} cm", cm(below->first), cm(above->first))};
+  }
+  for (const auto& side : {below, above}) {
+    if (side && std::abs(side->first - d) <= kNearestWithinM + 1e-9) {
+      return std::pair{side->second, fmt::format("measured at {} cm, the nearest", cm(side->first))};
+    }
+  }
+  return std::nullopt;
 }
 
 // A pose error per distance, not pooled: pooled over a sweep, the near
 // points' small errors hide the far ones' (a run's 0.1 % over all can be
-// 2 % at its reach). The median of the facing points' medians at each of
-// `distances` and at the run's maximum distance, then over all the run's
-// frames; the pooled figure alone when no facing point lies at any of them.
+// 4 % at its reach). The median over the frames of the facing points at
+// each of `distances` and at the run's maximum distance, with its 95%
+// interval; the pooled median over every frame only when no facing point
+// has one near any of them.
 std::string error_by_distance_cell(const RunSummary& run, const std::vector<double>& distances,
-                                   std::optional<double> PointSummary::*field, const std::optional<double>& pooled,
-                                   std::string (*text)(const std::optional<double>&)) {
+                                   FigureOf figure_of_points, const std::optional<double>& pooled_median,
+                                   std::string (*text)(const Figure&)) {
   std::vector<double> where = distances;
   if (run.max_distance_m) where.push_back(*run.max_distance_m);
   std::sort(where.begin(), where.end());
+  const auto groups = facing_groups(run);
   std::string cell;
   double last = -1;
   for (const double d : where) {
     if (std::abs(d - last) <= kTableDistanceToleranceM) continue;
     last = d;
-    std::vector<double> medians;
-    for (const auto& p : run.points) {
-      if (is_facing(p) && std::abs(p.distance_m - d) <= kTableDistanceToleranceM && (p.*field)) {
-        medians.push_back(*(p.*field));
-      }
-    }
-    if (medians.empty()) continue;
+    const auto figure = figure_at(groups, d, figure_of_points);
+    if (!figure) continue;
     const bool reach = run.max_distance_m && std::abs(d - *run.max_distance_m) <= kTableDistanceToleranceM;
-    cell += fmt::format("{}{} at {} cm{}", cell.empty() ? "" : ", ", text(median_of(medians)),
-                        one_decimal_or_whole(d * 100), reach ? " (farthest)" : "");
+    std::string notes = figure->second;
+    if (reach) notes = notes.empty() ? "farthest" : "farthest, " + notes;
+    cell += fmt::format("{}{} at {} cm{}", cell.empty() ? "" : "; ", text(figure->first), one_decimal_or_whole(d * 100),
+                        notes.empty() ? "" : " (" + notes + ")");
   }
-  if (cell.empty()) return text(pooled);
-  return fmt::format("{}; {} over all", cell, text(pooled));
+  if (!cell.empty()) return cell;
+  if (!pooled_median) return std::string(kNotSwept);
+  return fmt::format("{} over all frames", text(Figure{*pooled_median, std::nullopt, std::nullopt}));
 }
 
-std::string distance_error_text(const std::optional<double>& pct) { return optional_cell(pct, " %"); }
-std::string rotation_error_text(const std::optional<double>& deg) { return optional_cell(deg, "°"); }
-
-// The three error rows of Table 6.1 for one run.
-std::array<std::string, 3> error_cells(const RunSummary& run, const std::vector<double>& distances) {
+// The four error rows of Table 6.1 for one run.
+std::array<std::string, 4> error_cells(const RunSummary& run, const std::vector<double>& distances) {
   return {
-      error_by_distance_cell(run, distances, &PointSummary::median_distance_error_pct, run.median_distance_error_pct,
-                             distance_error_text),
-      error_by_distance_cell(run, distances, &PointSummary::median_translation_error_mm,
-                             run.median_translation_error_mm, translation_error_cell),
-      error_by_distance_cell(run, distances, &PointSummary::median_rotation_error_deg, run.median_rotation_error_deg,
-                             rotation_error_text),
+      error_by_distance_cell(run, distances, distance_error_of, run.median_distance_error_pct, percent_text),
+      error_by_distance_cell(run, distances, translation_error_of, run.median_translation_error_mm, millimetres_text),
+      error_by_distance_cell(run, distances, rotation_error_of, run.median_rotation_error_deg, degrees_text),
+      error_by_distance_cell(run, distances, distance_jitter_of, std::nullopt, millimetres_text),
   };
 }
 
@@ -415,11 +612,17 @@ std::string runs_note(const std::vector<const RunSummary*>& runs, std::string_vi
   return fmt::format(
       "Runs: a point counts as detected when {} of its frames found the marker. The maximum distance is the "
       "farthest of an unbroken run of such facing points from the nearest outwards; the maximum angle likewise "
-      "from facing outwards, per side (+/− turntable direction). Median errors: at each distance named, over "
-      "the frames of the facing point there (of several runs' points there, the median of theirs; \"farthest\": "
-      "at the maximum distance), then over every frame with a pose in the runs; the distance error as |error| of "
-      "the true distance. {}; {}: the first point already failed; {}: the "
-      "sweep's last point was still detected, the limit lies beyond it.\n",
+      "from facing outwards, per side (+/− turntable direction); \"(uncertain)\": the 95% interval of a rate on "
+      "the way holds the threshold, and more frames would tell (the threshold calls below). Median errors, not "
+      "pooled over the sweep: at each distance named (\"farthest\": the maximum distance), the median over the "
+      "frames of the facing points there, with its 95% interval in brackets; where no facing point was measured, "
+      "interpolated between the nearest below and above, or the nearest within 5 cm, as said; over every frame "
+      "of the runs only when no facing point has a pose near any of them. The distance error is |error| of the "
+      "true distance. The frames at a point are of one scene that does not move: the interval says how well "
+      "they pin down that point's median, not a bias they all share. The jitter, the standard deviation of the "
+      "estimated distance over a point's frames, is how well a measurement repeats, not how accurate it is. "
+      "{}; {}: the first point already failed; {}: the sweep's last point was still detected, the limit lies "
+      "beyond it.\n",
       threshold, missing, kNotReached, kAtSweepEnd);
 }
 
@@ -524,7 +727,7 @@ void add_points(const RunRecords& records, std::vector<PointSummary>& points, Fr
 
 // The figures over all the points: the maxima, the medians.
 void finish(RunSummary& summary, FrameErrors errors) {
-  summary.max_distance_m = max_distance(summary.points);
+  std::tie(summary.max_distance_m, summary.max_distance_call) = max_distance(summary.points);
   summary.max_angle = max_angles(summary.points);
   summary.median_translation_error_mm = median_of(std::move(errors.translation_mm));
   summary.median_distance_error_pct = median_of(std::move(errors.distance_pct));
@@ -543,6 +746,124 @@ void header_from(RunSummary& summary, const RunRecords& records) {
 }
 
 }  // namespace
+
+std::optional<MedianEstimate> median_estimate(std::vector<double> values) {
+  if (values.empty()) return std::nullopt;
+  std::sort(values.begin(), values.end());
+  MedianEstimate estimate;
+  estimate.n = values.size();
+  const std::size_t middle = values.size() / 2;
+  estimate.median = values.size() % 2 == 1 ? values[middle] : (values[middle - 1] + values[middle]) / 2;
+  const std::size_t rank = median_interval_rank(values.size());
+  if (rank > 0) {
+    estimate.low = values[rank - 1];
+    estimate.high = values[values.size() - rank];
+  }
+  return estimate;
+}
+
+const ThesisLimits* thesis_limits(Mounting mounting) {
+  // As thesis_column's words: 6.2.2's distances, 6.2.3's angles.
+  static const ThesisLimits paper{"paper marker", 1.20, {{0.50, 60}, {0.95, 45}}};
+  static const ThesisLimits socket{"socket marker", 0.81, {{0.50, 45}, {0.72, 30}}};
+  switch (mounting) {
+    case Mounting::paper: return &paper;
+    case Mounting::socket: return &socket;
+    case Mounting::light_switch:
+    case Mounting::cut_hole: return nullptr;
+  }
+  return nullptr;
+}
+
+std::string threshold_calls(const std::vector<const RunSummary*>& runs) {
+  std::vector<std::vector<std::string>> rows;
+  std::size_t uncertain = 0;
+  std::optional<std::int64_t> most_frames;
+  bool undecidable = false;
+  for (const RunSummary* run : runs) {
+    const auto add = [&](std::string limit, const std::optional<double>& found, const LimitCall& call,
+                         std::string (*where)(const PointSummary&), std::string (*value)(double)) {
+      std::vector<std::string> row = {table_cell(run->run_id), std::move(limit),
+                                      found ? value(*found) : std::string(kNotReached)};
+      if (!call.uncertain()) {
+        row.insert(row.end(), {"decided", std::string(kNotSwept), std::string(kNotSwept), std::string(kNotSwept)});
+        rows.push_back(std::move(row));
+        return;
+      }
+      ++uncertain;
+      row.emplace_back("uncertain");
+      row.push_back(fmt::format("{} to {}", call.surely ? value(*call.surely) : std::string(kNotReached),
+                                call.possibly ? value(*call.possibly) : std::string(kNotReached)));
+      constexpr std::size_t kMostListed = 4;
+      std::string doubt;
+      for (std::size_t i = 0; i < call.deciding.size() && i < kMostListed; ++i) {
+        const PointSummary& p = run->points[call.deciding[i]];
+        doubt += fmt::format("{}{}: {:.1f} % [{:.1f}, {:.1f}] of {}", doubt.empty() ? "" : "; ", where(p), 100 * p.rate,
+                             100 * p.rate_interval.low, 100 * p.rate_interval.high, p.frames);
+      }
+      if (call.deciding.size() > kMostListed) doubt += fmt::format("; {} more", call.deciding.size() - kMostListed);
+      row.push_back(std::move(doubt));
+      if (call.frames_to_decide) {
+        row.push_back(fmt::format("{}", *call.frames_to_decide));
+        most_frames = std::max(most_frames.value_or(0), *call.frames_to_decide);
+      } else {
+        row.emplace_back("none: a rate is on the threshold");
+        undecidable = true;
+      }
+      rows.push_back(std::move(row));
+    };
+    const auto cm = [](double m) { return one_decimal_or_whole(m * 100) + " cm"; };
+    const auto degrees = [](double deg) { return one_decimal_or_whole(deg) + "°"; };
+    const auto at_distance = [](const PointSummary& p) { return one_decimal_or_whole(p.distance_m * 100) + " cm"; };
+    const auto at_angle = [](const PointSummary& p) { return one_decimal_or_whole(p.angle_deg) + "°"; };
+    if (std::any_of(run->points.begin(), run->points.end(), [](const PointSummary& p) { return is_facing(p); })) {
+      add("Maximum detection distance", run->max_distance_m, run->max_distance_call, at_distance, cm);
+    }
+    for (const auto& entry : run->max_angle) {
+      for (const int sign : {+1, -1}) {
+        const bool swept = std::any_of(run->points.begin(), run->points.end(), [&](const PointSummary& p) {
+          return std::abs(p.distance_m - entry.distance_m) <= kSameDistanceM && !is_facing(p) &&
+                 (p.angle_deg > 0) == (sign > 0);
+        });
+        if (!swept) continue;
+        add(fmt::format("Maximum viewing angle at {} cm, {} side", one_decimal_or_whole(entry.distance_m * 100),
+                        sign > 0 ? "+" : "−"),
+            sign > 0 ? entry.positive_deg : entry.negative_deg, sign > 0 ? entry.positive_call : entry.negative_call,
+            at_angle, degrees);
+      }
+    }
+  }
+  if (rows.empty()) return "No limit to call: the runs have no facing point and no angle sweep.\n";
+  std::string text = markdown_table({"Run", "Limit", "Found", "Call", "The intervals allow",
+                                     "Points in doubt: rate [95% interval] of frames", "Frames a point needs"},
+                                    rows);
+  text += fmt::format(
+      "\nA point's rate has a 95% interval (Wilson). The point is surely detected when its whole interval is at "
+      "or above the threshold, surely not when its whole interval is below, and in doubt otherwise: 30 frames of "
+      "30 (interval [88.6, 100] %) cannot tell a rate of 100 % from one of 90 %. A limit is decided when walking "
+      "out over the points surely detected ends where walking over every point that may be does; otherwise it "
+      "is uncertain, somewhere in the range the intervals allow. Frames a point needs: the most any point in doubt "
+      "would need, its rate staying as measured, for its interval to leave the threshold out (n = z² t (1 − t) / "
+      "(p − t)²). {}\n",
+      uncertain == 0
+          ? std::string("Every limit here is decided.")
+          : fmt::format("{} of {} limits are uncertain{}.", uncertain, rows.size(),
+                        most_frames ? fmt::format("; points of {} frames would decide {}", *most_frames,
+                                                  undecidable ? "those whose rates are not on the threshold" : "them")
+                                    : std::string("; a rate on the threshold is not decided by more frames")));
+  return text;
+}
+
+std::vector<const PointSummary*> facing_by_distance(const RunSummary& run) { return facing_nearest_first(run.points); }
+
+std::string_view to_string(RateCall call) {
+  switch (call) {
+    case RateCall::above: return "above";
+    case RateCall::below: return "below";
+    case RateCall::uncertain: return "uncertain";
+  }
+  return "?";
+}
 
 RunSummary summarize(const RunRecords& records) {
   RunSummary summary;
@@ -595,29 +916,40 @@ RunSummary summarize_together(const std::vector<const RunRecords*>& runs) {
 
 // Columns: the point (grid name, index, planned distance and angle, the axes'
 // positions), its frames and detection rate, then means (and sample standard
-// deviations, "_sd") over the frames with a pose or a pose error, and the
-// medians the plots draw. Empty cells: nothing to average (a standard
-// deviation needs two values). Translation vectors keep 0.1 mm, as the
-// thesis's appendix C does.
+// deviations over the frames, "_sd": the jitter) over the frames with a pose
+// or a pose error, and the medians; then, added later and so at the end, the
+// rate's 95% interval and call, the frames that would decide it, and the
+// medians' 95% intervals. Empty cells: nothing to average (a standard
+// deviation needs two values, a median's interval six).
 std::string points_csv(const RunSummary& summary) {
   std::string csv =
       "grid,point,distance_m,angle_deg,rail,rail_steps,turntable,measurements,frames,detected,rate,reached,"
       "frames_corrupt,other_markers,tx_m,ty_m,tz_m,tx_sd_m,ty_sd_m,tz_sd_m,distance_estimated_m,"
       "distance_error_mm,distance_error_sd_mm,distance_error_pct,translation_error_mm,translation_error_sd_mm,"
       "rotation_error_deg,rotation_error_sd_deg,reprojection_error_px,median_translation_error_mm,"
-      "median_abs_distance_error_pct\n";
+      "median_abs_distance_error_pct,rate_low,rate_high,rate_call,frames_to_decide,distance_estimated_sd_mm,"
+      "median_translation_error_low_mm,median_translation_error_high_mm,median_abs_distance_error_low_pct,"
+      "median_abs_distance_error_high_pct,median_rotation_error_deg,median_rotation_error_low_deg,"
+      "median_rotation_error_high_deg\n";
+  const auto median = [](const std::optional<MedianEstimate>& m) { return m ? csv_number(m->median) : std::string(); };
+  const auto interval = [](const std::optional<MedianEstimate>& m) {
+    return m ? fmt::format("{},{}", csv_number(m->low), csv_number(m->high)) : std::string(",");
+  };
   for (const auto& p : summary.points) {
     csv += fmt::format(
-        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-        csv_field(p.grid_name), p.point, csv_number(p.distance_m, 3), csv_number(p.angle_deg, 2), csv_number(p.rail, 3),
-        csv_steps(p.rail_steps), csv_number(p.turntable, 3), p.measurements.size(), p.frames, p.detected,
-        csv_number(p.rate, 4), p.reached ? "true" : "false", p.frames_corrupt, p.other_markers,
-        csv_mean(p.tvec_m[0], 4), csv_mean(p.tvec_m[1], 4), csv_mean(p.tvec_m[2], 4), csv_stddev(p.tvec_m[0], 4),
-        csv_stddev(p.tvec_m[1], 4), csv_stddev(p.tvec_m[2], 4), csv_mean(p.distance_m_estimated, 4),
-        csv_mean(p.distance_error_mm, 2), csv_stddev(p.distance_error_mm, 2), csv_mean(p.distance_error_pct, 2),
-        csv_mean(p.translation_error_mm, 2), csv_stddev(p.translation_error_mm, 2), csv_mean(p.rotation_error_deg, 3),
-        csv_stddev(p.rotation_error_deg, 3), csv_mean(p.reprojection_error_px, 3),
-        csv_number(p.median_translation_error_mm, 2), csv_number(p.median_distance_error_pct, 2));
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},",
+        csv_field(p.grid_name), p.point, csv_number(p.distance_m), csv_number(p.angle_deg), csv_number(p.rail),
+        csv_steps(p.rail_steps), csv_number(p.turntable), p.measurements.size(), p.frames, p.detected,
+        csv_number(p.rate), p.reached ? "true" : "false", p.frames_corrupt, p.other_markers, csv_mean(p.tvec_m[0]),
+        csv_mean(p.tvec_m[1]), csv_mean(p.tvec_m[2]), csv_stddev(p.tvec_m[0]), csv_stddev(p.tvec_m[1]),
+        csv_stddev(p.tvec_m[2]), csv_mean(p.distance_m_estimated), csv_mean(p.distance_error_mm),
+        csv_stddev(p.distance_error_mm), csv_mean(p.distance_error_pct), csv_mean(p.translation_error_mm),
+        csv_stddev(p.translation_error_mm), csv_mean(p.rotation_error_deg), csv_stddev(p.rotation_error_deg),
+        csv_mean(p.reprojection_error_px), median(p.median_translation_error_mm), median(p.median_distance_error_pct));
+    csv += fmt::format("{},{},{},{},{},{},{},{}\n", csv_number(p.rate_interval.low), csv_number(p.rate_interval.high),
+                       to_string(p.call), p.frames_to_decide ? fmt::format("{}", *p.frames_to_decide) : std::string(),
+                       csv_stddev(p.distance_m_estimated, 1000), interval(p.median_translation_error_mm),
+                       interval(p.median_distance_error_pct), csv_median(p.median_rotation_error_deg));
   }
   return csv;
 }
@@ -632,11 +964,10 @@ std::string translation_csv(const RunSummary& summary) {
       std::string vector = ",,,";
       if (m.mean_tvec_m) {
         const auto& t = *m.mean_tvec_m;
-        vector = fmt::format("{:.4f},{:.4f},{:.4f},{:.4f}", t[0], t[1], t[2], norm(t));
+        vector = fmt::format("{},{},{},{}", csv_number(t[0]), csv_number(t[1]), csv_number(t[2]), csv_number(norm(t)));
       }
-      csv +=
-          fmt::format("{},{},{},{},{},{},{},{},{}\n", csv_field(p.grid_name), p.point, csv_number(p.distance_m, 3),
-                      csv_number(p.angle_deg, 2), m.repeat + 1, csv_steps(m.rail_steps), m.frames, m.detected, vector);
+      csv += fmt::format("{},{},{},{},{},{},{},{},{}\n", csv_field(p.grid_name), p.point, csv_number(p.distance_m),
+                         csv_number(p.angle_deg), m.repeat + 1, csv_steps(m.rail_steps), m.frames, m.detected, vector);
     }
   }
   return csv;
@@ -644,9 +975,13 @@ std::string translation_csv(const RunSummary& summary) {
 
 std::string table_6_1(const std::vector<RunSummary>& runs) {
   std::vector<std::vector<std::string>> rows = {
-      {"Maximum detection distance", "120 cm"},     {"Maximum viewing angle at 50 cm", "60°"},
-      {"Maximum viewing angle at 95 cm", "45°"},    {"Median distance error", "9.2 cm at 95 cm (~9.7%)"},
-      {"Median translation error", "not measured"}, {"Median rotation error", "not measured"},
+      {"Maximum detection distance", "120 cm"},
+      {"Maximum viewing angle at 50 cm", "60°"},
+      {"Maximum viewing angle at 95 cm", "45°"},
+      {"Median distance error", "9.2 cm at 95 cm (~9.7%)"},
+      {"Median translation error", "not measured"},
+      {"Median rotation error", "not measured"},
+      {"Distance jitter (SD over a point's frames)", "not measured"},
   };
   std::vector<std::string> header = {"", "Thesis: paper marker"};
   for (const auto& run : runs) {
@@ -691,6 +1026,7 @@ std::string table_6_1_by_marker(const std::vector<MarkerColumn>& markers) {
   rows.push_back({"Median distance error"});
   rows.push_back({"Median translation error"});
   rows.push_back({"Median rotation error"});
+  rows.push_back({"Distance jitter (SD over a point's frames)"});
 
   std::vector<std::string> header = {""};
   for (const auto& marker : markers) {
@@ -710,12 +1046,13 @@ std::string table_6_1_by_marker(const std::vector<MarkerColumn>& markers) {
     add(thesis != nullptr ? thesis->max_distance : kNotMeasured, max_distance_cell(run, kNotSweptWords));
     for (const double d : angle_distances) add(thesis_angle(thesis, d), max_angle_cell(run, d, kNotSweptWords));
     add(thesis != nullptr ? thesis->tvec_difference : kNotMeasured,
-        translation_error_cell(run.max_tvec_difference_m ? std::optional(*run.max_tvec_difference_m * 1000)
-                                                         : std::nullopt));
+        run.max_tvec_difference_m ? millimetres_text(Figure{*run.max_tvec_difference_m * 1000, {}, {}})
+                                  : std::string(kNotSwept));
     auto errors = error_cells(run, thesis != nullptr ? thesis->error_distances_m : kPaperErrorDistancesM);
     add(thesis != nullptr ? thesis->distance_error : kNotMeasured, std::move(errors[0]));
     add(kNotMeasured, std::move(errors[1]));
     add(kNotMeasured, std::move(errors[2]));
+    add(kNotMeasured, std::move(errors[3]));
   }
   std::string table = markdown_table(header, rows);
   table +=

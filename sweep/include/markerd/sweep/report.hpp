@@ -1,9 +1,12 @@
 #pragma once
 // The report of one run, or of several side by side: Markdown with the
-// thesis's Table 6.1, the per-point table, appendix C's translation vectors,
-// and plots drawn by gnuplot (detection rate and pose error against
-// distance, detection rate over distance x angle). Built from the records
-// alone, so `markerctl report RUN_DIR` can rebuild it at any time.
+// thesis's Table 6.1 and the threshold calls behind its limits, the
+// per-point table, appendix C's translation vectors, and plots drawn by
+// gnuplot as SVG and PDF (detection rate against distance, pose error
+// against distance and against angle, detection rate over distance x angle;
+// 95% intervals as error bars, the thesis's limits as reference lines).
+// Built from the records alone, so `markerctl report RUN_DIR` can rebuild it
+// at any time.
 
 #include <filesystem>
 #include <string>
@@ -24,7 +27,8 @@ struct ReportFiles {
   std::filesystem::path report;  // report.md
   std::vector<std::filesystem::path> csv;
   std::vector<std::filesystem::path> plots;
-  std::string table_6_1;  // Table 6.1 as report.md has it, with its notes
+  std::string table_6_1;        // Table 6.1 as report.md has it, with its notes
+  std::string threshold_calls;  // the calls behind its limits, as report.md has them (threshold_calls())
 };
 
 // One run: its report. Several: side by side (one column or curve per run),
