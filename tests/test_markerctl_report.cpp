@@ -23,17 +23,19 @@ using markerd::test_support::Outcome;
 using markerd::test_support::TempDir;
 using namespace markerd::sweep;
 
-// A one-grid plan: `distances` x `angles`, one measurement of 10 frames a
-// point; `mounting` empty: the plan does not say.
+// A one-grid plan: `distances` x `angles`, one measurement of 40 frames a
+// point (enough for a rate's 95% interval to tell 100 % from a 90 %
+// threshold); `mounting` empty: the plan does not say.
 std::string plan_text(const std::string& name, const std::string& mounting, const std::string& distances,
                       const std::string& angles) {
-  return "name = \"" + name + "\"\nframes_per_point = 10\nrepeats = 1\n\n[marker]\nfamily = \"frame8\"\nid = 165\n" +
+  return "name = \"" + name + "\"\nframes_per_point = 40\nrepeats = 1\n\n[marker]\nfamily = \"frame8\"\nid = 165\n" +
          "size_m = 0.08\n" + (mounting.empty() ? "" : "mounting = \"" + mounting + "\"\n") +
          "\n[[grid]]\nname = \"g\"\ndistance_m = " + distances + "\nangle_deg = " + angles + "\n";
 }
 
 // A finished run of `plan_source` in `directory`: at each of the plan's
-// points the marker is found in `detected(distance, angle)` frames of 10.
+// points the marker is found in `detected(distance, angle)` tenths of the
+// frames.
 // `marker`: the marker markerd's config described, as start.json keeps it.
 template <typename Detected>
 fs::path write_run(const fs::path& directory, const std::string& plan_source, Detected detected,
@@ -57,10 +59,10 @@ fs::path write_run(const fs::path& directory, const std::string& plan_source, De
     r.truth_distance_m = step.distance_m;
     r.truth_tvec_m = {0, 0, step.distance_m};
     const int found = detected(step.distance_m, step.angle_deg);
-    for (int i = 0; i < 10; ++i) {
+    for (int i = 0; i < 40; ++i) {
       FrameSample f;
       f.sequence = static_cast<std::uint64_t>(i);
-      f.detected = i < found;
+      f.detected = i < 4 * found;
       r.frames.push_back(f);
     }
     recorder.append_point(r);
@@ -130,6 +132,32 @@ TEST_F(MarkerctlReport, PaperAndSocketOptionsFillTheTwoColumns) {
   }
   const std::string md = markerd::test_support::read_file(fs::path(out()) / "report.md");
   EXPECT_NE(md.find(kDistanceRow), std::string::npos) << md;
+}
+
+// As the README's demo runs it: one run's directory, the report beside its
+// records, every file a paper needs, the table and its calls printed.
+TEST_F(MarkerctlReport, OneRunsReportHasEveryFileWithItsPlotsAsSvgAndPdf) {
+  if (!markerd::test_support::find_program("gnuplot")) {
+    GTEST_SKIP() << "gnuplot is not on PATH (tools/install-deps.sh installs gnuplot-nox)";
+  }
+  const Outcome r = markerctl({"report", paper_distance_.string()});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  const fs::path report = paper_distance_ / "report";
+  EXPECT_EQ(r.out.substr(0, r.out.find('\n')), (report / "report.md").string());
+  // 40 frames a point: decided, the maximum distance and the call on it.
+  EXPECT_NE(r.out.find("| Maximum detection distance | 120 cm | 120 cm |"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("\nThreshold calls:\n\n| Run | Limit | Found | Call |"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("| paper-distance | Maximum detection distance | 120 cm | decided |"), std::string::npos)
+      << r.out;
+  for (const char* file : {"report.md", "summary.csv", "translation.csv"}) {
+    EXPECT_TRUE(fs::is_regular_file(report / file)) << file;
+  }
+  for (const char* plot : {"rate-vs-distance", "pose-error-vs-distance", "pose-error-vs-angle", "rate-map"}) {
+    const std::string name = plot;
+    EXPECT_NE(markerd::test_support::read_file(report / (name + ".svg")).find("<svg"), std::string::npos) << name;
+    EXPECT_EQ(markerd::test_support::read_file(report / (name + ".pdf")).substr(0, 5), "%PDF-") << name;
+    EXPECT_TRUE(fs::is_regular_file(report / (name + ".gp"))) << name;
+  }
 }
 
 TEST_F(MarkerctlReport, RunsWhosePlansSayTheirMountingPairThemselves) {

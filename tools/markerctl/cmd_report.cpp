@@ -167,8 +167,9 @@ int run_report(const ReportCommandOptions& o) {
     throw runtime_error("report", e.what());
   }
 
-  // The path alone on the first line, for scripts; the table for people.
-  std::cout << files.report.string() << "\n\n" << files.table_6_1;
+  // The path alone on the first line, for scripts; the table and how sure
+  // its limits are for people.
+  std::cout << files.report.string() << "\n\n" << files.table_6_1 << "\nThreshold calls:\n\n" << files.threshold_calls;
   return 0;
 }
 
@@ -180,16 +181,17 @@ void add_report_command(CLI::App& parent, Commands& commands) {
       parent.add_subcommand("report", "The report of a sweep run (or several side by side) from its records");
   app->footer(
       "Reads each RUN_DIR's records (start.json, points.jsonl, events.jsonl, stop.json) and writes into OUT_DIR:\n"
-      "report.md (the run, the thesis's Table 6.1, every point, appendix C's translation vectors, the events),\n"
-      "summary.csv (one line per point), translation.csv (one line per measurement) and, unless --no-plots,\n"
-      "rate-vs-distance.svg, pose-error-vs-distance.svg and rate-map.svg, drawn by gnuplot (gnuplot-nox) from the\n"
-      ".gp and .dat files kept beside them. Several runs: one column or curve per run, and per-run CSVs\n"
+      "report.md (the run, the thesis's Table 6.1 and its threshold calls, every point, appendix C's translation\n"
+      "vectors, the events), summary.csv (one line per point), translation.csv (one line per measurement) and,\n"
+      "unless --no-plots, rate-vs-distance, pose-error-vs-distance, pose-error-vs-angle and rate-map, each as .svg\n"
+      "and .pdf, drawn by gnuplot (gnuplot-nox) from the .gp and .dat files kept beside them. Rates carry their\n"
+      "95% intervals, median errors theirs. Several runs: one column or curve per run, and per-run CSVs\n"
       "(summary-RUN_ID.csv, ...). A run still going (or cut off) reports what it has, as 'incomplete'.\n"
       "--paper RUN_DIR... --socket RUN_DIR...: the thesis's two markers compared, Table 6.1 with a column for each\n"
       "marker's runs together beside the thesis's; runs whose plans say [marker] mounting = \"paper\" or \"socket\",\n"
       "both among them, are compared so when given as RUN_DIR... too.\n"
-      "Prints the path of report.md, then Table 6.1. Exit status: 0 written, 1 a run that cannot be read or a\n"
-      "report that cannot be written (gnuplot missing or failing), 2 bad usage.");
+      "Prints the path of report.md, then Table 6.1 and its threshold calls. Exit status: 0 written, 1 a run that\n"
+      "cannot be read or a report that cannot be written (gnuplot missing or failing), 2 bad usage.");
   app->add_option("run", o->runs, "A sweep run's directory, as markerd wrote it")->type_name("RUN_DIR");
   app->add_option("--paper", o->paper,
                   "The paper marker's runs (its distance run, its angle runs): Table 6.1's paper column")
