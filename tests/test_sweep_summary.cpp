@@ -415,6 +415,18 @@ TEST(SweepSummary, ThresholdCallsSayWhichLimitsAreUncertainAndWhatWouldDecideThe
             std::string::npos)
       << table_6_1({f, m});
   EXPECT_NE(threshold_calls({&m}).find("Every limit here is decided."), std::string::npos);
+
+  // The points in doubt hardest first: on the threshold, then the most frames.
+  RunBuilder mixed("mixed");
+  mixed.add(0, 0, 0.5, 0, frames_with(30, 30));
+  mixed.add(0, 1, 0.6, 0, frames_with(30, 28));  // 93.3 %: 308 frames
+  mixed.add(0, 2, 0.7, 0, frames_with(30, 27));  // 90 %
+  mixed.add(0, 3, 0.8, 0, frames_with(30, 0));
+  const RunSummary x = summarize(mixed.records);
+  EXPECT_NE(threshold_calls({&x}).find("| 70 cm: 90.0 % [74.4, 96.5] of 30; 60 cm: 93.3 % [78.7, 98.2] of 30; 50 cm: "
+                                       "100.0 % [88.6, 100.0] of 30 | none: a rate is on the threshold |"),
+            std::string::npos)
+      << threshold_calls({&x});
 }
 
 // The median's interval from the order statistics: of 10 values the 2nd and

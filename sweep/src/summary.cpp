@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <numeric>
 #include <set>
@@ -794,10 +795,17 @@ std::string threshold_calls(const std::vector<const RunSummary*>& runs) {
       row.emplace_back("uncertain");
       row.push_back(fmt::format("{} to {}", call.surely ? value(*call.surely) : std::string(kNotReached),
                                 call.possibly ? value(*call.possibly) : std::string(kNotReached)));
+      // The hardest first: a rate on the threshold, then those needing the
+      // most frames, which are the ones nearest it.
+      std::vector<std::size_t> deciding = call.deciding;
+      std::stable_sort(deciding.begin(), deciding.end(), [&](std::size_t a, std::size_t b) {
+        constexpr std::int64_t kNever = std::numeric_limits<std::int64_t>::max();
+        return run->points[a].frames_to_decide.value_or(kNever) > run->points[b].frames_to_decide.value_or(kNever);
+      });
       constexpr std::size_t kMostListed = 4;
       std::string doubt;
-      for (std::size_t i = 0; i < call.deciding.size() && i < kMostListed; ++i) {
-        const PointSummary& p = run->points[call.deciding[i]];
+      for (std::size_t i = 0; i < deciding.size() && i < kMostListed; ++i) {
+        const PointSummary& p = run->points[deciding[i]];
         doubt += fmt::format("{}{}: {:.1f} % [{:.1f}, {:.1f}] of {}", doubt.empty() ? "" : "; ", where(p), 100 * p.rate,
                              100 * p.rate_interval.low, 100 * p.rate_interval.high, p.frames);
       }
