@@ -4,11 +4,9 @@
 
 #include <algorithm>
 #include <array>
-#include <cerrno>
+#include <chrono>
 #include <cmath>
-#include <cstring>
-#include <ctime>
-#include <fstream>
+#include <optional>
 #include <set>
 #include <stdexcept>
 #include <system_error>

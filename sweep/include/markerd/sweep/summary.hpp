@@ -193,8 +193,12 @@ struct RunSummary {
 [[nodiscard]] std::string translation_csv(const RunSummary& summary);
 
 // The thesis's Table 6.1 as Markdown: maximum detection distance, maximum
-// viewing angle at 50 cm and 95 cm, median pose errors; the thesis's paper
-// marker in the first column, each run in one more.
+// viewing angle at 50 cm and 95 cm (each "(uncertain)" when the rates'
+// intervals do not decide it), the median pose errors with their 95%
+// intervals and the distance's jitter at the thesis's 95 and 120 cm and at
+// the run's reach (interpolated, or the nearest, where no facing point was
+// measured, and saying so); the thesis's paper marker in the first column,
+// each run in one more.
 [[nodiscard]] std::string table_6_1(const std::vector<RunSummary>& runs);
 
 // The thesis's own limits for one of its markers (sections 6.2.2 and
@@ -223,8 +227,11 @@ struct MarkerColumn {
 // (paper, socket), the thesis's column for it and the runs' beside it. Rows:
 // the maximum detection distance, the maximum viewing angle at 50, 72 and
 // 95 cm and at any other distance a run swept in angle, the translation
-// vector spread, the median pose errors. A cell a marker's runs did not
-// measure says "not swept"; a number is never carried over from elsewhere.
+// vector spread, the median pose errors and the jitter at the thesis's
+// distances for that marker (95 and 120 cm on paper, 72 and 81 cm on the
+// socket) and at the runs' reach, as table_6_1 gives them. A cell a marker's
+// runs did not measure says "not swept"; a number is never carried over from
+// another distance farther than interpolation between two measured ones.
 [[nodiscard]] std::string table_6_1_by_marker(const std::vector<MarkerColumn>& markers);
 
 }  // namespace markerd::sweep
