@@ -1054,6 +1054,24 @@ TEST(SweepReport, ByMarkerHasTheTwoColumnTableAndEveryRun) {
   EXPECT_TRUE(fs::exists(dir.path() / "summary-socket-angle-95cm.csv"));
 }
 
+// The reference lines are the thesis's limits for the marker the run
+// measured: the socket marker's 81 cm, and 45° at 50 cm, not the paper's.
+TEST(SweepReport, ASocketRunIsDrawnAgainstTheThesisSocketMarker) {
+  if (!on_path("gnuplot")) GTEST_SKIP() << "gnuplot is not on PATH (tools/install-deps.sh installs gnuplot-nox)";
+  const auto socket = socket_runs();
+  const TempDir dir;
+  ReportOptions options;
+  options.output_directory = dir.path();
+  (void)write_report({socket[0], socket[1]}, options);
+  const std::string rate = test_support::read_file(dir.path() / "rate-vs-distance.gp");
+  EXPECT_NE(rate.find("'thesis, socket marker: 81 cm'"), std::string::npos) << rate;
+  EXPECT_EQ(rate.find("paper marker"), std::string::npos) << rate;
+  const std::string angles = test_support::read_file(dir.path() / "rate-map.gp");
+  EXPECT_NE(angles.find("'thesis, socket marker: 45° at 50 cm'"), std::string::npos) << angles;
+  EXPECT_EQ(angles.find("paper marker"), std::string::npos) << angles;
+  expect_a_pdf_with(dir.path() / "rate-vs-distance.pdf", "thesis, socket marker: 81 cm");
+}
+
 TEST(SweepReport, ByMarkerRefusesAMarkerWithoutRuns) {
   const TempDir dir;
   ReportOptions options;
