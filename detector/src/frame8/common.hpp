@@ -357,8 +357,10 @@ constexpr double kResolvedCells = 3.0;
 // typical blur, and the edges are measured a second time.
 constexpr double kThinLineCells = 8.0;
 
-// Below this many pixels per cell (the mean of both directions), a sampled
-// read must be confirmed by the ring model (confirm_by_model). Bench_accuracy
+// Below this many pixels per cell (the mean of both directions, or across
+// the narrow one where no short edges check the code:
+// Frame8Detector::confirming_cell_size), a sampled read must be confirmed
+// by the ring model (confirm_by_model). Bench_accuracy
 // with the print's 10 mm paper margin, 500 frames a point, 2.0 to 3.0 m
 // (1.4 to 2.1 px a cell): 14 wrong ids, none left with the check (and with
 // the corners' convexity), for 0 to 1.2 points of rate. None was seen

@@ -5,6 +5,7 @@
 #include "frame8/detector.hpp"
 
 #include <algorithm>
+#include <cmath>
 
 namespace markerd::detector::frame8 {
 
@@ -14,6 +15,25 @@ double Frame8Detector::edge_weight(const Homography& H, int edge) {
   const frame8::Cell a = frame8::data_cell(edge, 6), b = frame8::data_cell(edge, 1);
   const double pitch = distance(grid_point(H, a.col + 0.5, a.row + 0.5), grid_point(H, b.col + 0.5, b.row + 0.5)) / 5.0;
   return std::clamp((pitch - 0.7) / 1.3, 0.02, 1.0);
+}
+
+double Frame8Detector::confirming_cell_size(const Homography& H, CellSize size) {
+  double best = 0;
+  for (int edge = 0; edge < 4; ++edge) {
+    const frame8::Cell a = frame8::data_cell(edge, 6), b = frame8::data_cell(edge, 1);
+    const Point2 ga{a.col + 0.5, a.row + 0.5}, gb{b.col + 0.5, b.row + 0.5};
+    const Point2 along_grid = (1.0 / 5.0) * (gb - ga);
+    const Point2 mid = 0.5 * (ga + gb);
+    const Point2 across_grid{-along_grid.y, along_grid.x};
+    const Point2 along = grid_point(H, mid + along_grid) - grid_point(H, mid);
+    const Point2 across = grid_point(H, mid + across_grid) - grid_point(H, mid);
+    const double across_len = std::hypot(across.x, across.y);
+    if (across_len <= 0) continue;
+    // The distance between the lines that part a cell from its neighbours
+    // along the edge: the along step's part square to the across one.
+    best = std::max(best, std::abs(along.x * across.y - along.y * across.x) / across_len);
+  }
+  return std::min(size.mean, best);
 }
 
 // The edges' weights in the votes. The two short edges of a marker turned

@@ -348,7 +348,7 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
       unconfirmed = Rejection::second_pass_disagrees;  // two measurements, two ids: neither is trusted
     } else if (second_read != Rejection::none && det.bits_corrected >= kUnconfirmedCorrections) {
       unconfirmed = Rejection::unconfirmed_correction;
-    } else if (second_read != Rejection::none && cell_size.mean < kConfirmedCells) {
+    } else if (second_read != Rejection::none && confirming_cell_size(H, cell_size) < kConfirmedCells) {
       unconfirmed = Rejection::unconfirmed_small_cells;
     } else if (second_read != Rejection::none && hole_as_dark_as_ink(H, cell_size)) {
       // A hole as dark as the ink (a cut-out hole over a dark ground) has
@@ -390,8 +390,8 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // A near-uniform ring under 3 px a cell is also what a grid's squares
   // show, and a measurement twice alike (a light tile in light grout, read
   // as 129 at 2.8 px): the model must read it too, with its line ink.
-  const bool model_checked =
-      cell_size.mean < kModelCheckedCells || (near_uniform(det.id) && cell_size.narrow < kResolvedCells);
+  const bool model_checked = confirming_cell_size(H, cell_size) < kModelCheckedCells ||
+                             (near_uniform(det.id) && cell_size.narrow < kResolvedCells);
   if (model_checked && !by_model) {
     // The model aligns its own map; started from the pattern's (where the
     // quad's outer corners are up to a pixel off, the pattern's are a
