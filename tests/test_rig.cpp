@@ -8,6 +8,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <numbers>
 #include <string>
 #include <thread>
 #include <vector>
@@ -96,6 +97,31 @@ TEST(Geometry, MarkerOffsetsTurnWithTheMarkerAndTheRailSignFlipsTheRail) {
   t = ground_truth(g, 250, 0);
   EXPECT_NEAR(t.distance_m, 0.750, 1e-12);
   EXPECT_NEAR(t.translation.z(), 0.740, 1e-12);
+}
+
+TEST(Geometry, ATiltedRailMovesTheAxisAlongItsDirectionAndThePlanInvertsIt) {
+  RigGeometry g;
+  g.d0_mm = 400;
+  g.camera_offset_x_mm = 10;
+  g.rail_tilt_x_deg = 2;   // the axis drifts to the camera's right as the camera moves away
+  g.rail_tilt_y_deg = -1;  // and up
+  const MarkerGroundTruth at0 = ground_truth(g, 0, 0);
+  const MarkerGroundTruth at = ground_truth(g, 1000, 0);
+  const double a = 2 * std::numbers::pi / 180;
+  const double b = -1 * std::numbers::pi / 180;
+  const Eigen::Vector3d u(std::sin(a) * std::cos(b), std::sin(b), std::cos(a) * std::cos(b));
+  EXPECT_LT((at0.translation - Eigen::Vector3d(-0.010, 0, 0.400)).norm(), 1e-12);
+  EXPECT_LT((at.translation - at0.translation - 1.0 * u).norm(), 1e-12);
+  EXPECT_NEAR(at.distance_m, 0.4 + u.z(), 1e-12);
+  EXPECT_NEAR(axis_distance_mm(g, 1000), 1000 * at.distance_m, 1e-9);
+  EXPECT_NEAR(rail_for_distance_mm(g, 1000 * at.distance_m), 1000, 1e-9);
+  g.rail_sign = -1;
+  EXPECT_NEAR(rail_for_distance_mm(g, axis_distance_mm(g, -250)), -250, 1e-9);
+  // Without a tilt, exactly the rail's old arithmetic.
+  g = RigGeometry{};
+  g.d0_mm = 300.1;
+  EXPECT_EQ(ground_truth(g, 123.4, 5).distance_m, (300.1 + 123.4) / 1000.0);
+  EXPECT_EQ(rail_for_distance_mm(g, 1000), 1000 - 300.1);
 }
 
 TEST(SeqlockCell, ReadersNeverSeeATornSnapshot) {

@@ -212,6 +212,48 @@ TEST_F(RigConfigFile, ErrorsNameTheFileTheLineAndTheKey) {
   }
 }
 
+// A calibration file over [rig.geometry], and the simulated world's own
+// geometry beside it: each key missing from either is [rig.geometry]'s.
+TEST_F(RigConfigFile, ACalibrationFileAndTheSimulatedWorldsGeometry) {
+  std::ofstream(dir_ / "calibrated.toml") << "[rig.geometry]\nd0_mm = 311.5\nrail_tilt_x_deg = 0.4\n";
+  std::string text = kBase;
+  text.replace(text.find("d0_mm = 300.0"), 13,
+               "d0_mm = 300.0\nyaw0_deg = 1.0\nrail_tilt_y_deg = -0.5\ncalibration = \"calibrated.toml\"");
+  text.replace(text.find("time_scale = 10.0"), 17,
+               "time_scale = 10.0\n\n[rig.sim.geometry]\nd0_mm = 312.0\nmarker_offset_normal_mm = 5.0");
+  const RigConfig c = load(text);
+  EXPECT_EQ(c.geometry_calibration, dir_ / "calibrated.toml");
+  EXPECT_EQ(c.geometry.d0_mm, 311.5);
+  EXPECT_EQ(c.geometry.rail_tilt_x_deg, 0.4);
+  EXPECT_EQ(c.geometry.rail_tilt_y_deg, -0.5);  // the config's: the file does not say
+  EXPECT_EQ(c.geometry.yaw0_deg, 1.0);
+  EXPECT_EQ(c.configured_geometry.d0_mm, 300.0);
+  EXPECT_EQ(c.configured_geometry.rail_tilt_x_deg, 0.0);
+  ASSERT_TRUE(c.sim.geometry.has_value());
+  EXPECT_EQ(c.sim.geometry->d0_mm, 312.0);
+  EXPECT_EQ(c.sim.geometry->marker_offset_normal_mm, 5.0);
+  EXPECT_EQ(c.sim.geometry->yaw0_deg, 1.0);         // [rig.geometry]'s
+  EXPECT_EQ(c.sim.geometry->rail_tilt_x_deg, 0.0);  // not the calibration file's
+  EXPECT_EQ(c.sim.geometry->rail_tilt_y_deg, -0.5);
+
+  {
+    const auto [error, where] = error_with("d0_mm = 300.0", "calibration = \"missing.toml\"\nd0_mm = 300.0");
+    EXPECT_EQ(error, fmt::format("{}: rig.geometry.calibration: no such calibration file: {}", where,
+                                 (dir_ / "missing.toml").string()));
+  }
+  std::ofstream(dir_ / "calibrated.toml") << "[rig.geometry]\nd0_mm = 311.5\nrail_sign = -1\n";
+  {
+    const auto [error, where] = error_with("d0_mm = 300.0", "d0_mm = 300.0\ncalibration = \"calibrated.toml\"");
+    EXPECT_NE(error.find((dir_ / "calibrated.toml").string() + ":3: rig.geometry.rail_sign: unknown key"),
+              std::string::npos)
+        << error;
+  }
+  {
+    const auto [error, where] = error_with("d0_mm = 300.0", "rail_tilt_x_deg = 50\nd0_mm = 300.0");
+    EXPECT_EQ(error, where + ": rig.geometry.rail_tilt_x_deg: must be from -45 to 45 deg, got 50");
+  }
+}
+
 // Every number has a range it means something in; a value outside it is
 // refused where it stands instead of overflowing a conversion at run time
 // (a settle time of INT64_MAX ms was "settled" at once) or spinning the

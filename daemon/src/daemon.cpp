@@ -120,8 +120,11 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
         using T = std::decay_t<decltype(settings)>;
         if constexpr (std::is_same_v<T, SimCameraSettings>) {
           // Without a rig the simulated camera shows its fixed positions
-          // through the default geometry.
-          return std::make_unique<SimCamera>(settings, *camera.model, rig ? rig->geometry : rig::RigGeometry{});
+          // through the default geometry. With one, the simulated world is
+          // what the rig's config says before any calibration file, unless
+          // [rig.sim.geometry] makes it another.
+          return std::make_unique<SimCamera>(
+              settings, *camera.model, rig ? rig->sim.geometry.value_or(rig->configured_geometry) : rig::RigGeometry{});
         } else if constexpr (std::is_same_v<T, V4l2Settings>) {
           return make_v4l2_source(settings);
         } else if constexpr (std::is_same_v<T, LibcameraSettings>) {

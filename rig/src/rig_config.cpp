@@ -7,6 +7,8 @@
 #include <string_view>
 #include <utility>
 
+#include "markerd/base/read_file.hpp"
+
 namespace markerd::rig {
 
 namespace {
@@ -53,28 +55,84 @@ struct AxisRanges {
 
 constexpr Range kGeometryMm{-1e5, 1e5, "mm"};  // 100 m
 
-RigGeometry parse_geometry(const ConfigTable& t) {
+// Reads the calibrated keys present in `t` over `g`, leaving the others as
+// they are: [rig.geometry] over the defaults, a calibration file and
+// [rig.sim.geometry] over [rig.geometry].
+void read_calibrated_keys(const ConfigTable& t, RigGeometry& g) {
+  g.d0_mm = t.optional<double>("d0_mm", g.d0_mm, kGeometryMm);
+  g.yaw0_deg = t.optional<double>("yaw0_deg", g.yaw0_deg, {-360, 360, "deg"});
+  g.camera_offset_x_mm = t.optional<double>("camera_offset_x_mm", g.camera_offset_x_mm, kGeometryMm);
+  g.camera_offset_y_mm = t.optional<double>("camera_offset_y_mm", g.camera_offset_y_mm, kGeometryMm);
+  g.marker_offset_normal_mm = t.optional<double>("marker_offset_normal_mm", g.marker_offset_normal_mm, kGeometryMm);
+  g.marker_offset_lateral_mm = t.optional<double>("marker_offset_lateral_mm", g.marker_offset_lateral_mm, kGeometryMm);
+  // Beyond a few degrees a rail is not tilted but misassembled; 45 leaves
+  // room for any rig while keeping cos(tilt), which divides rail positions, far from 0.
+  g.rail_tilt_x_deg = t.optional<double>("rail_tilt_x_deg", g.rail_tilt_x_deg, {-45, 45, "deg"});
+  g.rail_tilt_y_deg = t.optional<double>("rail_tilt_y_deg", g.rail_tilt_y_deg, {-45, 45, "deg"});
+}
+
+int read_rail_sign(const ConfigTable& t, int fallback) {
+  const int sign = t.optional<int>("rail_sign", fallback);
+  if (sign != 1 && sign != -1) t.fail("rail_sign", fmt::format("must be 1 or -1, got {}", sign));
+  return sign;
+}
+
+// `calibration = "FILE"`: markerctl calibrate --rig's output, a [rig.geometry]
+// table of the measured keys, which override this table's.
+void apply_calibration_file(const ConfigTable& t, const std::filesystem::path& config_dir, RigConfig& config) {
+  const auto name = t.required<std::string>("calibration");
+  std::filesystem::path file(name);
+  if (file.is_relative() && !name.empty()) file = config_dir / file;
+  try {
+    (void)check_regular_file(file, ConfigTable::kMaxFileBytes, "the rig's calibration file");
+  } catch (const FileError& e) {
+    if (e.missing()) t.fail("calibration", fmt::format("no such calibration file: {}", file.string()));
+    t.fail("calibration", e.what());
+  }
+  const ConfigTable root = ConfigTable::load_file(file);
+  root.allow_only({"rig"});
+  const ConfigTable rig = root.table("rig");
+  rig.allow_only({"geometry"});
+  const ConfigTable geometry = rig.table("geometry");
+  // What a calibration measures: everything but rail_sign, which is how the
+  // rail is wired, not a length.
+  geometry.allow_only({"d0_mm", "yaw0_deg", "camera_offset_x_mm", "camera_offset_y_mm", "marker_offset_normal_mm",
+                       "marker_offset_lateral_mm", "rail_tilt_x_deg", "rail_tilt_y_deg"});
+  read_calibrated_keys(geometry, config.geometry);
+  config.geometry_calibration = file;
+}
+
+void parse_geometry(const ConfigTable& t, RigConfig& config) {
   t.allow_only({"d0_mm", "yaw0_deg", "rail_sign", "camera_offset_x_mm", "camera_offset_y_mm", "marker_offset_normal_mm",
-                "marker_offset_lateral_mm"});
-  RigGeometry g;
+                "marker_offset_lateral_mm", "rail_tilt_x_deg", "rail_tilt_y_deg", "calibration"});
+  RigGeometry& g = config.geometry;
   g.d0_mm = t.required<double>("d0_mm", kGeometryMm);
-  g.yaw0_deg = t.optional<double>("yaw0_deg", 0.0, {-360, 360, "deg"});
-  g.rail_sign = t.optional<int>("rail_sign", 1);
-  if (g.rail_sign != 1 && g.rail_sign != -1) t.fail("rail_sign", fmt::format("must be 1 or -1, got {}", g.rail_sign));
-  g.camera_offset_x_mm = t.optional<double>("camera_offset_x_mm", 0.0, kGeometryMm);
-  g.camera_offset_y_mm = t.optional<double>("camera_offset_y_mm", 0.0, kGeometryMm);
-  g.marker_offset_normal_mm = t.optional<double>("marker_offset_normal_mm", 0.0, kGeometryMm);
-  g.marker_offset_lateral_mm = t.optional<double>("marker_offset_lateral_mm", 0.0, kGeometryMm);
+  read_calibrated_keys(t, g);
+  g.rail_sign = read_rail_sign(t, 1);
+  config.configured_geometry = g;
+  if (t.contains("calibration")) apply_calibration_file(t, config.config_dir, config);
+}
+
+// [rig.sim.geometry]: the simulated world's own geometry, where it differs
+// from what [rig.geometry] states (a calibration's test); the keys it lacks
+// are [rig.geometry]'s own, before any calibration file.
+RigGeometry parse_sim_geometry(const ConfigTable& t, const RigGeometry& stated) {
+  t.allow_only({"d0_mm", "yaw0_deg", "rail_sign", "camera_offset_x_mm", "camera_offset_y_mm", "marker_offset_normal_mm",
+                "marker_offset_lateral_mm", "rail_tilt_x_deg", "rail_tilt_y_deg"});
+  RigGeometry g = stated;
+  read_calibrated_keys(t, g);
+  g.rail_sign = read_rail_sign(t, stated.rail_sign);
   return g;
 }
 
-SimSettings parse_sim(const ConfigTable& t) {
-  t.allow_only({"time_scale"});
+SimSettings parse_sim(const ConfigTable& t, const RigGeometry& stated) {
+  t.allow_only({"time_scale", "geometry"});
   SimSettings s;
   // Slower than real time would make the axes' timeouts (real time) fire on
   // moves that are merely slow; faster than SimClock::kMaxTimeScale and the
   // simulation can no longer tell its events apart.
   s.time_scale = t.optional<double>("time_scale", 1.0, {1, SimClock::kMaxTimeScale, "simulated seconds per second"});
+  if (auto geometry = t.maybe_table("geometry")) s.geometry = parse_sim_geometry(*geometry, stated);
   return s;
 }
 
@@ -305,8 +363,8 @@ RigConfig parse_rig_config(const ConfigTable& root) {
   config.config_dir = std::filesystem::path(root.source()).parent_path();
   const ConfigTable rig = root.table("rig");
   rig.allow_only({"geometry", "sim", "buses", "rail", "turntable"});
-  config.geometry = parse_geometry(rig.table("geometry"));
-  if (auto sim = rig.maybe_table("sim")) config.sim = parse_sim(*sim);
+  parse_geometry(rig.table("geometry"), config);
+  if (auto sim = rig.maybe_table("sim")) config.sim = parse_sim(*sim, config.configured_geometry);
   if (auto buses = rig.maybe_table("buses")) {
     for (const auto& [key, node] : buses->raw()) {
       const std::string name(key.str());
@@ -322,7 +380,7 @@ RigConfig parse_rig_config(const ConfigTable& root) {
   // The camera must stay in front of the marker's axis over the whole rail.
   const ConfigTable geometry = rig.table("geometry");
   for (double rail : {config.rail.axis.min_position, config.rail.axis.max_position}) {
-    const double d = config.geometry.d0_mm + config.geometry.rail_sign * rail;
+    const double d = axis_distance_mm(config.geometry, rail);
     if (!(d > 0)) {
       geometry.fail("d0_mm", fmt::format("puts the camera at d = {} mm from the turntable axis at rail position {} mm "
                                          "(must be > 0 over the rail's soft limits)",

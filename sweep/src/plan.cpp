@@ -458,11 +458,11 @@ std::vector<PlanStep> plan_steps(const SweepPlan& plan) {
 }
 
 AxisTargets axis_targets(const rig::RigGeometry& geometry, double distance_m, double angle_deg) {
-  // ground_truth: d = d0 + rail_sign * rail and yaw = turntable - yaw0. The
-  // mount offsets place the camera and the marker beside the turntable axis;
-  // they do not change d (along the optical axis, to the turntable axis) or
-  // the yaw, so the inverse is exact. rail_sign is +-1: its own inverse.
-  return {(distance_m * 1000.0 - geometry.d0_mm) * geometry.rail_sign, angle_deg + geometry.yaw0_deg};
+  // ground_truth: d = d0 + rail_sign * rail * cos(tilt) and yaw = turntable
+  // - yaw0. The mount offsets place the camera and the marker beside the
+  // turntable axis; they do not change d (along the optical axis, to the
+  // turntable axis) or the yaw, so the inverse is exact.
+  return {rig::rail_for_distance_mm(geometry, distance_m * 1000.0), angle_deg + geometry.yaw0_deg};
 }
 
 PlanCheck check_plan(const SweepPlan& plan, const rig::RigConfig& rig, double fps) {

@@ -38,20 +38,33 @@ nlohmann::json axis_record(const rig::AxisConfig& axis) {
           {"backend", backend_name(axis.drive)}};
 }
 
+namespace {
+
+nlohmann::json geometry_record(const rig::RigGeometry& g) {
+  return {{"d0_mm", g.d0_mm},
+          {"yaw0_deg", g.yaw0_deg},
+          {"rail_sign", g.rail_sign},
+          {"camera_offset_x_mm", g.camera_offset_x_mm},
+          {"camera_offset_y_mm", g.camera_offset_y_mm},
+          {"marker_offset_normal_mm", g.marker_offset_normal_mm},
+          {"marker_offset_lateral_mm", g.marker_offset_lateral_mm},
+          {"rail_tilt_x_deg", g.rail_tilt_x_deg},
+          {"rail_tilt_y_deg", g.rail_tilt_y_deg}};
+}
+
+}  // namespace
+
 nlohmann::json rig_record(const rig::RigConfig& config) {
-  const rig::RigGeometry& g = config.geometry;
-  return {{"source", config.source},
-          {"geometry",
-           {{"d0_mm", g.d0_mm},
-            {"yaw0_deg", g.yaw0_deg},
-            {"rail_sign", g.rail_sign},
-            {"camera_offset_x_mm", g.camera_offset_x_mm},
-            {"camera_offset_y_mm", g.camera_offset_y_mm},
-            {"marker_offset_normal_mm", g.marker_offset_normal_mm},
-            {"marker_offset_lateral_mm", g.marker_offset_lateral_mm}}},
-          {"sim_time_scale", config.sim.time_scale},
-          {"rail", axis_record(config.rail)},
-          {"turntable", axis_record(config.turntable)}};
+  nlohmann::json record{{"source", config.source},
+                        {"geometry", geometry_record(config.geometry)},
+                        {"sim_time_scale", config.sim.time_scale},
+                        {"rail", axis_record(config.rail)},
+                        {"turntable", axis_record(config.turntable)}};
+  // Where the geometry's measured values came from, and (a simulated rig
+  // whose world differs from its config) the truth a calibration is judged by.
+  if (!config.geometry_calibration.empty()) record["geometry_calibration"] = config.geometry_calibration.string();
+  if (config.sim.geometry) record["sim_geometry"] = geometry_record(*config.sim.geometry);
+  return record;
 }
 
 }  // namespace markerd::sweep

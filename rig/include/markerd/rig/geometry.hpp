@@ -6,9 +6,10 @@
 // down, z forward along the optical axis); the marker frame has X right, Y up
 // and Z out of the printed face towards the viewer. The rail moves the camera
 // along its optical axis; the turntable turns the marker about a vertical axis
-// (the marker's Y). With no mount offsets this is exactly the detector's
-// facing_pose(d, yaw): t = (0, 0, d), R = diag(1, -1, -1) * Ry(yaw), so a
-// positive yaw turns the marker's right edge away from the camera.
+// (the marker's Y). With no mount offsets and no rail tilt this is exactly
+// the detector's facing_pose(d, yaw): t = (0, 0, d), R = diag(1, -1, -1) *
+// Ry(yaw), so a positive yaw turns the marker's right edge away from the
+// camera.
 
 #include <Eigen/Core>
 
@@ -33,7 +34,21 @@ struct RigGeometry {
   // marker's right).
   double marker_offset_normal_mm = 0.0;
   double marker_offset_lateral_mm = 0.0;
+  // The rail's direction in the camera frame, which a camera clamped to its
+  // carriage at a slight angle does not share with the optical axis: as
+  // rail_sign * rail grows the turntable axis moves, in the camera frame,
+  // along (sin a cos b, sin b, cos a cos b) with a = rail_tilt_x_deg
+  // (towards the camera's x, right) and b = rail_tilt_y_deg (towards its y,
+  // down). Zero: along the optical axis.
+  double rail_tilt_x_deg = 0.0;
+  double rail_tilt_y_deg = 0.0;
 };
+
+// The distance along the optical axis from the camera centre to the
+// turntable axis at a rail position (mm), and the rail position at which it
+// is `distance_mm`: d = d0 + rail_sign * rail * cos a cos b.
+[[nodiscard]] double axis_distance_mm(const RigGeometry& geometry, double rail_mm);
+[[nodiscard]] double rail_for_distance_mm(const RigGeometry& geometry, double distance_mm);
 
 // The marker frame in the camera frame: x_camera = rotation * x_marker + translation.
 struct MarkerGroundTruth {

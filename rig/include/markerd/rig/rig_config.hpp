@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <variant>
 
@@ -25,6 +26,10 @@ namespace markerd::rig {
 struct SimSettings {
   // Simulated seconds per real second, for every simulated device of the rig.
   double time_scale = 1.0;
+  // [rig.sim.geometry]: where the simulated camera and marker really stand,
+  // when that is not what [rig.geometry] says (a test of a calibration).
+  // Unset: the simulated world is the stated geometry.
+  std::optional<RigGeometry> geometry;
 };
 
 // [rig.<axis>.modbus] with its register map, read when the config is loaded
@@ -45,7 +50,11 @@ struct AxisConfig {
 struct RigConfig {
   std::string source;                // the file it was read from ("<string>" for parsed text)
   std::filesystem::path config_dir;  // relative paths in the config are relative to it
+  // The geometry the ground truth is computed with: [rig.geometry], with a
+  // calibration file's measured keys over it.
   RigGeometry geometry;
+  RigGeometry configured_geometry;             // [rig.geometry]'s own keys
+  std::filesystem::path geometry_calibration;  // the calibration file applied; empty: none
   SimSettings sim;
   // Every [rig.buses.<name>] (each used by at least one axis), by name.
   std::map<std::string, ModbusBusSettings> buses;

@@ -83,7 +83,9 @@ SimCameraSettings parse_sim_camera_settings(const ConfigTable& table);
 class SimCamera final : public CaptureSource {
  public:
   // `camera` fixes the image size and the lens. `geometry` turns rig
-  // positions into the marker's pose, as Rig::ground_truth does. The rig
+  // positions into the marker's pose, as Rig::ground_truth does: the
+  // simulated world's, which [rig.sim.geometry] may set apart from the
+  // geometry markerd's ground truth states (docs/rig.md). The rig
   // positions come with each frame: the capture loop stamps frame.rig before
   // fill(); a frame without a snapshot shows the settings' fixed positions.
   SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry);
