@@ -132,6 +132,31 @@ std::array<double, 3> vec3(const nlohmann::json& json, const char* key) {
 
 nlohmann::json json_vec3(const std::array<double, 3>& v) { return nlohmann::json::array({v[0], v[1], v[2]}); }
 
+// Corners to a ten-thousandth of a pixel, far below what a detector
+// resolves: a frame's line stays short.
+nlohmann::json json_corners(const ImageCorners& corners) {
+  nlohmann::json a = nlohmann::json::array();
+  for (const auto& c : corners) a.push_back({std::round(c[0] * 1e4) / 1e4, std::round(c[1] * 1e4) / 1e4});
+  return a;
+}
+
+std::optional<ImageCorners> corners(const nlohmann::json& json, const char* key) {
+  const nlohmann::json* a = find_field(json, key);
+  if (a == nullptr) return std::nullopt;
+  ImageCorners c{};
+  if (!a->is_array() || a->size() != 4) {
+    throw std::runtime_error(fmt::format("\"{}\" is not four corners [x, y]", key));
+  }
+  for (std::size_t i = 0; i < 4; ++i) {
+    const nlohmann::json& corner = (*a)[i];
+    if (!corner.is_array() || corner.size() != 2 || !corner[0].is_number() || !corner[1].is_number()) {
+      throw std::runtime_error(fmt::format("\"{}\" is not four corners [x, y]", key));
+    }
+    c[i] = {corner[0].get<double>(), corner[1].get<double>()};
+  }
+  return c;
+}
+
 void sync_directory(const fs::path& directory) {
   const UniqueFd fd(::open(directory.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
   if (!fd) fail(directory, "open the directory to sync it", errno);
@@ -258,6 +283,8 @@ nlohmann::json to_json(const PointRecord& r) {
       frame["rvec"] = json_vec3(f.rvec);
       frame["reprojection_px"] = f.reprojection_error_px;
     }
+    if (f.corners_px) frame["corners_px"] = json_corners(*f.corners_px);
+    if (f.inner_corners_px) frame["inner_corners_px"] = json_corners(*f.inner_corners_px);
     if (f.has_error) {
       frame["error"] = {{"translation_mm", f.translation_error_mm},
                         {"distance_mm", f.distance_error_mm},
@@ -315,6 +342,8 @@ PointRecord point_from_json(const nlohmann::json& j) {
       s.rvec = vec3(f, "rvec");
       s.reprojection_error_px = number(f, "reprojection_px");
     }
+    s.corners_px = corners(f, "corners_px");
+    s.inner_corners_px = corners(f, "inner_corners_px");
     if (const auto e = f.find("error"); e != f.end()) {
       s.has_error = true;
       s.translation_error_mm = number(*e, "translation_mm");

@@ -44,6 +44,22 @@ double position_tolerance(const rig::AxisSettings& axis) {
   return std::abs(axis.units_per_step) * 1.01 + axis.retry_deadband;
 }
 
+// The corners of the detection make_frame_sample took for the plan's
+// marker (the first of its family and id), for the record.
+void keep_corners(FrameSample& sample, const FrameObservation& frame, const PlanMarker& marker) {
+  const auto to_record = [](const detector::Quad& quad) {
+    ImageCorners c{};
+    for (std::size_t i = 0; i < 4; ++i) c[i] = {quad[i].x, quad[i].y};
+    return c;
+  };
+  for (const detector::Detection& d : frame.detections) {
+    if (d.family != marker.family || d.id != marker.id) continue;
+    sample.corners_px = to_record(d.corners);
+    if (d.inner_corners) sample.inner_corners_px = to_record(*d.inner_corners);
+    return;
+  }
+}
+
 }  // namespace
 
 SweepRunner::SweepRunner(rig::Rig& rig, rig::RigConfig rig_config, SweepEnvironment& environment,
@@ -281,6 +297,7 @@ void SweepRunner::observe(const FrameObservation& frame) noexcept {
   }
   c.samples.push_back(
       make_frame_sample(frame, marker_, detector_marker_size_m_));  // within the capacity reserved for the step
+  if (c.samples.back().detected) keep_corners(c.samples.back(), frame, marker_);
   if (static_cast<int>(c.samples.size()) >= c.wanted) {
     c.active = false;
     collection_changed_.notify_all();

@@ -44,6 +44,10 @@ namespace markerd::sweep {
 inline constexpr int kRunRecordSchema = 2;
 inline constexpr int kOldestRunRecordSchema = 1;
 
+// A marker's four corners in the image, pixels, in the marker frame's order
+// (TL, TR, BR, BL: detector::Detection's).
+using ImageCorners = std::array<std::array<double, 2>, 4>;
+
 // One frame collected for a measurement, reduced to what the summaries need:
 // whether the marker under test was found, and its pose and errors if so.
 struct FrameSample {
@@ -58,6 +62,12 @@ struct FrameSample {
   double translation_error_mm = 0;  // |t - t_truth|
   double distance_error_mm = 0;     // |t| - |t_truth|, signed
   double rotation_error_deg = 0;    // angle of R_truth^T R
+  // Where the detector found the marker's corners: its outer square, and
+  // frame8's hole (the square it measures, hole_fraction of the side). What
+  // markerctl calibrate --rig fits the camera and the rig to. Absent when
+  // the marker was not found, and in records written before markerd kept them.
+  std::optional<ImageCorners> corners_px;
+  std::optional<ImageCorners> inner_corners_px;
 };
 
 // The point document: one measurement (a repeat at a point).
