@@ -16,7 +16,7 @@
 _markerctl_spec() {  # PATH -> "subcommands|options"
   local socket="--socket="
   case $1 in
-    "") echo "marker render detect evaluate rig cameras status detections call sweep report|-h --help --version" ;;
+    "") echo "marker render detect evaluate rig cameras status detections call sweep report calibrate|-h --help --version" ;;
     marker)
       echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone --json -o= --output= -h -h" \
         "--help"
@@ -52,6 +52,7 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     "sweep pause" | "sweep resume") echo "|$socket --json -h -h --help" ;;
     "sweep abort") echo "|--reason= $socket --json -h -h --help" ;;
     report) echo "|--paper= --socket= -o= --output= --no-plots -h -h --help" ;;
+    calibrate) echo "|--rig= --rig-out= --fix= --free= -o= --output= --json -h -h --help" ;;
   esac
 }
 
@@ -90,7 +91,13 @@ _markerctl_value() {  # PATH OPTION CURRENT
     --camera) _markerctl_files "$cur" "*.y*ml" ;;
     --config) _markerctl_files "$cur" "*.toml" ;;
     --debug) _markerctl_directories "$cur" ;;
-    --paper) _markerctl_directories "$cur" ;;
+    --paper | --rig) _markerctl_directories "$cur" ;;
+    --rig-out) _markerctl_files "$cur" "*.toml" ;;
+    --fix | --free)
+      _markerctl_words "$cur" fx fy cx cy k1 k2 p1 p2 k3 d0_mm yaw0_deg marker_offset_normal_mm \
+        marker_offset_lateral_mm camera_offset_x_mm camera_offset_y_mm rail_tilt_x_deg rail_tilt_y_deg intrinsics \
+        distortion geometry
+      ;;
     --socket)
       # report's --socket is the socket marker's runs; elsewhere markerd's socket.
       if [[ $path == report ]]; then _markerctl_directories "$cur"; else _markerctl_files "$cur"; fi

@@ -19,6 +19,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/core/utils/logger.hpp>
 
+#include "cmd_calibrate_rig.hpp"
 #include "cmd_daemon.hpp"
 #include "common.hpp"
 #include "did_you_mean.hpp"
@@ -85,6 +86,7 @@ int main(int argc, char** argv) {
       "  markerctl status                  (and detections, call, rig without --config: a running markerd)\n"
       "  markerctl sweep start --wait config/plans/thesis.toml\n"
       "  markerctl report /var/lib/markerd/runs/RUN\n"
+      "  markerctl calibrate --rig /var/lib/markerd/runs/RUN -o camera.yaml --rig-out rig-geometry.toml\n"
       "Run 'markerctl <command> --help' for a command's options. Exit status: 0 on success,\n"
       "1 when something failed while running, 2 for a mistake on the command line.");
 
@@ -102,12 +104,13 @@ int main(int argc, char** argv) {
   markerctl::add_daemon_commands(app, commands);
   markerctl::add_sweep_command(app, commands);
   markerctl::add_report_command(app, commands);
+  markerctl::add_calibrate_rig_command(app, commands);
 
   if (argc <= 1) {
     std::cerr << app.help();
     print_error("",
                 "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call, "
-                "sweep or report)");
+                "sweep, report or calibrate)");
     return markerctl::exit_usage;
   }
   try {
