@@ -19,6 +19,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <regex>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include <unistd.h>
@@ -300,6 +301,70 @@ TEST(RenderScene, EdgePixelIsTheAreaMix) {
   EXPECT_EQ(dim.at(99, y), 64);
   EXPECT_EQ(dim.at(101, y), 6);      // 6.375
   EXPECT_EQ(dim.at(130, 240), 112);  // hole: 0.5 * 224.4
+}
+
+// A PlanarPrint (any picture: a calibration board) in place of the marker:
+// its texels where the pose puts them, its top towards +Y, its greys
+// between ink and paper, nothing beyond its edge; a print is flat only.
+TEST(RenderScene, PlanarPrintLiesWhereItsTexelsSay) {
+  const CameraModel cam = pinhole_camera();
+  auto print = std::make_shared<PlanarPrint>();
+  // 200 x 100 mm in texels of 0.25 mm (bilinear reading spreads an edge
+  // over one, here a quarter pixel): the left half ink, the right half
+  // paper above and mid-grey below.
+  print->image = GreyImage(800, 400, 0);
+  for (int y = 0; y < 400; ++y) {
+    for (int x = 400; x < 800; ++x) print->image.at(x, y) = y < 200 ? 255 : 128;
+  }
+  print->texel_m = 0.00025;
+  Scene s;
+  s.print = print;
+  s.clutter = false;
+  s.distort = false;
+  s.supersample = 16;
+  // Face on at 0.5 m: 1 mm is a pixel, the picture's centre at (320, 240),
+  // moved 0.3 px right and down so that its edges fall inside pixels.
+  s.pose = facing_pose(0.5, 0, 0, 0, 0.0003, 0.0003);
+  const GreyImage img = render_scene(cam, s);
+  EXPECT_EQ(img.at(300, 220), kBlack);
+  EXPECT_EQ(img.at(340, 220), kWhite);  // the top half is up in the image
+  EXPECT_EQ(img.at(340, 260), static_cast<int>(std::lround((0.05 + 0.83 * 128 / 255.0) * 255)));
+  // Pixel 320 covers [319.5, 320.5]; the paper begins at 320.3.
+  EXPECT_EQ(img.at(320, 220), static_cast<int>(std::lround(0.8 * 12.75 + 0.2 * 224.4)));
+  // The picture spans 220.3 .. 420.3 across and 190.3 .. 290.3 down.
+  EXPECT_EQ(img.at(219, 240), 128);
+  // The picture's own edge is sharp: 3 of the 16 sample columns (not 3.2).
+  EXPECT_EQ(img.at(220, 240), static_cast<int>(std::lround(13.0 / 16 * 128 + 3.0 / 16 * 12.75)));
+  EXPECT_EQ(img.at(221, 240), kBlack);
+  EXPECT_EQ(img.at(421, 220), 128);
+  EXPECT_EQ(img.at(300, 189), 128);
+  EXPECT_EQ(img.at(300, 191), kBlack);
+  EXPECT_EQ(img.at(300, 289), kBlack);
+  EXPECT_EQ(img.at(300, 291), 128);
+
+  // Through a pose, a texel's centre lands on its projection.
+  s.pose = facing_pose(0.45, 30, -20, 10, 0.01, -0.02);
+  const GreyImage turned = render_scene(cam, s);
+  for (const auto& [x_m, y_m, grey] : {std::tuple{-0.05, 0.0, kBlack}, std::tuple{0.05, 0.025, kWhite},
+                                       std::tuple{-0.09, 0.04, kBlack}, std::tuple{0.09, 0.04, kWhite}}) {
+    const Eigen::Vector3d c = s.pose.rotation * Eigen::Vector3d(x_m, y_m, 0) + s.pose.translation;
+    const Point2 px{cam.fx * c.x() / c.z() + cam.cx, cam.fy * c.y() / c.z() + cam.cy};
+    EXPECT_EQ(pixel_at(turned, px), grey) << x_m << ", " << y_m;
+  }
+
+  Scene bad = s;
+  bad.frame = socket_frame();
+  EXPECT_THROW((void)render_scene(cam, bad), std::invalid_argument);
+  bad = s;
+  bad.occluders.push_back(side_occluder(MarkerSide::top, 0.08));
+  EXPECT_THROW((void)render_scene(cam, bad), std::invalid_argument);
+  auto flat = std::make_shared<PlanarPrint>(*print);
+  flat->texel_m = 0;
+  bad = s;
+  bad.print = flat;
+  EXPECT_THROW((void)render_scene(cam, bad), std::invalid_argument);
+  bad.print = std::make_shared<PlanarPrint>();
+  EXPECT_THROW((void)render_scene(cam, bad), std::invalid_argument);
 }
 
 // Off the optical axis the thesis's lens moves the marker by pixels: the

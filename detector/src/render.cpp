@@ -135,7 +135,55 @@ void check_inputs(const CameraModel& camera, const Scene& scene) {
   }
   check_id(scene.family, scene.id);
   surface::check_surface_inputs(scene);
+  if (scene.print) {
+    const PlanarPrint& p = *scene.print;
+    if (p.image.empty()) throw std::invalid_argument("render: print.image is empty");
+    if (!std::isfinite(p.texel_m) || !(p.texel_m > 0)) {
+      throw std::invalid_argument(fmt::format("render: print.texel_m must be more than zero, got {}", p.texel_m));
+    }
+    if (!surface::is_flat_print(scene) || scene.cut_hole || scene.insert != Insert::none) {
+      throw std::invalid_argument("render: a print is rendered flat: no frame, insert, cut hole, margin or occluders");
+    }
+  }
 }
+
+// A PlanarPrint's reflectance at (x, y) metres in the marker frame; none
+// outside it (and everywhere when there is no print).
+class PrintSampler {
+ public:
+  explicit PrintSampler(const PlanarPrint* print) : image_(print != nullptr ? &print->image : nullptr) {
+    if (print == nullptr) return;
+    per_m_ = 1.0 / print->texel_m;
+    width_ = print->image.width();
+    height_ = print->image.height();
+  }
+
+  [[nodiscard]] std::optional<float> operator()(double x, double y) const {
+    const double u = x * per_m_ + 0.5 * width_;   // texels from the left edge
+    const double v = 0.5 * height_ - y * per_m_;  // from the top edge
+    // Written so that NaN falls outside; without a print the extent is empty.
+    if (!(u >= 0 && u < width_ && v >= 0 && v < height_)) return std::nullopt;
+    // Bilinear between texel centres (at half-integers), the edge texels
+    // held to the picture's edge: an edge between ink and paper that cairo
+    // drew as one grey texel lies where that grey says, not on a texel's side.
+    const double fu = u - 0.5, fv = v - 0.5;
+    const double iu = std::floor(fu), iv = std::floor(fv);
+    const auto a = static_cast<float>(fu - iu), b = static_cast<float>(fv - iv);
+    const int i0 = std::clamp(static_cast<int>(iu), 0, width_ - 1), i1 = std::min(i0 + 1, width_ - 1);
+    const int j0 = std::clamp(static_cast<int>(iv), 0, height_ - 1), j1 = std::min(j0 + 1, height_ - 1);
+    const auto at = [this](int i, int j) { return static_cast<float>(image_->at(i, j)); };
+    const float top = at(i0, j0) + (at(i1, j0) - at(i0, j0)) * a;
+    const float bottom = at(i0, j1) + (at(i1, j1) - at(i0, j1)) * a;
+    const float grey = top + (bottom - top) * b;
+    return kInk + (kPaper - kInk) * (grey / 255.0F);
+  }
+
+ private:
+  const GreyImage* image_;
+  double per_m_ = 0;
+  int width_ = 0;
+  int height_ = 0;
+};
 
 // The camera's view of a marker-frame point (in metres) as a pixel; nullopt
 // behind the camera.
@@ -177,7 +225,9 @@ Point2 invert_distortion(const CameraModel& camera, Point2 d, Point2 start) {
 void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) {
   // On a frame the print's hole is always cut out: it is glued around the opening.
   const MarkerPattern pattern(scene.family, scene.id, scene.cut_hole || scene.frame.has_value());
-  const double s = scene.marker_size_m;
+  // A print's plane is carried in metres, the marker's in units of its size.
+  const PrintSampler picture(scene.print.get());
+  const double s = scene.print ? 1.0 : scene.marker_size_m;
   const Eigen::Matrix3d& r = scene.pose.rotation;
   const Eigen::Vector3d& t = scene.pose.translation;
   std::optional<surface::SurfaceModel> solid;
@@ -202,6 +252,10 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
   std::vector<std::vector<Eigen::Vector3d>> outlines;
   if (solid) {
     outlines = solid->outlines();
+  } else if (scene.print) {
+    const double ex = 0.5 * scene.print->image.width() * scene.print->texel_m;
+    const double ey = 0.5 * scene.print->image.height() * scene.print->texel_m;
+    outlines.push_back({{-ex, ey, 0}, {ex, ey, 0}, {ex, -ey, 0}, {-ex, -ey, 0}});
   } else {
     const double e = pattern.printed_half_extent() * s;
     outlines.push_back({{-e, e, 0}, {e, e, 0}, {e, -e, 0}, {-e, -e, 0}});
@@ -282,8 +336,9 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
   const double level = scene.exposure * 255.0;
 
   // The per-sample choice of path is made once, at compile time: the flat
-  // path's inner loop is exactly what it was before there were solids.
-  const auto draw_rows = [&]<bool kSolid>() {
+  // path's inner loop is exactly what it was before there were solids and
+  // prints.
+  const auto draw_rows = [&]<bool kSolid, bool kPicture>() {
     for (int y = y0; y <= y1; ++y) {
       lattice_row(y + 0.5, lower);
       auto* row = image.ptr<float>(y);
@@ -310,7 +365,11 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
             } else {
               // w <= 0: the ray meets the plane behind the camera, or never.
               std::optional<float> rf;
-              if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
+              if constexpr (kPicture) {
+                if (m.z() > 0) rf = picture(m.x() / m.z(), m.y() / m.z());
+              } else {
+                if (m.z() > 0) rf = pattern.reflectance(m.x() / m.z(), m.y() / m.z());
+              }
               if (rf) {
                 reflect += front ? *rf : kPaper;
               } else {
@@ -325,9 +384,11 @@ void draw_marker(cv::Mat& image, const CameraModel& camera, const Scene& scene) 
     }
   };
   if (solid) {
-    draw_rows.operator()<true>();
+    draw_rows.operator()<true, false>();
+  } else if (scene.print) {
+    draw_rows.operator()<false, true>();
   } else {
-    draw_rows.operator()<false>();
+    draw_rows.operator()<false, false>();
   }
 }
 

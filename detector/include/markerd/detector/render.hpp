@@ -7,6 +7,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -122,6 +123,18 @@ struct Occluder {
 
 enum class MarkerSide { top, right, bottom, left };
 
+// A flat print of any picture in place of the marker: a calibration board
+// (board.hpp's board_page_image), or whatever a test needs in front of the
+// camera. Grey levels 0 (ink) to 255 (paper) map linearly onto the print's
+// ink and paper reflectances; texels are squares of texel_m a side, read
+// between their centres bilinearly. The picture is centred on the marker
+// frame's origin, its columns along +X and its top row towards +Y (as the
+// marker's); outside it nothing is printed.
+struct PlanarPrint {
+  GreyImage image;
+  double texel_m = 0;
+};
+
 // An occluder covering one whole side of the marker from well beyond its
 // outer edge to `depth_fraction` of the marker's size in from that edge
 // (0.2: the ring and the black line of that side, as in issue 18).
@@ -134,6 +147,10 @@ struct Scene {
   double marker_size_m = 0.08;
   bool cut_hole = false;
   MarkerPose pose;  // marker frame in the camera frame
+  // When set, this picture is printed instead of the marker (family, id,
+  // marker_size_m and cut_hole then go unused); a flat print only, with no
+  // frame, insert, paper margin or occluders.
+  std::shared_ptr<const PlanarPrint> print;
 
   // Imaging: grey levels of ink and paper under the exposure.
   double exposure = 1.0;  // scales the whole image (1 = paper at ~225)
