@@ -2,8 +2,9 @@
 // as a markerd config's camera.model names them. CameraModel reads only
 // from a path, so each input is written to a file in memory (/dev/shm)
 // first. CameraModelError is the one error it may raise. A model it
-// accepts must survive save and load unchanged, and its distortion
-// functions must run on it.
+// accepts must survive save and load unchanged, in OpenCV's format and in
+// ROS's camera_info (unless it has thin-prism terms, which that refuses),
+// and its distortion functions must run on it.
 
 #include <algorithm>
 #include <cmath>
@@ -40,6 +41,18 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   model.save(saved);
   const markerd::detector::CameraModel again = markerd::detector::CameraModel::load(saved);
   if (!same(model, again)) markerd::fuzz::finding("a camera model changes when saved and loaded again");
+  // ROS's camera_info too, where the lens has one (no thin-prism terms).
+  static const std::filesystem::path ros = markerd::fuzz::scratch_dir() / "camera-ros.yaml";
+  const bool prism = std::any_of(model.dist.begin() + 8, model.dist.end(), [](double v) { return v != 0.0; });
+  try {
+    model.save(ros, markerd::detector::CameraFileFormat::ros);
+    if (prism) markerd::fuzz::finding("a lens with thin-prism terms is written as ROS's camera_info");
+    if (!same(model, markerd::detector::CameraModel::load(ros))) {
+      markerd::fuzz::finding("a camera model changes when saved as ROS's camera_info and loaded again");
+    }
+  } catch (const markerd::detector::CameraModelError& e) {
+    if (!prism) markerd::fuzz::finding(fmt::format("ROS's camera_info cannot be written: {}", e.what()));
+  }
 
   const markerd::detector::CameraModel half =
       model.scaled_to(std::max(1, model.width / 2), std::max(1, model.height / 2));

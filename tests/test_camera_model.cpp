@@ -367,6 +367,67 @@ TEST(CameraModel, SaveLoadRoundTrip) {
   }
 }
 
+// ROS's camera_info as save() writes it: the keys and layout of ROS's
+// camera_calibration_parsers, numbers that YAML 1.1 readers (PyYAML) take
+// for floats, and the same doubles back through load() as OpenCV's file.
+TEST(CameraModel, SavesRosCameraInfo) {
+  const TempDir dir;
+  for (int n : {5, 8}) {
+    CameraModel c = with_coefficients(n);
+    c.fx = 1234.567890123456789;
+    c.cy = 987.6543210987654;
+    c.dist[1] = 1e-5;  // shortest as 1e-05: written 1.0e-05
+    const fs::path ros = dir.path() / ("ros-" + std::to_string(n) + ".yaml");
+    const fs::path opencv = dir.path() / ("opencv-" + std::to_string(n) + ".yaml");
+    c.save(ros, CameraFileFormat::ros, "rail_camera");
+    c.save(opencv);
+    const CameraModel from_ros = CameraModel::load(ros);
+    const CameraModel from_opencv = CameraModel::load(opencv);
+    for (const CameraModel* back : {&from_ros, &from_opencv}) {
+      EXPECT_EQ(back->width, c.width);
+      EXPECT_EQ(back->height, c.height);
+      EXPECT_EQ(back->fx, c.fx);
+      EXPECT_EQ(back->fy, c.fy);
+      EXPECT_EQ(back->cx, c.cx);
+      EXPECT_EQ(back->cy, c.cy);
+      EXPECT_EQ(back->dist, c.dist) << n << " coefficients";
+    }
+    const std::string text = test_support::read_file(ros);
+    EXPECT_EQ(
+        text.rfind("image_width: 640\nimage_height: 480\ncamera_name: rail_camera\ncamera_matrix:\n  rows: 3\n", 0), 0U)
+        << text;
+    EXPECT_NE(text.find(n == 5 ? "distortion_model: plumb_bob\n" : "distortion_model: rational_polynomial\n"),
+              std::string::npos)
+        << text;
+    EXPECT_NE(text.find("1.0e-05"), std::string::npos) << text;
+    EXPECT_NE(text.find("rectification_matrix:\n  rows: 3\n  cols: 3\n  data: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, "
+                        "0.0, 1.0]\n"),
+              std::string::npos)
+        << text;
+    EXPECT_NE(text.find("projection_matrix:\n  rows: 3\n  cols: 4\n  data: [1234.567890123457, 0.0, 319.0, 0.0, 0.0, "
+                        "515.0, 987.6543210987654, 0.0, 0.0, 0.0, 1.0, 0.0]\n"),
+              std::string::npos)
+        << text;
+    // No number without a decimal point, none with an unsigned exponent.
+    EXPECT_EQ(text.find(", 0,"), std::string::npos) << text;
+    EXPECT_EQ(text.find("e0"), std::string::npos) << text;
+  }
+  // Thin-prism terms have no place in camera_info; a camera name must stay
+  // a plain YAML word.
+  EXPECT_THROW(with_coefficients(12).save(dir.path() / "prism.yaml", CameraFileFormat::ros), CameraModelError);
+  for (const char* name : {"", "two words", "a: b", "#x", "-x", "q\"uote"}) {
+    EXPECT_FALSE(CameraModel::is_ros_camera_name(name)) << name;
+    EXPECT_THROW(CameraModel::thesis_640x480().save(dir.path() / "named.yaml", CameraFileFormat::ros, name),
+                 CameraModelError)
+        << name;
+  }
+  for (const char* name : {"camera", "head_camera", "rig/rail-cam.1", "_x"}) {
+    EXPECT_TRUE(CameraModel::is_ros_camera_name(name)) << name;
+  }
+  EXPECT_THROW(CameraModel::thesis_640x480().save(dir.path() / "no-such-dir" / "x.yaml", CameraFileFormat::ros),
+               CameraModelError);
+}
+
 TEST(CameraModel, DistortionAgreesWithProjectPoints) {
   for (int n : {5, 8, 12}) {
     const CameraModel c = n == 5 ? CameraModel::thesis_640x480() : with_coefficients(n);

@@ -6,14 +6,17 @@
 
 #include <fmt/format.h>
 #include <algorithm>
+#include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <fstream>
 #include <limits>
 #include <string_view>
 #include <tuple>
 #include <unordered_set>
 #include <vector>
 
+#include "markerd/base/errno_text.hpp"
 #include "markerd/base/read_file.hpp"
 
 namespace markerd::detector {
@@ -251,6 +254,53 @@ CameraModel parse(const YAML::Node& root, const std::filesystem::path& path) {
   return cam;
 }
 
+// A double as YAML 1.1 and 1.2 readers (yaml-cpp, PyYAML) both take it for
+// a float, to the last bit: the shortest form that reads back, with a
+// decimal point and a signed exponent (PyYAML reads 1e-05 as a string).
+std::string yaml_float(double v) {
+  std::string text = fmt::format("{}", v);
+  const std::size_t e = text.find('e');
+  std::string mantissa = text.substr(0, e);
+  std::string exponent = e == std::string::npos ? std::string() : text.substr(e + 1);
+  if (mantissa.find('.') == std::string::npos) mantissa += ".0";
+  if (!exponent.empty() && exponent[0] != '-' && exponent[0] != '+') exponent.insert(0, "+");
+  return exponent.empty() ? mantissa : mantissa + "e" + exponent;
+}
+
+std::string yaml_matrix(int rows, int cols, const std::vector<double>& data) {
+  std::string values;
+  for (const double v : data) values += fmt::format("{}{}", values.empty() ? "" : ", ", yaml_float(v));
+  return fmt::format("  rows: {}\n  cols: {}\n  data: [{}]\n", rows, cols, values);
+}
+
+// ROS's camera_info, laid out as its camera_calibration_parsers write it.
+void save_camera_info(const CameraModel& c, int coefficients, const std::filesystem::path& path,
+                      std::string_view camera_name) {
+  if (coefficients > 8) {
+    throw CameraModelError(
+        fmt::format("{}: ROS's camera_info has no thin-prism terms (s1 to s4): the lens needs "
+                    "OpenCV's format",
+                    path.string()));
+  }
+  const std::string name(camera_name);
+  if (!CameraModel::is_ros_camera_name(name)) {
+    throw CameraModelError(
+        fmt::format("{}: camera name '{}' must be letters, digits and _ (then also - . /)", path.string(), name));
+  }
+  const std::vector<double> d(c.dist.begin(), c.dist.begin() + coefficients);
+  std::string text = fmt::format("image_width: {}\nimage_height: {}\ncamera_name: {}\n", c.width, c.height, name);
+  text += "camera_matrix:\n" + yaml_matrix(3, 3, {c.fx, 0, c.cx, 0, c.fy, c.cy, 0, 0, 1});
+  text += fmt::format("distortion_model: {}\n", coefficients == 5 ? "plumb_bob" : "rational_polynomial");
+  text += "distortion_coefficients:\n" + yaml_matrix(1, coefficients, d);
+  text += "rectification_matrix:\n" + yaml_matrix(3, 3, {1, 0, 0, 0, 1, 0, 0, 0, 1});
+  text += "projection_matrix:\n" + yaml_matrix(3, 4, {c.fx, 0, c.cx, 0, 0, c.fy, c.cy, 0, 0, 0, 1, 0});
+  std::ofstream f(path, std::ios::binary | std::ios::trunc);
+  if (!f) throw CameraModelError(fmt::format("{}: cannot write the camera file: {}", path.string(), errno_text(errno)));
+  f << text;
+  f.close();
+  if (!f) throw CameraModelError(fmt::format("{}: write failed: {}", path.string(), errno_text(errno)));
+}
+
 }  // namespace
 
 CameraModel CameraModel::load(const std::filesystem::path& path) {
@@ -282,18 +332,35 @@ CameraModel CameraModel::load(const std::filesystem::path& path) {
   }
 }
 
-void CameraModel::save(const std::filesystem::path& path) const {
+void CameraModel::save(const std::filesystem::path& path, CameraFileFormat format, std::string_view camera_name) const {
+  int n = 12;
+  while (n > 5 && dist[static_cast<std::size_t>(n - 1)] == 0.0) --n;
+  n = n <= 5 ? 5 : (n <= 8 ? 8 : 12);
+  if (format == CameraFileFormat::ros) {
+    save_camera_info(*this, n, path, camera_name);
+    return;
+  }
   cv::FileStorage fs(path.string(), cv::FileStorage::WRITE);
   if (!fs.isOpened()) throw CameraModelError(fmt::format("{}: cannot write the camera file", path.string()));
   fs << "image_width" << width << "image_height" << height;
   const cv::Mat k = (cv::Mat_<double>(3, 3) << fx, 0, cx, 0, fy, cy, 0, 0, 1);
   fs << "camera_matrix" << k;
-  int n = 12;
-  while (n > 5 && dist[static_cast<std::size_t>(n - 1)] == 0.0) --n;
-  n = n <= 5 ? 5 : (n <= 8 ? 8 : 12);
   cv::Mat d(1, n, CV_64F);
   for (int i = 0; i < n; ++i) d.at<double>(0, i) = dist[static_cast<std::size_t>(i)];
   fs << "distortion_coefficients" << d;
+}
+
+bool CameraModel::is_ros_camera_name(std::string_view name) {
+  // Also a name YAML takes as a plain string, unquoted.
+  const auto plain = [](char ch, bool first) {
+    const bool alnum = (ch >= 'a' && ch <= 'z') || (ch >= 'A' && ch <= 'Z') || (ch >= '0' && ch <= '9');
+    return alnum || ch == '_' || (!first && (ch == '-' || ch == '.' || ch == '/'));
+  };
+  if (name.empty()) return false;
+  for (std::size_t i = 0; i < name.size(); ++i) {
+    if (!plain(name[i], i == 0)) return false;
+  }
+  return true;
 }
 
 CameraModel CameraModel::thesis_640x480() {

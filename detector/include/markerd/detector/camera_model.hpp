@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 #include "markerd/detector/geometry.hpp"
 
@@ -17,6 +18,10 @@ class CameraModelError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+// The two formats of a camera file: OpenCV's calibration YAML (cv::FileStorage)
+// and ROS's camera_info YAML.
+enum class CameraFileFormat { opencv, ros };
 
 struct CameraModel {
   int width = 0;
@@ -28,9 +33,19 @@ struct CameraModel {
   // Reads a camera file in YAML: OpenCV's calibration output, ROS's
   // camera_info, or the same keys in JSON (XML is refused). Throws
   // CameraModelError naming the file, the line and the key that is
-  // missing or wrong. save() writes OpenCV's format.
+  // missing or wrong.
   static CameraModel load(const std::filesystem::path& path);
-  void save(const std::filesystem::path& path) const;
+  // Writes OpenCV's format, or ROS's camera_info under `camera_name`: its
+  // distortion_model plumb_bob (5 coefficients) or rational_polynomial (8;
+  // a lens with thin-prism terms has no camera_info and is refused), the
+  // rectification the identity and the projection [K | 0] (markerd works on
+  // the raw image; rectified by image_proc it keeps the raw focal length).
+  // Either reads back through load() to the same doubles.
+  void save(const std::filesystem::path& path, CameraFileFormat format = CameraFileFormat::opencv,
+            std::string_view camera_name = "camera") const;
+  // The camera names save() writes into camera_info, as ROS names cameras
+  // (head_camera): letters, digits and _, then also - . and /.
+  static bool is_ros_camera_name(std::string_view name);
 
   // The camera of the thesis (640x480, its calibration): the reference for
   // the renderer, the tests, the benchmarks and the demonstration.
