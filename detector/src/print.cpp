@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -71,6 +72,27 @@ Layout layout_for(const PrintSpec& spec) {
   return l;
 }
 
+// The label row in the bottom margin, below `bottom_mm` (the printed
+// area's lower edge): a 10 mm scale bar to check the printer's scale, then
+// the text.
+void draw_label(cairo_t* cr, double margin_mm, double bottom_mm, const std::string& what) {
+  const double left = margin_mm;
+  const double mid_y = bottom_mm + margin_mm * 0.5;
+  const double font_mm = std::clamp(margin_mm * 0.3, 1.5, 3.5);
+  const double tick = font_mm * 0.45;
+  cairo_set_source_rgb(cr, 0, 0, 0);
+  cairo_rectangle(cr, left, mid_y - 0.2, 10.0, 0.4);
+  cairo_rectangle(cr, left, mid_y - tick, 0.2, 2 * tick);
+  cairo_rectangle(cr, left + 10.0 - 0.2, mid_y - tick, 0.2, 2 * tick);
+  cairo_fill(cr);
+
+  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
+  cairo_set_font_size(cr, font_mm);
+  const std::string text = "10 mm   " + what;
+  cairo_move_to(cr, left + 10.0 + font_mm, mid_y + font_mm * 0.35);
+  cairo_show_text(cr, text.c_str());
+}
+
 // Draws the page in millimetres (the caller has set up the scale). Ink is
 // one path filled once, so that adjacent black cells show no seams.
 void draw_page(cairo_t* cr, const PrintSpec& spec, const Layout& l) {
@@ -116,22 +138,34 @@ void draw_page(cairo_t* cr, const PrintSpec& spec, const Layout& l) {
     cairo_stroke(cr);
   }
 
-  // Label row in the bottom margin: a 10 mm scale bar, then the text.
-  const double left = spec.margin_mm;
-  const double mid_y = spec.margin_mm + l.printed_mm + spec.margin_mm * 0.5;
-  const double font_mm = std::clamp(spec.margin_mm * 0.3, 1.5, 3.5);
-  const double tick = font_mm * 0.45;
-  cairo_set_source_rgb(cr, 0, 0, 0);
-  cairo_rectangle(cr, left, mid_y - 0.2, 10.0, 0.4);
-  cairo_rectangle(cr, left, mid_y - tick, 0.2, 2 * tick);
-  cairo_rectangle(cr, left + 10.0 - 0.2, mid_y - tick, 0.2, 2 * tick);
-  cairo_fill(cr);
+  draw_label(cr, spec.margin_mm, spec.margin_mm + l.printed_mm,
+             fmt::format("{} id {}   size {:g} mm", info.name, spec.id, spec.size_mm));
+}
 
-  cairo_select_font_face(cr, "sans-serif", CAIRO_FONT_SLANT_NORMAL, CAIRO_FONT_WEIGHT_NORMAL);
-  cairo_set_font_size(cr, font_mm);
-  const std::string text = fmt::format("10 mm   {} id {}   size {:g} mm", info.name, spec.id, spec.size_mm);
-  cairo_move_to(cr, left + 10.0 + font_mm, mid_y + font_mm * 0.35);
-  cairo_show_text(cr, text.c_str());
+// A board's page: the ink as one path (touching rectangles show no seams),
+// then its label.
+void draw_board_page(cairo_t* cr, const BoardPrintSpec& spec) {
+  const BoardSpec& b = spec.board;
+  cairo_new_path(cr);
+  cairo_set_fill_rule(cr, CAIRO_FILL_RULE_WINDING);
+  for (const InkRect& r : board_ink(b)) {
+    cairo_rectangle(cr, spec.margin_mm + r.x * 1e3, spec.margin_mm + r.y * 1e3, r.width * 1e3, r.height * 1e3);
+  }
+  cairo_set_source_rgb(cr, 0, 0, 0);
+  cairo_fill(cr);
+  std::string text = fmt::format("{} {}x{}", to_string(b.type), b.cols, b.rows);
+  switch (b.type) {
+    case BoardType::chessboard: text += fmt::format(", square {:g} mm", b.size_m * 1e3); break;
+    case BoardType::charuco:
+      text += fmt::format(", square {:g} mm, marker {:g} mm, {}", b.size_m * 1e3, b.marker_size_m * 1e3, b.dictionary);
+      break;
+    case BoardType::frame8:
+      // The ids themselves are the board file's: a long list has no room here.
+      text += fmt::format(", marker {:g} mm, spacing {:g} mm, ids from {}", b.size_m * 1e3, b.spacing_m * 1e3,
+                          b.ids.front());
+      break;
+  }
+  draw_label(cr, spec.margin_mm, spec.margin_mm + b.height_m() * 1e3, text);
 }
 
 // ------------------------------------------------------------------ output
@@ -150,7 +184,16 @@ void check_status(cairo_status_t status, const std::filesystem::path& out) {
   }
 }
 
-void render_to(cairo_surface_t* surface, double scale, bool white_page, const PrintSpec& spec, const Layout& l,
+// A page to write: its size, its PDF title, and what draws it (in
+// millimetres).
+struct Page {
+  double width_mm = 0;
+  double height_mm = 0;
+  std::string title;
+  std::function<void(cairo_t*)> draw;
+};
+
+void render_to(cairo_surface_t* surface, double scale, bool white_page, const Page& page,
                const std::filesystem::path& out) {
   check_status(cairo_surface_status(surface), out);
   const ContextPtr cr(cairo_create(surface), cairo_destroy);
@@ -159,7 +202,7 @@ void render_to(cairo_surface_t* surface, double scale, bool white_page, const Pr
     cairo_paint(cr.get());
   }
   cairo_scale(cr.get(), scale, scale);
-  draw_page(cr.get(), spec, l);
+  page.draw(cr.get());
   check_status(cairo_status(cr.get()), out);
 }
 
@@ -211,6 +254,68 @@ void write_file(const std::filesystem::path& out, const std::string& bytes) {
   if (!f) throw PrintError(fmt::format("{}: write failed: {}", out.string(), errno_text(errno)));
 }
 
+void check_extension(const std::filesystem::path& out) {
+  const std::string ext = ascii_lower(out.extension().string());
+  if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
+    throw PrintError(
+        fmt::format("{}: unsupported extension '{}' (use .svg, .pdf or .png)", out.string(), out.extension().string()));
+  }
+}
+
+void check_margin(double margin_mm, const std::filesystem::path& out) {
+  if (!std::isfinite(margin_mm) || margin_mm < kMinMarginMm) {
+    throw PrintError(fmt::format("{}: margin_mm must be at least {} mm for the label, got {}", out.string(),
+                                 kMinMarginMm, margin_mm));
+  }
+}
+
+// The page as SVG, PDF or PNG (at `dpi`), from the extension.
+void write_page(const Page& page, double dpi, const std::filesystem::path& out) {
+  if (page.width_mm > kMaxPageMm || page.height_mm > kMaxPageMm) {
+    throw PrintError(fmt::format("{}: page of {:g} x {:g} mm is larger than {} mm", out.string(), page.width_mm,
+                                 page.height_mm, kMaxPageMm));
+  }
+  const std::string ext = ascii_lower(out.extension().string());
+  std::string bytes;
+  if (ext == ".svg") {
+    // The document unit mm makes the user unit one millimetre: width="..mm".
+    const SurfacePtr surface(
+        cairo_svg_surface_create_for_stream(append_to_string, &bytes, page.width_mm, page.height_mm),
+        cairo_surface_destroy);
+    cairo_svg_surface_set_document_unit(surface.get(), CAIRO_SVG_UNIT_MM);
+    render_to(surface.get(), 1.0, false, page, out);
+    cairo_surface_finish(surface.get());
+    check_status(cairo_surface_status(surface.get()), out);
+  } else if (ext == ".pdf") {
+    const SurfacePtr surface(cairo_pdf_surface_create_for_stream(append_to_string, &bytes, page.width_mm * kPointsPerMm,
+                                                                 page.height_mm * kPointsPerMm),
+                             cairo_surface_destroy);
+    cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_TITLE, page.title.c_str());
+    cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_CREATOR, "markerd");
+    render_to(surface.get(), kPointsPerMm, false, page, out);
+    cairo_surface_finish(surface.get());
+    check_status(cairo_surface_status(surface.get()), out);
+  } else {
+    if (!std::isfinite(dpi) || dpi <= 0) {
+      throw PrintError(fmt::format("{}: dpi must be positive, got {}", out.string(), dpi));
+    }
+    const double px_per_mm = dpi / kMmPerInch;
+    const double w = std::round(page.width_mm * px_per_mm), h = std::round(page.height_mm * px_per_mm);
+    if (w < 1 || h < 1 || w > kMaxPngSide || h > kMaxPngSide) {
+      throw PrintError(
+          fmt::format("{}: {:g} x {:g} px at {:g} dpi is outside 1..{} px", out.string(), w, h, dpi, kMaxPngSide));
+    }
+    const SurfacePtr surface(cairo_image_surface_create(CAIRO_FORMAT_RGB24, static_cast<int>(w), static_cast<int>(h)),
+                             cairo_surface_destroy);
+    render_to(surface.get(), px_per_mm, true, page, out);
+    cairo_surface_flush(surface.get());
+    std::string png;
+    check_status(cairo_surface_write_to_png_stream(surface.get(), append_to_string, &png), out);
+    bytes = with_phys(png, dpi, out);
+  }
+  write_file(out, bytes);
+}
+
 }  // namespace
 
 GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet_zone) {
@@ -260,62 +365,63 @@ GreyImage ideal_marker_image(Family family, int id, int side_px, bool with_quiet
 }
 
 void write_printable_marker(const PrintSpec& spec, const std::filesystem::path& out) {
-  const std::string ext = ascii_lower(out.extension().string());
-  if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
-    throw PrintError(
-        fmt::format("{}: unsupported extension '{}' (use .svg, .pdf or .png)", out.string(), out.extension().string()));
-  }
+  check_extension(out);
   check_id(spec.family, spec.id, out.string());
   if (!std::isfinite(spec.size_mm) || spec.size_mm <= 0) {
     throw PrintError(fmt::format("{}: size_mm must be positive, got {}", out.string(), spec.size_mm));
   }
-  if (!std::isfinite(spec.margin_mm) || spec.margin_mm < kMinMarginMm) {
-    throw PrintError(fmt::format("{}: margin_mm must be at least {} mm for the label, got {}", out.string(),
-                                 kMinMarginMm, spec.margin_mm));
-  }
+  check_margin(spec.margin_mm, out);
   const Layout l = layout_for(spec);
-  if (l.page_w_mm > kMaxPageMm) {
-    throw PrintError(fmt::format("{}: page of {:g} mm is larger than {} mm", out.string(), l.page_w_mm, kMaxPageMm));
-  }
+  Page page;
+  page.width_mm = l.page_w_mm;
+  page.height_mm = l.page_h_mm;
+  page.title = fmt::format("{} id {}, {:g} mm", family_info(spec.family).name, spec.id, spec.size_mm);
+  page.draw = [&](cairo_t* cr) { draw_page(cr, spec, l); };
+  write_page(page, spec.dpi, out);
+}
 
-  std::string bytes;
-  if (ext == ".svg") {
-    // The document unit mm makes the user unit one millimetre: width="..mm".
-    const SurfacePtr surface(cairo_svg_surface_create_for_stream(append_to_string, &bytes, l.page_w_mm, l.page_h_mm),
-                             cairo_surface_destroy);
-    cairo_svg_surface_set_document_unit(surface.get(), CAIRO_SVG_UNIT_MM);
-    render_to(surface.get(), 1.0, false, spec, l, out);
-    cairo_surface_finish(surface.get());
-    check_status(cairo_surface_status(surface.get()), out);
-  } else if (ext == ".pdf") {
-    const SurfacePtr surface(cairo_pdf_surface_create_for_stream(append_to_string, &bytes, l.page_w_mm * kPointsPerMm,
-                                                                 l.page_h_mm * kPointsPerMm),
-                             cairo_surface_destroy);
-    const std::string title = fmt::format("{} id {}, {:g} mm", family_info(spec.family).name, spec.id, spec.size_mm);
-    cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_TITLE, title.c_str());
-    cairo_pdf_surface_set_metadata(surface.get(), CAIRO_PDF_METADATA_CREATOR, "markerd");
-    render_to(surface.get(), kPointsPerMm, false, spec, l, out);
-    cairo_surface_finish(surface.get());
-    check_status(cairo_surface_status(surface.get()), out);
-  } else {
-    if (!std::isfinite(spec.dpi) || spec.dpi <= 0) {
-      throw PrintError(fmt::format("{}: dpi must be positive, got {}", out.string(), spec.dpi));
-    }
-    const double px_per_mm = spec.dpi / kMmPerInch;
-    const double w = std::round(l.page_w_mm * px_per_mm), h = std::round(l.page_h_mm * px_per_mm);
-    if (w < 1 || h < 1 || w > kMaxPngSide || h > kMaxPngSide) {
-      throw PrintError(
-          fmt::format("{}: {:g} x {:g} px at {:g} dpi is outside 1..{} px", out.string(), w, h, spec.dpi, kMaxPngSide));
-    }
-    const SurfacePtr surface(cairo_image_surface_create(CAIRO_FORMAT_RGB24, static_cast<int>(w), static_cast<int>(h)),
-                             cairo_surface_destroy);
-    render_to(surface.get(), px_per_mm, true, spec, l, out);
-    cairo_surface_flush(surface.get());
-    std::string png;
-    check_status(cairo_surface_write_to_png_stream(surface.get(), append_to_string, &png), out);
-    bytes = with_phys(png, spec.dpi, out);
+double board_page_width_mm(const BoardPrintSpec& spec) { return spec.board.width_m() * 1e3 + 2 * spec.margin_mm; }
+double board_page_height_mm(const BoardPrintSpec& spec) { return spec.board.height_m() * 1e3 + 2 * spec.margin_mm; }
+
+void write_printable_board(const BoardPrintSpec& spec, const std::filesystem::path& out) {
+  check_extension(out);
+  check_board(spec.board);
+  check_margin(spec.margin_mm, out);
+  Page page;
+  page.width_mm = board_page_width_mm(spec);
+  page.height_mm = board_page_height_mm(spec);
+  page.title = fmt::format("{} board {}x{}", to_string(spec.board.type), spec.board.cols, spec.board.rows);
+  page.draw = [&](cairo_t* cr) { draw_board_page(cr, spec); };
+  write_page(page, spec.dpi, out);
+}
+
+GreyImage board_page_image(const BoardPrintSpec& spec, double px_per_m) {
+  check_board(spec.board);
+  const std::filesystem::path what = "board_page_image";
+  check_margin(spec.margin_mm, what);
+  const double px_per_mm = px_per_m / 1e3;
+  const double w = std::round(board_page_width_mm(spec) * px_per_mm);
+  const double h = std::round(board_page_height_mm(spec) * px_per_mm);
+  if (!std::isfinite(px_per_m) || w < 1 || h < 1 || w > kMaxPngSide || h > kMaxPngSide) {
+    throw PrintError(
+        fmt::format("board_page_image: {} x {} px at {} px/m is outside 1..{} px", w, h, px_per_m, kMaxPngSide));
   }
-  write_file(out, bytes);
+  // Ink as coverage in an alpha image: paper is what is left.
+  const SurfacePtr surface(cairo_image_surface_create(CAIRO_FORMAT_A8, static_cast<int>(w), static_cast<int>(h)),
+                           cairo_surface_destroy);
+  Page page;
+  page.draw = [&](cairo_t* cr) { draw_board_page(cr, spec); };
+  render_to(surface.get(), px_per_mm, false, page, what);
+  cairo_surface_flush(surface.get());
+  GreyImage image(static_cast<int>(w), static_cast<int>(h));
+  const unsigned char* data = cairo_image_surface_get_data(surface.get());
+  const int stride = cairo_image_surface_get_stride(surface.get());
+  for (int y = 0; y < image.height(); ++y) {
+    const unsigned char* src = data + static_cast<std::ptrdiff_t>(y) * stride;
+    std::uint8_t* dst = image.row(y);
+    for (int x = 0; x < image.width(); ++x) dst[x] = static_cast<std::uint8_t>(255 - src[x]);
+  }
+  return image;
 }
 
 }  // namespace markerd::detector
