@@ -56,7 +56,7 @@ inline BoardSpec charuco() {
   b.cols = 7;
   b.rows = 5;
   b.size_m = 0.025;
-  b.marker_size_m = 0.019;
+  b.marker_size_m = 0.015;
   b.dictionary = "4x4_50";
   return b;
 }
@@ -120,6 +120,25 @@ inline std::vector<ViewPlan> view_plans() {
       {-30, 30, -20, 0.78, 0.22, 0.28}, {30, -30, 15, 0.22, 0.78, 0.28}, {-30, -30, -15, 0.78, 0.78, 0.28},
       {25, -15, 90, 0.35, 0.4, 0.35},   {-20, 25, 180, 0.6, 0.6, 0.40},  {45, 10, -30, 0.5, 0.5, 0.36},
   };
+}
+
+// Four more for a board that may be seen in part (ChArUco, frame8): its
+// centre near each of the image's corners, tilted, part of it out of the
+// image, so that its points reach into the very corners.
+inline std::vector<ViewPlan> partial_view_plans() {
+  return {
+      {25, 20, 10, 0.9, 0.88, 0.30},
+      {-25, 20, -10, 0.1, 0.88, 0.30},
+      {25, -20, -10, 0.9, 0.12, 0.30},
+      {-25, -20, 10, 0.1, 0.12, 0.30},
+  };
+}
+
+// A plan's pose, the board's centre on the ray through its image point.
+inline MarkerPose pose_at(const CameraModel& camera, const ViewPlan& plan) {
+  const Point2 n = camera.pixel_to_normalized({plan.at_x * camera.width, plan.at_y * camera.height});
+  const double d = plan.distance_m;
+  return facing_pose(d, plan.yaw_deg, plan.pitch_deg, plan.roll_deg, n.x * d, n.y * d);
 }
 
 // The pose of a plan: the board's centre on the ray through its image

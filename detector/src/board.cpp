@@ -203,7 +203,7 @@ struct BoardDetector::Impl {
   BoardPoints chessboard(const cv::Mat& image) const;
   BoardPoints charuco_points(const cv::Mat& image) const;
   void refine_charuco_corners(const cv::Mat& image, const std::vector<std::vector<cv::Point2f>>& marker_corners,
-                              const std::vector<int>& marker_ids, const std::vector<int>& ids,
+                              const std::vector<int>& marker_ids, std::vector<int>& ids,
                               std::vector<cv::Point2f>& corners) const;
   BoardPoints frame8_points(const GreyView& view);
 };
@@ -248,12 +248,18 @@ BoardPoints BoardDetector::Impl::chessboard(const cv::Mat& image) const {
 // corners are (measured on rendered views). Each corner is refined here
 // again, in a window that keeps clear of the markers beside it: the
 // nearest marker corner lies on the diagonal, so the window's half side
-// stays under its distance over the square root of 2.
+// stays under its distance over the square root of 2. A corner with less
+// room than a window of 2 px each way (a board seen at a grazing angle,
+// its squares' white rims a pixel wide) is dropped: it was measured up to
+// 2 px off there. So is one that the refinement moved out of its window.
 void BoardDetector::Impl::refine_charuco_corners(const cv::Mat& image,
                                                  const std::vector<std::vector<cv::Point2f>>& marker_corners,
-                                                 const std::vector<int>& marker_ids, const std::vector<int>& ids,
+                                                 const std::vector<int>& marker_ids, std::vector<int>& ids,
                                                  std::vector<cv::Point2f>& corners) const {
+  constexpr int kLeastHalf = 2;
+  constexpr int kMostHalf = 10;
   const cv::TermCriteria criteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 40, 0.001);
+  std::size_t kept = 0;
   for (std::size_t k = 0; k < ids.size(); ++k) {
     const auto id = static_cast<std::size_t>(ids[k]);
     double nearest = 1e9;
@@ -265,11 +271,24 @@ void BoardDetector::Impl::refine_charuco_corners(const cv::Mat& image,
       nearest = std::min(nearest,
                          cv::norm(quad[static_cast<std::size_t>(charuco->nearestMarkerCorners[id][j])] - corners[k]));
     }
-    const int half = std::clamp(static_cast<int>(nearest / std::sqrt(2.0) - 1.5), 2, 10);
-    std::vector<cv::Point2f> one{corners[k]};
+    const int room = static_cast<int>(nearest / std::sqrt(2.0) - 1.5);
+    if (room < kLeastHalf) continue;
+    const int half = std::min(room, kMostHalf);
+    const cv::Point2f start = corners[k];
+    // The window must lie within the image.
+    if (start.x < half + 1 || start.y < half + 1 || start.x > image.cols - half - 2 ||
+        start.y > image.rows - half - 2) {
+      continue;
+    }
+    std::vector<cv::Point2f> one{start};
     cv::cornerSubPix(image, one, cv::Size(half, half), cv::Size(-1, -1), criteria);
-    corners[k] = one[0];
+    if (std::abs(one[0].x - start.x) > half || std::abs(one[0].y - start.y) > half) continue;
+    corners[kept] = one[0];
+    ids[kept] = ids[k];
+    ++kept;
   }
+  corners.resize(kept);
+  ids.resize(kept);
 }
 
 BoardPoints BoardDetector::Impl::charuco_points(const cv::Mat& image) const {
