@@ -16,10 +16,13 @@
 _markerctl_spec() {  # PATH -> "subcommands|options"
   local socket="--socket="
   case $1 in
-    "") echo "marker render detect evaluate rig cameras status detections call sweep report calibrate|-h --help --version" ;;
+    "")
+      echo "marker render detect evaluate rig cameras status detections call sweep report calibrate|-h --help" \
+        "--version"
+      ;;
     marker)
       echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone --json -o= --output= -h -h" \
-        "--help"
+        "--help --board= --board-type= --marker-size= --spacing= --dictionary= --first-id="
       ;;
     render)
       echo "|--dist= --yaw= --pitch= --roll= --offset-x= --offset-y= --family= --id= --size= --camera= --noise=" \
@@ -52,7 +55,11 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     "sweep pause" | "sweep resume") echo "|$socket --json -h -h --help" ;;
     "sweep abort") echo "|--reason= $socket --json -h -h --help" ;;
     report) echo "|--paper= --socket= -o= --output= --no-plots -h -h --help" ;;
-    calibrate) echo "|--rig= --rig-out= --fix= --free= -o= --output= --json -h -h --help" ;;
+    calibrate)
+      echo "|--board= --board-type= --size= --marker-size= --spacing= --dictionary= --first-id= --model= --fix-k3" \
+        "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --json" \
+        "-h --help"
+      ;;
   esac
 }
 
@@ -114,6 +121,16 @@ _markerctl_value() {  # PATH OPTION CURRENT
     --cover) _markerctl_words "$cur" top right bottom left ;;
     --backend) _markerctl_words "$cur" v4l2 libcamera all ;;
     --axis) _markerctl_words "$cur" rail turntable ;;
+    --board-type) _markerctl_words "$cur" chessboard charuco frame8 ;;
+    # calibrate's --board is also a board file; marker's is COLSxROWS only.
+    --board) if [[ $path == calibrate ]]; then _markerctl_files "$cur" "*.toml"; else COMPREPLY=(); fi ;;
+    --dictionary)
+      _markerctl_words "$cur" 4x4_50 4x4_100 4x4_250 4x4_1000 5x5_50 5x5_100 5x5_250 5x5_1000 6x6_50 6x6_100 \
+        6x6_250 6x6_1000 7x7_50 7x7_100 7x7_250 7x7_1000 aruco_original apriltag_16h5 apriltag_25h9 \
+        apriltag_36h10 apriltag_36h11
+      ;;
+    --model) _markerctl_words "$cur" plumb_bob rational_polynomial ;;
+    --ros) _markerctl_files "$cur" "*.y*ml" ;;
     *) COMPREPLY=() ;;  # a number, a length, an angle, a text: nothing to offer
   esac
 }
@@ -131,7 +148,7 @@ _markerctl_reads_stdin() {  # PATH
 _markerctl_arguments() {  # PATH CURRENT
   local path=$1 cur=$2
   case $path in
-    detect) _markerctl_files "$cur" ;;
+    detect | calibrate) _markerctl_files "$cur" ;;
     "sweep check" | "sweep start") _markerctl_files "$cur" "*.toml" ;;
     report) _markerctl_directories "$cur" ;;
     cameras)

@@ -1,5 +1,6 @@
 // markerctl marker: a printable marker at an exact physical size (SVG, PDF,
-// PNG at a dpi), or with --image-px the ideal pixel image of the marker.
+// PNG at a dpi), or with --image-px the ideal pixel image of the marker;
+// with --board a calibration board, and its board file beside it.
 
 #include <fmt/format.h>
 
@@ -11,6 +12,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "board_options.hpp"
 #include "common.hpp"
 #include "markerd/base/ascii.hpp"
 #include "markerd/detector/frame8.hpp"
@@ -29,6 +31,10 @@ struct MarkerOptions {
   bool no_quiet_zone = false;
   bool json = false;
   std::string output;
+  BoardOptions board;
+  CLI::Option* family_option = nullptr;
+  CLI::Option* id_option = nullptr;
+  CLI::Option* image_px_option = nullptr;
 };
 
 std::string lower_extension(const std::filesystem::path& path) {
@@ -81,7 +87,87 @@ int write_image(const MarkerOptions& o, markerd::detector::Family family) {
   return 0;
 }
 
+std::string print_extension(const MarkerOptions& o) {
+  const std::string ext = lower_extension(o.output);
+  if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
+    throw usage_error("-o", fmt::format("'{}': the format comes from the extension: .svg, .pdf or .png{}", o.output,
+                                        o.board.board.empty() ? " (or --image-px N for a pixel image)" : ""));
+  }
+  return ext;
+}
+
+double margin_mm(const MarkerOptions& o) {
+  const double margin = parse_length_m(o.margin, BareUnit::millimetre, "--margin") * 1e3;
+  if (margin < 0) throw usage_error("--margin", fmt::format("'{}' must not be negative", o.margin));
+  return margin;
+}
+
+// A calibration board, and beside it (the print's name with .toml) the
+// board file that markerctl calibrate --board reads.
+int write_board(const MarkerOptions& o) {
+  for (const CLI::Option* option : {o.family_option, o.id_option, o.image_px_option}) {
+    if (option->count() > 0) throw usage_error(option->get_name(), "is for a single marker, not a --board");
+  }
+  BoardOptions board = o.board;
+  board.size = o.size;  // marker's own --size
+  markerd::detector::BoardPrintSpec spec;
+  spec.board = board_from_options(board, false);
+  spec.margin_mm = margin_mm(o);
+  spec.dpi = o.dpi;
+  const std::string ext = print_extension(o);
+  const std::filesystem::path board_file = std::filesystem::path(o.output).replace_extension(".toml");
+  markerd::detector::write_printable_board(spec, o.output);
+  try {
+    markerd::detector::save_board(spec.board, board_file);
+  } catch (const markerd::detector::BoardError& e) {
+    throw runtime_error("marker", e.what());
+  }
+  const double width_mm = markerd::detector::board_page_width_mm(spec);
+  const double height_mm = markerd::detector::board_page_height_mm(spec);
+  if (o.json) {
+    const markerd::detector::BoardSpec& b = spec.board;
+    nlohmann::ordered_json j;
+    j["output"] = o.output;
+    j["board_file"] = board_file.string();
+    j["board_type"] = to_string(b.type);
+    j["cols"] = b.cols;
+    j["rows"] = b.rows;
+    j["size_mm"] = b.size_m * 1e3;
+    j["marker_size_mm"] = b.type == markerd::detector::BoardType::charuco
+                              ? nlohmann::ordered_json(b.marker_size_m * 1e3)
+                              : nlohmann::ordered_json(nullptr);
+    j["dictionary"] = b.type == markerd::detector::BoardType::charuco ? nlohmann::ordered_json(b.dictionary)
+                                                                      : nlohmann::ordered_json(nullptr);
+    j["spacing_mm"] = b.type == markerd::detector::BoardType::frame8
+                          ? nlohmann::ordered_json(rounded(b.spacing_m * 1e3, 6))
+                          : nlohmann::ordered_json(nullptr);
+    j["ids"] = b.type == markerd::detector::BoardType::frame8 ? nlohmann::ordered_json(b.ids)
+                                                              : nlohmann::ordered_json(nullptr);
+    j["points"] = b.point_count();
+    j["margin_mm"] = spec.margin_mm;
+    j["page_width_mm"] = rounded(width_mm, 3);
+    j["page_height_mm"] = rounded(height_mm, 3);
+    j["dpi"] = ext == ".png" ? nlohmann::ordered_json(o.dpi) : nlohmann::ordered_json(nullptr);
+    std::cout << json_line(j) << '\n';
+    return 0;
+  }
+  std::cout << fmt::format(
+      "{}: {}, {:g} mm margin, page {:g} x {:g} mm{}\n{}: the board file (markerctl calibrate "
+      "--board {})\n",
+      o.output, describe_board(spec.board), spec.margin_mm, rounded(width_mm, 3), rounded(height_mm, 3),
+      ext == ".png" ? fmt::format(", {:g} dpi", o.dpi) : std::string(), board_file.string(), board_file.string());
+  return 0;
+}
+
 int run_marker(const MarkerOptions& o) {
+  if (!o.board.board.empty()) return write_board(o);
+  for (const CLI::Option* option : {o.board.type_option, o.board.marker_size_option, o.board.spacing_option,
+                                    o.board.dictionary_option, o.board.first_id_option}) {
+    if (option->count() > 0) throw usage_error(option->get_name(), "is for a calibration board: give --board too");
+  }
+  if (o.id_option->count() == 0) {
+    throw usage_error("--id", "a marker needs its id, e.g. --id 165 (or --board COLSxROWS for a calibration board)");
+  }
   const markerd::detector::Family family = parse_family(o.family);
   check_id(family, o.id);
   if (family == markerd::detector::Family::frame8 && markerd::detector::frame8::near_uniform(o.id)) {
@@ -95,20 +181,13 @@ int run_marker(const MarkerOptions& o) {
   if (o.size.empty()) throw usage_error("--size", "a print needs the marker size, e.g. --size 80mm (or --image-px N)");
   const double size_mm = parse_length_m(o.size, BareUnit::millimetre, "--size") * 1e3;
   if (!(size_mm > 0)) throw usage_error("--size", fmt::format("'{}' must be more than zero", o.size));
-  const double margin_mm = parse_length_m(o.margin, BareUnit::millimetre, "--margin") * 1e3;
-  if (margin_mm < 0) throw usage_error("--margin", fmt::format("'{}' must not be negative", o.margin));
-
-  const std::string ext = lower_extension(o.output);
-  if (ext != ".svg" && ext != ".pdf" && ext != ".png") {
-    throw usage_error("-o", fmt::format("'{}': the format comes from the extension: .svg, .pdf or .png "
-                                        "(or --image-px N for a pixel image)",
-                                        o.output));
-  }
+  const double margin = margin_mm(o);
+  const std::string ext = print_extension(o);
   markerd::detector::PrintSpec spec;
   spec.family = family;
   spec.id = o.id;
   spec.size_mm = size_mm;
-  spec.margin_mm = margin_mm;
+  spec.margin_mm = margin;
   spec.dpi = o.dpi;
   markerd::detector::write_printable_marker(spec, o.output);
   if (o.json) {
@@ -117,13 +196,13 @@ int run_marker(const MarkerOptions& o) {
     j["family"] = markerd::detector::family_info(family).name;
     j["id"] = o.id;
     j["size_mm"] = size_mm;
-    j["margin_mm"] = margin_mm;
+    j["margin_mm"] = margin;
     j["dpi"] = ext == ".png" ? nlohmann::ordered_json(o.dpi) : nlohmann::ordered_json(nullptr);
     std::cout << json_line(j) << '\n';
     return 0;
   }
   std::cout << fmt::format("{}: {} id {}, {:g} mm marker, {:g} mm margin{}\n", o.output,
-                           markerd::detector::family_info(family).name, o.id, size_mm, margin_mm,
+                           markerd::detector::family_info(family).name, o.id, size_mm, margin,
                            ext == ".png" ? fmt::format(", {:g} dpi", o.dpi) : std::string());
   return 0;
 }
@@ -140,13 +219,22 @@ void add_marker_command(CLI::App& parent, Commands& commands) {
       "scale bar (check it after printing: printers like to scale). frame8's hole is drawn as a cut line.\n"
       "With --image-px N, write instead the ideal marker image, N px for the marker's size (plus the\n"
       "quiet zone ArUco and AprilTag need), pixel-exact when N is a multiple of the family's cells\n"
-      "(frame8 10, aruco4x4_50 6, tag36h11 8); any format OpenCV writes (.png, .pgm, .bmp, .tif).");
+      "(frame8 10, aruco4x4_50 6, tag36h11 8); any format OpenCV writes (.png, .pgm, .bmp, .tif).\n"
+      "With --board COLSxROWS, write a calibration board instead (docs/calibration.md): --board-type\n"
+      "chessboard (COLSxROWS squares, --size a square), charuco (squares, --size a square, --marker-size\n"
+      "the ArUco marker in each white square, --dictionary) or frame8 (COLSxROWS markers, --size a\n"
+      "marker, --spacing between them, ids from --first-id up). Beside it, with the extension .toml,\n"
+      "goes its board file, which markerctl calibrate --board FILE reads.");
   app->add_option("--family", o->family, "Marker family: " + family_names())->type_name("NAME")->capture_default_str();
-  app->add_option("--id", o->id, "Marker id: " + id_ranges())->required();
+  o->family_option = app->get_option("--family");
+  o->id_option = app->add_option("--id", o->id, "Marker id: " + id_ranges() + ". Required but for --board");
   auto* size = app->add_option("--size", o->size,
-                               "Marker size: frame8's outer edge, the black border of ArUco/AprilTag "
-                               "(80mm, 8cm, 0.08m; a bare number is mm). Required for a print")
+                               "Marker size: frame8's outer edge, the black border of ArUco/AprilTag; with --board "
+                               "a square, or a frame8 marker (80mm, 8cm, 0.08m; a bare number is mm). Required "
+                               "for a print")
                    ->type_name("LENGTH");
+  o->board.size_option = size;
+  add_board_options(app, o->board, "Write a calibration board of COLS x ROWS squares (frame8: markers)", "COLSxROWS");
   auto* margin = app->add_option("--margin", o->margin, "Paper around the marker (a bare number is mm)")
                      ->type_name("LENGTH")
                      ->capture_default_str();
@@ -158,6 +246,7 @@ void add_marker_command(CLI::App& parent, Commands& commands) {
                        ->check(CLI::Range(1, 100000));
   auto* no_quiet = app->add_flag("--no-quiet-zone", o->no_quiet_zone,
                                  "With --image-px: leave out the white quiet zone of ArUco/AprilTag");
+  o->image_px_option = image_px;
   image_px->excludes(size)->excludes(margin)->excludes(dpi);
   no_quiet->needs(image_px);
   app->add_flag("--json", o->json, "What was written as one JSON object instead of text");

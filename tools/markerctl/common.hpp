@@ -60,6 +60,7 @@ void add_rig_command(CLI::App& parent, Commands& commands);
 void add_cameras_command(CLI::App& parent, Commands& commands);
 void add_report_command(CLI::App& parent, Commands& commands);
 void add_sweep_command(CLI::App& parent, Commands& commands);
+void add_calibrate_command(CLI::App& parent, Commands& commands);
 
 // "80mm" as 80 and "mm" (the unit lower-cased and trimmed, a leading '+'
 // allowed); nothing when the text does not start with a finite number.

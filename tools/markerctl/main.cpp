@@ -23,6 +23,7 @@
 #include "cmd_daemon.hpp"
 #include "common.hpp"
 #include "did_you_mean.hpp"
+#include "markerd/detector/board.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/print.hpp"
@@ -55,6 +56,8 @@ int run(const markerctl::Command& command) {
     print_error(name, e.what());
   } catch (const markerd::detector::DetectorError& e) {
     print_error(name, e.what());
+  } catch (const markerd::detector::BoardError& e) {
+    print_error(name, e.what());
   } catch (const cv::Exception& e) {
     print_error(name, fmt::format("OpenCV: {}", e.err.empty() ? std::string(e.what()) : e.err));
   } catch (const std::exception& e) {
@@ -68,7 +71,8 @@ int run(const markerctl::Command& command) {
 int main(int argc, char** argv) {
   CLI::App app{
       "markerctl: the command line of markerd. Prints frame markers, renders camera views of them,\n"
-      "detects markers in images, evaluates the detectors on rendered scenes, and brings up a rig.\n"
+      "detects markers in images, evaluates the detectors on rendered scenes, calibrates a camera and brings up a "
+      "rig.\n"
       "Families: " +
           markerctl::family_names() + ". Lengths take a unit: 80mm, 8cm, 0.08m, 3.15in.",
       "markerctl"};
@@ -87,6 +91,7 @@ int main(int argc, char** argv) {
       "  markerctl sweep start --wait config/plans/thesis.toml\n"
       "  markerctl report /var/lib/markerd/runs/RUN\n"
       "  markerctl calibrate --rig /var/lib/markerd/runs/RUN -o camera.yaml --rig-out rig-geometry.toml\n"
+      "  markerctl calibrate --board board.toml views/*.png -o camera.yaml --ros camera-ros.yaml\n"
       "Run 'markerctl <command> --help' for a command's options. Exit status: 0 on success,\n"
       "1 when something failed while running, 2 for a mistake on the command line.");
 
@@ -104,7 +109,7 @@ int main(int argc, char** argv) {
   markerctl::add_daemon_commands(app, commands);
   markerctl::add_sweep_command(app, commands);
   markerctl::add_report_command(app, commands);
-  markerctl::add_calibrate_rig_command(app, commands);
+  markerctl::add_calibrate_command(app, commands);
 
   if (argc <= 1) {
     std::cerr << app.help();
