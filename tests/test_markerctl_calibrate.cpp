@@ -243,6 +243,9 @@ TEST_F(MarkerctlCalibrate, RefusesTooFewViewsAndNamesWrongOptions) {
        "markerctl: --camera-name: 'two words' must be letters, digits and _ (then also - . /)\n"},
       {{"--board", board, "--ros", path("r.yaml"), "-o", path("r.yaml"), images[0]},
        "markerctl: --ros: names the same file as -o\n"},
+      {{"--board", board, "-o", path("no-such-dir/camera.yaml"), images[0]},
+       "markerctl: -o: " + path("no-such-dir/camera.yaml") + ": the directory " + path("no-such-dir") +
+           " does not exist\n"},
       {{"--board", "9x7", images[0]},
        "markerctl: --size: a chessboard needs the size of its squares (for example --size 25mm)\n"},
   };

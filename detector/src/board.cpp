@@ -186,7 +186,8 @@ cv::Mat as_mat(const GreyView& view) {
 // from the top left, as OpenCV numbers them.
 Eigen::Vector3d inner_corner(const BoardSpec& b, int k) {
   const int per_row = b.cols - 1;
-  return {(k % per_row + 1) * b.size_m, (k / per_row + 1) * b.size_m, 0.0};
+  const int col = k % per_row, row = k / per_row;  // whole squares
+  return {(col + 1) * b.size_m, (row + 1) * b.size_m, 0.0};
 }
 
 }  // namespace
@@ -334,7 +335,8 @@ BoardPoints BoardDetector::Impl::frame8_points(const GreyView& view) {
     // places them outwards under a barrel lens, most at the image's edges
     // (measured on rendered views: 0.1 px, the focal length 0.15% short).
     const double in = frame8::line_inner * board.size_m / frame8::grid;
-    const double x0 = (marker % board.cols) * pitch + in, y0 = (marker / board.cols) * pitch + in;
+    const int col = marker % board.cols, row = marker / board.cols;  // whole markers
+    const double x0 = col * pitch + in, y0 = row * pitch + in;
     const double side = board.size_m - 2 * in;
     const std::array<Eigen::Vector3d, 4> corners{Eigen::Vector3d(x0, y0, 0), Eigen::Vector3d(x0 + side, y0, 0),
                                                  Eigen::Vector3d(x0 + side, y0 + side, 0),
@@ -531,8 +533,8 @@ std::vector<InkRect> board_ink(const BoardSpec& b) {
       const double cell = s / frame8::grid, pitch = s + b.spacing_m;
       const double lo = frame8::line_outer * cell, width = (frame8::line_inner - frame8::line_outer) * cell;
       for (std::size_t m = 0; m < b.ids.size(); ++m) {
-        const double x0 = static_cast<double>(m % static_cast<std::size_t>(b.cols)) * pitch;
-        const double y0 = static_cast<double>(m / static_cast<std::size_t>(b.cols)) * pitch;
+        const std::size_t col = m % static_cast<std::size_t>(b.cols), row = m / static_cast<std::size_t>(b.cols);
+        const double x0 = static_cast<double>(col) * pitch, y0 = static_cast<double>(row) * pitch;
         const auto cells = frame8::ring_cells(b.ids[m]);
         for (int r = 0; r < frame8::grid; ++r) {
           for (int q = 0; q < frame8::grid; ++q) {

@@ -9,6 +9,7 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
@@ -209,6 +210,16 @@ int run_calibrate(const CalibrateOptions& o) {
                       fmt::format("'{}' must be letters, digits and _ (then also - . /)", o.camera_name));
   }
   if (!o.output.empty() && o.output == o.ros) throw usage_error("--ros", "names the same file as -o");
+  // Checked before the images are read: a calibration is not to be lost to
+  // a mistyped directory at the end.
+  for (const auto& [file, option] : {std::pair{o.output, "-o"}, std::pair{o.ros, "--ros"}}) {
+    if (file.empty()) continue;
+    const std::filesystem::path parent = std::filesystem::path(file).parent_path();
+    std::error_code ec;
+    if (!parent.empty() && !std::filesystem::is_directory(parent, ec)) {
+      throw usage_error(option, fmt::format("{}: the directory {} does not exist", file, parent.string()));
+    }
+  }
   det::CalibrationOptions options;
   options.model = *det::distortion_model_from_string(o.model);
   options.fix_k3 = o.fix_k3;
