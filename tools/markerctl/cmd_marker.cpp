@@ -211,7 +211,8 @@ int run_marker(const MarkerOptions& o) {
 
 void add_marker_command(CLI::App& parent, Commands& commands) {
   auto o = std::make_shared<MarkerOptions>();
-  CLI::App* app = parent.add_subcommand("marker", "Write a printable marker (SVG, PDF or PNG) or its ideal image");
+  CLI::App* app = parent.add_subcommand(
+      "marker", "Write a printable marker or calibration board (SVG, PDF or PNG), or a marker's ideal image");
   app->footer(
       "Write a printable marker at an exact physical size. The format comes from the extension of -o:\n"
       ".svg and .pdf are vector files at true size; .png is rendered at --dpi. The page is the marker\n"
