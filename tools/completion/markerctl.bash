@@ -57,7 +57,7 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     report) echo "|--paper= --socket= -o= --output= --no-plots -h -h --help" ;;
     calibrate)
       echo "|--board= --board-type= --size= --marker-size= --spacing= --dictionary= --first-id= --model= --fix-k3" \
-        "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --json" \
+        "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --rig= --rig-out= --fix= --free= --json" \
         "-h --help"
       ;;
   esac

@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "board_options.hpp"
+#include "cmd_calibrate_rig.hpp"
 #include "common.hpp"
 #include "live_line.hpp"
 #include "markerd/daemon/capture/image_file.hpp"
@@ -36,6 +37,7 @@ struct CalibrateOptions {
   std::string camera_name = "camera";
   bool json = false;
   std::vector<std::string> images;
+  RigCalibrationArguments rig;  // --rig: the camera and the rig from a sweep run instead
 };
 
 // The relative standard deviation of a focal length above which the views
@@ -195,6 +197,16 @@ nlohmann::ordered_json result_json(const det::CalibrationResult& r, const Calibr
 }
 
 int run_calibrate(const CalibrateOptions& o) {
+  if (!o.rig.run.empty()) {
+    // A sweep run's views, not a board's images: the options of one do not apply to the other.
+    if (!o.images.empty()) throw usage_error("--rig", "takes no images: the run's records are its views");
+    if (!o.board.board.empty()) throw usage_error("--rig", "takes no --board: the marker the run saw is the target");
+    if (!o.ros.empty()) throw usage_error("--rig", "writes OpenCV's YAML with -o; --ros is for board calibrations");
+    return run_rig_calibration(o.rig, o.output, o.json);
+  }
+  if (!o.rig.rig_out.empty() || !o.rig.fix.empty() || !o.rig.free.empty()) {
+    throw usage_error("calibrate", "--rig-out, --fix and --free are for --rig RUN_DIR");
+  }
   if (o.board.board.empty()) {
     throw usage_error("--board",
                       "give the board: COLSxROWS with --board-type and --size (as markerctl marker "
@@ -287,7 +299,11 @@ void add_calibrate_command(CLI::App& parent, Commands& commands) {
       "--min-coverage of the image's 16 regions (4x4). Prints each view's points and RMS error, the\n"
       "overall RMS error, the intrinsics and distortion with their standard deviations, and writes\n"
       "-o FILE (OpenCV's calibration YAML) and --ros FILE (ROS camera_info YAML); --camera of every\n"
-      "command reads both.");
+      "command reads both.\n"
+      "--rig RUN_DIR instead fits the camera's intrinsics and the rig's geometry (d0_mm, yaw0_deg, the marker's\n"
+      "and the camera's offsets, the rail's tilt) to the marker's corners a sweep run detected at its rail\n"
+      "positions and turntable angles, with their standard deviations (docs/calibration-rig.md); -o writes the\n"
+      "camera model, --rig-out the geometry for [rig.geometry] calibration = \"FILE\".");
   add_board_options(app, o->board,
                     "The board: COLS x ROWS squares (frame8: markers) with the options below, or the board file "
                     "markerctl marker --board wrote",
@@ -317,6 +333,7 @@ void add_calibrate_command(CLI::App& parent, Commands& commands) {
       ->type_name("NAME")
       ->capture_default_str();
   app->add_flag("--json", o->json, "The result as one JSON object instead of text");
+  add_rig_calibration_options(*app, o->rig);
   // Not required by CLI11: run_calibrate names what is missing, in words.
   app->add_option("images", o->images, "Image files of the board (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")
       ->type_name("IMAGE");

@@ -257,28 +257,4 @@ int run_rig_calibration(const RigCalibrationArguments& a, const std::string& cam
   return 0;
 }
 
-void add_calibrate_rig_command(CLI::App& parent, Commands& commands) {
-  struct Options {
-    RigCalibrationArguments rig;
-    std::string output;
-    bool json = false;
-  };
-  auto o = std::make_shared<Options>();
-  CLI::App* app = parent.add_subcommand("calibrate", "Calibrate the camera and the rig from a sweep run's records");
-  app->footer(
-      "--rig RUN_DIR: fits, in one least-squares problem, the camera's intrinsics (fx fy cx cy k1 k2; p1 p2 k3 with\n"
-      "--free) and the rig's geometry (d0_mm, yaw0_deg, the marker's and the camera's offsets, the rail's tilt) to\n"
-      "the marker's corners that the run detected at its rail positions and turntable angles, starting from the\n"
-      "camera model and the geometry the run used. Prints each parameter with its standard deviation, parameters\n"
-      "the run's views cannot measure by name, and the RMS reprojection error before and after. -o writes the\n"
-      "camera model (OpenCV's YAML), --rig-out the geometry as a file for [rig.geometry] calibration = \"FILE\".\n"
-      "A run of config/plans/calibrate-rig.toml measures every parameter (docs/calibration-rig.md).\n"
-      "Exit status: 0 fitted, 1 a run that cannot be read or fitted, 2 bad usage.");
-  add_rig_calibration_options(*app, o->rig);
-  app->add_option("-o,--output", o->output, "With --rig: write the fitted camera model (OpenCV's YAML) here")
-      ->type_name("CAMERA_FILE");
-  app->add_flag("--json", o->json, "One JSON object instead of the table");
-  commands.push_back({app, [o] { return run_rig_calibration(o->rig, o->output, o->json); }});
-}
-
 }  // namespace markerctl

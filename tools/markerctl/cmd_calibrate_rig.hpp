@@ -2,9 +2,9 @@
 // markerctl calibrate --rig RUN_DIR: the camera's intrinsics and the rig's
 // geometry fitted to a sweep run's views of the marker
 // (sweep/rig_calibration.hpp, docs/calibration-rig.md). Kept apart from the
-// image-based calibration of `markerctl calibrate`, which adds these options
-// to its own subcommand and hands the run over when --rig is given; -o (the
-// camera file) and --json are the subcommand's.
+// image-based calibration (cmd_calibrate.cpp), which adds these options to
+// its subcommand and hands the run over when --rig is given; -o (the camera
+// file) and --json are the subcommand's.
 
 #include <string>
 #include <vector>
@@ -25,9 +25,5 @@ void add_rig_calibration_options(CLI::App& calibrate, RigCalibrationArguments& a
 // Fits and reports; writes the camera model to `camera_out` and the geometry
 // to arguments.rig_out where given. The exit status.
 int run_rig_calibration(const RigCalibrationArguments& arguments, const std::string& camera_out, bool json);
-
-// `markerctl calibrate` with the rig's options alone (and -o, --json), until
-// the image-based calibration's command takes them in.
-void add_calibrate_rig_command(CLI::App& parent, Commands& commands);
 
 }  // namespace markerctl

@@ -19,7 +19,6 @@
 #include <opencv2/core.hpp>
 #include <opencv2/core/utils/logger.hpp>
 
-#include "cmd_calibrate_rig.hpp"
 #include "cmd_daemon.hpp"
 #include "common.hpp"
 #include "did_you_mean.hpp"
