@@ -14,6 +14,7 @@
 #include <thread>
 #include <vector>
 
+#include "markerd/daemon/latest_frame.hpp"
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/render.hpp"
@@ -111,6 +112,39 @@ TEST(PipelineNoAllocation, SteadyStateFramesThroughFrame8WorkersAllocateNothing)
   EXPECT_EQ(sink.failed_.load(), 0U);
   EXPECT_EQ(released.load(), sequence);
   EXPECT_EQ(pipeline.stats().pool_free, 4U);
+}
+
+// The log stage's offer of each frame to the newest-frame slot (the
+// snapshot, the web page) copies it into buffers that grew on the first
+// frames, while a reader takes and drops the copies.
+TEST(PipelineNoAllocation, OfferingFramesToTheNewestFrameSlotAllocatesNothing) {
+  const detector::GreyImage image(640, 480, 77);
+  std::vector<detector::Detection> detections(3);
+  FrameRecordInput record;
+  record.detections = detections;
+  record.rig = rig::RigSnapshot{};
+  record.truth = rig::MarkerGroundTruth{};
+  LatestFrameSettings settings;
+  settings.watched_interval = std::chrono::milliseconds(0);
+  settings.unwatched_interval = std::chrono::milliseconds(0);
+  LatestFrame slot(settings);
+  for (std::uint64_t seq = 0; seq < 2 * settings.buffers; ++seq) {  // every buffer grows once
+    record.sequence = seq;
+    slot.offer(record, image);
+    (void)slot.latest();
+  }
+  g_allocations = 0;
+  g_counting = true;
+  for (std::uint64_t seq = 100; seq < 400; ++seq) {
+    record.sequence = seq;
+    slot.offer(record, image);
+    const std::shared_ptr<const HeldFrame> held = slot.latest();
+    if (held->sequence != seq) break;
+  }
+  g_counting = false;
+  EXPECT_EQ(g_allocations.load(), 0);
+  EXPECT_EQ(slot.latest()->sequence, 399U);
+  EXPECT_EQ(slot.stats().busy, 0U);
 }
 
 // The counter itself works, on another thread too.

@@ -5,6 +5,7 @@
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
+#include "markerd/daemon/control/snapshot_command.hpp"
 #include "markerd/daemon/control/sweep_commands.hpp"
 #include "markerd/daemon/daemon_status.hpp"
 
@@ -162,6 +163,9 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
   sink_ = std::make_unique<DetectionLogSink>(std::move(writer), std::vector<std::string>{source_->name()},
                                              config_.rig ? std::optional(config_.rig->geometry) : std::nullopt);
 
+  latest_ = std::make_unique<LatestFrame>();
+  sink_->set_latest_frame(latest_.get());
+
   PipelineConfig pipeline = config_.pipeline;
   pipeline.pool.pixel_bytes = source_->geometry().slot_pixel_bytes;
   std::vector<std::unique_ptr<detector::MarkerDetector>> detectors;
@@ -220,6 +224,7 @@ void Daemon::register_commands() {
         return nlohmann::json{{"v4l2", std::move(v4l2)}, {"libcamera", std::move(libcamera)}};
       },
       "the cameras this machine has, through V4L2 and libcamera: formats, sizes, intervals, controls");
+  register_snapshot_command(*control_, *latest_, annotation_context());
   control_->register_stream(*detections_, "follow the detection log live: one JSON line per frame");
   if (rig_) register_rig_commands(*control_, *rig_);
   if (sweep_) {
@@ -229,6 +234,17 @@ void Daemon::register_commands() {
     control_->serve_beyond_client_limit("sweep.pause");
     control_->serve_beyond_client_limit("sweep.abort");
   }
+}
+
+AnnotationContext Daemon::annotation_context() const {
+  AnnotationContext context;
+  context.camera = config_.camera.model;
+  context.marker_size_m = config_.marker.size_m;
+  if (config_.rig) {
+    context.rail_unit = config_.rig->rail.axis.unit;
+    context.turntable_unit = config_.rig->turntable.axis.unit;
+  }
+  return context;
 }
 
 Daemon::~Daemon() { stop(); }

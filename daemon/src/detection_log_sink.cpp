@@ -51,6 +51,7 @@ void DetectionLogSink::write(const Frame& frame) {
     report(e);
   }
   if (frame_observer_) frame_observer_(in);
+  if (latest_ != nullptr) latest_->offer(in, frame.image);
   note_path_if_changed();  // rotated
 }
 

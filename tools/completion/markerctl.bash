@@ -17,8 +17,8 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
   local socket="--socket="
   case $1 in
     "")
-      echo "marker render detect evaluate rig cameras status detections call sweep report calibrate|-h --help" \
-        "--version"
+      echo "marker render detect evaluate rig cameras status detections call snapshot sweep report calibrate|-h" \
+        "--help --version"
       ;;
     marker)
       echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone --json -o= --output= -h -h" \
@@ -48,6 +48,7 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     status) echo "|$socket --json -h -h --help" ;;
     detections) echo "|$socket --count= -h -h --help" ;;
     call) echo "|$socket --timeout= -h -h --help" ;;
+    snapshot) echo "|-o= --output= --annotate --json $socket -h -h --help" ;;
     sweep) echo "check start status pause resume abort|-h --help" ;;
     "sweep check") echo "|--config= $socket --json -h -h --help" ;;
     "sweep start") echo "|--wait $socket --json -h -h --help" ;;

@@ -20,6 +20,7 @@
 #include <opencv2/core/utils/logger.hpp>
 
 #include "cmd_daemon.hpp"
+#include "cmd_snapshot.hpp"
 #include "common.hpp"
 #include "did_you_mean.hpp"
 #include "markerd/detector/board.hpp"
@@ -87,6 +88,7 @@ int main(int argc, char** argv) {
       "  markerctl rig --config config/rig-sim.toml move --home --rail 250mm --turntable 30deg\n"
       "  markerctl cameras\n"
       "  markerctl status                  (and detections, call, rig without --config: a running markerd)\n"
+      "  markerctl snapshot --annotate -o aim.png\n"
       "  markerctl sweep start --wait config/plans/thesis.toml\n"
       "  markerctl report /var/lib/markerd/runs/RUN\n"
       "  markerctl calibrate --rig /var/lib/markerd/runs/RUN -o camera.yaml --rig-out rig-geometry.toml\n"
@@ -106,6 +108,7 @@ int main(int argc, char** argv) {
   markerctl::add_rig_command(app, commands);
   markerctl::add_cameras_command(app, commands);
   markerctl::add_daemon_commands(app, commands);
+  markerctl::add_snapshot_command(app, commands);
   markerctl::add_sweep_command(app, commands);
   markerctl::add_report_command(app, commands);
   markerctl::add_calibrate_command(app, commands);
@@ -114,7 +117,7 @@ int main(int argc, char** argv) {
     std::cerr << app.help();
     print_error("",
                 "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call, "
-                "sweep, report or calibrate)");
+                "snapshot, sweep, report or calibrate)");
     return markerctl::exit_usage;
   }
   try {

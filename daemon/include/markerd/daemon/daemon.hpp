@@ -16,6 +16,8 @@
 #include "markerd/daemon/control/line_broadcast.hpp"
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/daemon/detection_log_sink.hpp"
+#include "markerd/daemon/frame_annotation.hpp"
+#include "markerd/daemon/latest_frame.hpp"
 #include "markerd/daemon/pipeline.hpp"
 #include "markerd/rig/device_lock.hpp"
 #include "markerd/rig/rig.hpp"
@@ -67,6 +69,10 @@ class Daemon {
   [[nodiscard]] DetectionLogSink& log() { return *sink_; }
   [[nodiscard]] const DetectionLogSink& log() const { return *sink_; }
   [[nodiscard]] const ControlServer& control() const { return *control_; }
+  // The newest frame, as `snapshot` and the web page see it.
+  [[nodiscard]] const LatestFrame& latest_frame() const { return *latest_; }
+  // What annotating a frame needs: the camera model, the marker's size, the axes' units.
+  [[nodiscard]] AnnotationContext annotation_context() const;
   // The sweep runner; null without a rig.
   [[nodiscard]] sweep::SweepRunner* sweep() { return sweep_.get(); }
   [[nodiscard]] const sweep::SweepRunner* sweep() const { return sweep_.get(); }
@@ -83,6 +89,7 @@ class Daemon {
   std::optional<rig::DeviceLock> rig_lock_;
   std::unique_ptr<rig::Rig> rig_;
   std::unique_ptr<CaptureSource> source_;
+  std::unique_ptr<LatestFrame> latest_;  // before the sink that offers it frames
   std::unique_ptr<DetectionLogSink> sink_;
   std::unique_ptr<Pipeline> pipeline_;
   std::unique_ptr<CaptureLoop> capture_loop_;

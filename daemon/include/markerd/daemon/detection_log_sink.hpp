@@ -17,6 +17,7 @@
 
 #include "markerd/daemon/detection_record.hpp"
 #include "markerd/daemon/frame.hpp"
+#include "markerd/daemon/latest_frame.hpp"
 #include "markerd/daemon/log_writer.hpp"
 #include "markerd/rig/geometry.hpp"
 
@@ -48,6 +49,11 @@ class DetectionLogSink final : public FrameSink {
     frame_observer_ = std::move(observer);
   }
 
+  // Offered every frame with its pixels, after its line (the snapshot and
+  // the web page's preview); must outlive the sink. Set before the pipeline
+  // starts.
+  void set_latest_frame(LatestFrame* latest) { latest_ = latest; }
+
   void write(const Frame& frame) override;
   [[nodiscard]] std::chrono::milliseconds idle_period() const override { return std::chrono::milliseconds(100); }
   void idle() override;
@@ -75,6 +81,7 @@ class DetectionLogSink final : public FrameSink {
   std::optional<rig::RigGeometry> geometry_;
   std::function<void(std::string_view)> observer_;
   std::function<void(const FrameRecordInput&)> frame_observer_;
+  LatestFrame* latest_ = nullptr;
   std::atomic<bool> reopen_requested_{false};
   std::atomic<std::uint64_t> lines_lost_{0};
   std::uint64_t files_opened_seen_ = 0;
