@@ -1,7 +1,11 @@
 // The live view: the slot that holds markerd's newest frame (copies, spare
 // buffers held by readers, threads), the annotation drawn where the
 // detection and the truth are, `snapshot` over the control socket and
-// markerctl snapshot.
+// markerctl snapshot, the web page's endpoints through cpp-httplib's client
+// (the page, the state, the snapshot, the MJPEG preview, the report files
+// with path traversal refused, read-only), [web] off by default and on the
+// loopback address unless the config names another, and a stop with a
+// preview streaming. The page in a browser: tests/web/check_page.py.
 
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -25,6 +29,7 @@
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/daemon/frame_annotation.hpp"
 #include "markerd/daemon/latest_frame.hpp"
+#include "markerd/daemon/web/web_server.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/render.hpp"
 #include "markerd/rig/geometry.hpp"
@@ -32,6 +37,10 @@
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
+
+// Last: it brings in <resolv.h>, whose _res macro breaks Eigen's headers
+// when they come after it.
+#include <httplib.h>
 
 namespace markerd::daemon {
 namespace {
@@ -416,6 +425,7 @@ cv::Mat decode(const json& image) {
 
 TEST_F(LiveViewTest, SnapshotOverTheControlSocketIsTheNewestFrameAsADecodableImage) {
   Daemon daemon(config());
+  EXPECT_EQ(daemon.web(), nullptr) << "the web page is off unless the config turns it on";
   daemon.start();
   ControlClient client(dir_ / "control.sock");
   const json reply = first_snapshot(client, {{"cmd", "snapshot"}});
@@ -480,6 +490,262 @@ TEST_F(LiveViewTest, SnapshotOverTheControlSocketIsTheNewestFrameAsADecodableIma
             "markerctl: snapshot: -o x.bmp: the format comes from the extension, which must be .png, .jpg, .jpeg or "
             ".pgm\n");
   EXPECT_FALSE(fs::exists("x.bmp"));
+}
+
+TEST_F(LiveViewTest, TheWebPageIsOffByDefaultAndOnTheLoopbackUnlessConfiguredOtherwise) {
+  const DaemonConfig off = config();
+  EXPECT_FALSE(off.web.enabled);
+  EXPECT_EQ(off.web.host, "127.0.0.1");
+  EXPECT_TRUE(off.web.loopback());
+  const DaemonConfig on = config("\n[web]\nenabled = true\n");
+  EXPECT_TRUE(on.web.enabled);
+  EXPECT_EQ(on.web.host, "127.0.0.1");
+  EXPECT_EQ(on.web.port, 8080);
+  EXPECT_TRUE(on.web.loopback());
+  const DaemonConfig any = config("\n[web]\nenabled = true\nlisten = \"0.0.0.0:8081\"\npreview_fps = 5\n");
+  EXPECT_EQ(any.web.host, "0.0.0.0");
+  EXPECT_EQ(any.web.port, 8081);
+  EXPECT_FALSE(any.web.loopback());
+  EXPECT_EQ(any.web.preview_fps, 5);
+  const DaemonConfig v6 = config("\n[web]\nenabled = true\nlisten = \"[::1]:0\"\n");
+  EXPECT_EQ(v6.web.host, "::1");
+  EXPECT_EQ(v6.web.port, 0);
+  EXPECT_TRUE(v6.web.loopback());
+
+  const std::string file = (dir_ / "markerd.toml").string();
+  const int line = base_lines() + 3;  // [web]'s first key: after an empty line and the table's header
+  EXPECT_EQ(config_error("\n[web]\nlisten = \"localhost:8080\"\n"),
+            fmt::format("{}:{}: web.listen: must be \"ADDRESS:PORT\" with a numeric address (\"127.0.0.1:8080\", "
+                        "\"[::1]:8080\"; \"0.0.0.0:8080\" for every interface), got \"localhost:8080\": \"localhost\" "
+                        "is not an IPv4 address",
+                        file, line));
+  EXPECT_NE(config_error("\n[web]\nlisten = \"127.0.0.1:70000\"\n").find("the port must be 0 to 65535, got \"70000\""),
+            std::string::npos);
+  EXPECT_NE(config_error("\n[web]\nlisten = \"127.0.0.1\"\n").find(": no port"), std::string::npos);
+  EXPECT_NE(config_error("\n[web]\nlisten = \"::1:80\"\n").find("an IPv6 address goes in brackets"), std::string::npos);
+  EXPECT_EQ(config_error("\n[web]\npreview_fps = 100\n"),
+            fmt::format("{}:{}: web.preview_fps: must be from 0.5 to 30 frames per second, got 100", file, line));
+  EXPECT_EQ(
+      config_error("\n[web]\nenable = true\n")
+          .rfind(fmt::format("{}:{}: web.enable: unknown key (known here: enabled, listen, preview_fps)", file, line),
+                 0),
+      0U)
+      << config_error("\n[web]\nenable = true\n");
+}
+
+class WebPageTest : public LiveViewTest {
+ protected:
+  void SetUp() override {
+    LiveViewTest::SetUp();
+    daemon_ = std::make_unique<Daemon>(config("\n[web]\nenabled = true\nlisten = \"127.0.0.1:0\"\n"));
+    daemon_->start();
+    ASSERT_NE(daemon_->web(), nullptr);
+    port_ = daemon_->web()->port();
+    ASSERT_GT(port_, 0);
+  }
+
+  [[nodiscard]] httplib::Client client() const {
+    httplib::Client c("127.0.0.1", port_);
+    c.set_read_timeout(30, 0);
+    c.set_connection_timeout(30, 0);
+    return c;
+  }
+
+  // The page's state once markerd holds a frame.
+  json state_with_frame() {
+    auto c = client();
+    const auto deadline = Clock::now() + 60s;
+    for (;;) {
+      const auto result = c.Get("/state.json");
+      if (!result || result->status != 200) return json();
+      json state = json::parse(result->body);
+      if (!state["frame"].is_null() || Clock::now() > deadline) return state;
+      std::this_thread::sleep_for(20ms);
+    }
+  }
+
+  std::unique_ptr<Daemon> daemon_;
+  int port_ = 0;
+};
+
+TEST_F(WebPageTest, ThePageTheStateAndTheSnapshot) {
+  auto c = client();
+  const auto page = c.Get("/");
+  ASSERT_TRUE(page) << httplib::to_string(page.error());
+  EXPECT_EQ(page->status, 200);
+  EXPECT_EQ(page->get_header_value("Content-Type"), "text/html; charset=utf-8");
+  EXPECT_NE(page->body.find("<img id=\"preview\" src=\"/preview.mjpg\""), std::string::npos);
+  EXPECT_NE(page->get_header_value("Content-Security-Policy").find("script-src 'self'"), std::string::npos);
+  for (const char* path : {"/app.js", "/style.css"}) {
+    const auto file = c.Get(path);
+    ASSERT_TRUE(file) << path;
+    EXPECT_EQ(file->status, 200) << path;
+    EXPECT_GT(file->body.size(), 500U) << path;
+  }
+  const json state = state_with_frame();
+  ASSERT_TRUE(state["frame"].is_object()) << state.dump();
+  EXPECT_EQ(state["frame"]["frame"]["width"], 640);
+  EXPECT_TRUE(state["rig"]["rail"].is_object());
+  EXPECT_EQ(state["sweep"]["state"], "idle");
+  EXPECT_TRUE(state["report"].is_null());
+  EXPECT_EQ(state["web"]["max_previews"], WebServer::kMaxPreviews);
+
+  const auto jpeg = c.Get("/snapshot.jpg");
+  ASSERT_TRUE(jpeg);
+  EXPECT_EQ(jpeg->status, 200);
+  EXPECT_EQ(jpeg->get_header_value("Content-Type"), "image/jpeg");
+  const cv::Mat annotated =
+      cv::imdecode(std::vector<std::uint8_t>(jpeg->body.begin(), jpeg->body.end()), cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(annotated.type(), CV_8UC3) << "annotated by default";
+  EXPECT_EQ(annotated.cols, 640);
+  const auto png = c.Get("/snapshot.png?annotate=0");
+  ASSERT_TRUE(png);
+  const cv::Mat grey =
+      cv::imdecode(std::vector<std::uint8_t>(png->body.begin(), png->body.end()), cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(grey.type(), CV_8UC1);
+  EXPECT_EQ(grey.rows, 480);
+
+  // The control socket's status says where the page is.
+  ControlClient control(dir_ / "control.sock");
+  const json status = control.call({{"cmd", "status"}});
+  EXPECT_EQ(status["web"]["url"], fmt::format("http://127.0.0.1:{}/", port_));
+  EXPECT_EQ(status["web"]["listen_loopback"], true);
+}
+
+TEST_F(WebPageTest, ThePreviewStreamsJpegFramesOneAfterAnother) {
+  auto c = client();
+  std::string content_type;
+  std::string body;
+  int parts = 0;
+  const auto result = c.Get(
+      "/preview.mjpg",
+      [&](const httplib::Response& response) {
+        content_type = response.get_header_value("Content-Type");
+        return true;
+      },
+      [&](const char* data, std::size_t length) {
+        body.append(data, length);
+        parts = 0;
+        for (std::size_t at = body.find("--markerdframe\r\n"); at != std::string::npos;
+             at = body.find("--markerdframe\r\n", at + 1)) {
+          ++parts;
+        }
+        return parts < 3;  // two whole parts, and the start of a third
+      });
+  EXPECT_EQ(content_type, "multipart/x-mixed-replace; boundary=markerdframe");
+  ASSERT_GE(parts, 3) << body.size() << " bytes";
+  // The first part: its headers, then as many bytes of JPEG as it says.
+  const std::size_t length_at = body.find("Content-Length: ");
+  ASSERT_NE(length_at, std::string::npos);
+  const std::size_t length = std::stoul(body.substr(length_at + 16));
+  const std::size_t data_at = body.find("\r\n\r\n", length_at) + 4;
+  ASSERT_LE(data_at + length, body.size());
+  const cv::Mat frame =
+      cv::imdecode(std::vector<std::uint8_t>(body.begin() + static_cast<std::ptrdiff_t>(data_at),
+                                             body.begin() + static_cast<std::ptrdiff_t>(data_at + length)),
+                   cv::IMREAD_UNCHANGED);
+  EXPECT_EQ(frame.cols, 640);
+  EXPECT_EQ(frame.rows, 480);
+  // Each part is another frame.
+  std::vector<std::string> numbers;
+  for (std::size_t at = body.find("X-Markerd-Frame: "); at != std::string::npos;
+       at = body.find("X-Markerd-Frame: ", at + 1)) {
+    numbers.push_back(body.substr(at + 17, body.find("\r\n", at) - at - 17));
+  }
+  ASSERT_GE(numbers.size(), 2U);
+  EXPECT_NE(numbers[0], numbers[1]);
+  (void)result;  // cancelled by the receiver, as a browser closing the page
+}
+
+TEST_F(WebPageTest, TheReportIsServedAndNothingOutsideIt) {
+  const fs::path run = dir_ / "state" / "runs" / "20261201T071545Z-thesis";
+  fs::create_directories(run / "report");
+  test_support::write_file(run / "report" / "report.md", "# Table 6.1\n");
+  test_support::write_file(run / "report" / "detection-rate.svg", "<svg xmlns=\"http://www.w3.org/2000/svg\"/>\n");
+  test_support::write_file(run / "records.jsonl", "not for the page\n");
+  test_support::write_file(dir_ / "secret.txt", "outside\n");
+  fs::create_symlink(dir_ / "secret.txt", run / "report" / "linked.md");
+  auto c = client();
+
+  const auto index = c.Get("/report/index.json");
+  ASSERT_TRUE(index);
+  EXPECT_EQ(json::parse(index->body),
+            (json{{"run_id", "20261201T071545Z-thesis"}, {"files", {"detection-rate.svg", "report.md"}}}));
+  const auto md = c.Get("/report/report.md");
+  ASSERT_TRUE(md);
+  EXPECT_EQ(md->status, 200);
+  EXPECT_EQ(md->body, "# Table 6.1\n");
+  const auto svg = c.Get("/report/detection-rate.svg");
+  ASSERT_TRUE(svg);
+  EXPECT_EQ(svg->get_header_value("Content-Type"), "image/svg+xml");
+  EXPECT_EQ(svg->get_header_value("Content-Security-Policy").rfind("sandbox", 0), 0U);
+  EXPECT_EQ(svg->get_header_value_count("Content-Security-Policy"), 1U);
+  const auto listing = c.Get("/report/");
+  ASSERT_TRUE(listing);
+  EXPECT_NE(listing->body.find("<a href=\"report.md\">report.md</a>"), std::string::npos) << listing->body;
+  EXPECT_NE(json::parse(c.Get("/state.json")->body)["report"], nullptr);
+
+  for (const char* path :
+       {"/report/../records.jsonl", "/report/..%2frecords.jsonl", "/report/%2e%2e/records.jsonl",
+        "/report/..%2F..%2F..%2Fsecret.txt", "/report/linked.md", "/report/.hidden", "/report/report.md%00",
+        "/report/report.md/", "/../secret.txt", "/report//etc/passwd", "/report/%2Fetc%2Fpasswd"}) {
+    const auto refused = c.Get(path);
+    ASSERT_TRUE(refused) << path;
+    EXPECT_EQ(refused->status, 404) << path << ": " << refused->body;
+    EXPECT_EQ(refused->body.find("outside"), std::string::npos) << path;
+    EXPECT_EQ(refused->body.find("not for the page"), std::string::npos) << path;
+    EXPECT_EQ(refused->body.find("root:"), std::string::npos) << path;
+  }
+}
+
+TEST_F(WebPageTest, OnlyGetAndHeadAreServed) {
+  auto c = client();
+  for (const auto& result : {c.Post("/", "x", "text/plain"), c.Put("/state.json", "{}", "application/json"),
+                             c.Delete("/report/report.md"), c.Patch("/", "x", "text/plain")}) {
+    ASSERT_TRUE(result);
+    EXPECT_EQ(result->status, 405);
+    EXPECT_EQ(result->get_header_value("Allow"), "GET, HEAD");
+  }
+  const auto head = c.Head("/state.json");
+  ASSERT_TRUE(head);
+  EXPECT_EQ(head->status, 200);
+  const auto missing = c.Get("/admin");
+  ASSERT_TRUE(missing);
+  EXPECT_EQ(missing->status, 404);
+}
+
+TEST_F(WebPageTest, AnotherServerOnTheSamePortIsRefusedByName) {
+  WebSettings settings = daemon_->config().web;
+  settings.port = port_;
+  WebServer second(settings, WebSources{});
+  try {
+    second.start();
+    ADD_FAILURE() << "a second server listened on port " << port_;
+  } catch (const WebServerError& e) {
+    EXPECT_EQ(std::string(e.what()),
+              fmt::format("{}:{}: web.listen: the web page cannot listen on 127.0.0.1:{}: Address already in use",
+                          (dir_ / "markerd.toml").string(), base_lines() + 4, port_));
+  }
+}
+
+TEST_F(WebPageTest, StoppingEndsAPreviewThatIsStreaming) {
+  std::atomic<int> chunks{0};
+  std::atomic<bool> returned{false};
+  std::thread viewer([&] {
+    auto c = client();
+    (void)c.Get("/preview.mjpg", [&](const char*, std::size_t) {
+      chunks.fetch_add(1);
+      return true;  // watches for ever
+    });
+    returned = true;
+  });
+  const auto deadline = Clock::now() + 60s;
+  while (chunks.load() < 3 && Clock::now() < deadline) std::this_thread::sleep_for(10ms);
+  EXPECT_GE(chunks.load(), 3);
+  EXPECT_EQ(daemon_->web()->previews(), 1U);
+  daemon_->stop();  // what SIGTERM does
+  viewer.join();
+  EXPECT_TRUE(returned.load());
 }
 
 }  // namespace

@@ -51,6 +51,8 @@ packages=(
   # man and lexgrog render and index them, groff with its warnings; a
   # container image may lack both
   man-db groff-base
+  # markerd's web page (daemon/src/web/, docs/web.md): cpp-httplib
+  libcpp-httplib-dev
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
   # renders SVG and PDF (its pdfcairo terminal) from the scripts the report
   # writes; -nox leaves out X and Qt

@@ -8,6 +8,7 @@
 #include "markerd/daemon/control/snapshot_command.hpp"
 #include "markerd/daemon/control/sweep_commands.hpp"
 #include "markerd/daemon/daemon_status.hpp"
+#include "markerd/daemon/web/web_state.hpp"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -163,7 +164,14 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
   sink_ = std::make_unique<DetectionLogSink>(std::move(writer), std::vector<std::string>{source_->name()},
                                              config_.rig ? std::optional(config_.rig->geometry) : std::nullopt);
 
-  latest_ = std::make_unique<LatestFrame>();
+  LatestFrameSettings latest;
+  if (config_.web.enabled) {
+    // While someone watches, a frame is copied as often as the preview shows one.
+    latest.watched_interval = std::chrono::duration_cast<std::chrono::milliseconds>(
+        std::chrono::duration<double>(1.0 / config_.web.preview_fps));
+    latest.watched_interval = std::min(latest.watched_interval, LatestFrameSettings{}.watched_interval);
+  }
+  latest_ = std::make_unique<LatestFrame>(latest);
   sink_->set_latest_frame(latest_.get());
 
   PipelineConfig pipeline = config_.pipeline;
@@ -201,6 +209,14 @@ Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
       o.detections = frame.detections;
       runner->observe(o);
     });
+  }
+  if (config_.web.enabled) {
+    WebSources sources;
+    sources.latest = latest_.get();
+    sources.annotation = annotation_context();
+    sources.state = [this] { return web_state_json(*this); };
+    sources.report = [this] { return last_report(*this); };
+    web_ = std::make_unique<WebServer>(config_.web, std::move(sources));
   }
   register_commands();
 }
@@ -265,11 +281,13 @@ void Daemon::start() {
   }
   // Last: no command can start a run before an interrupted one is resumed.
   control_->start();
+  if (web_) web_->start();
 }
 
 void Daemon::stop() {
   if (stopped_) return;
   stopped_ = true;
+  if (web_) web_->stop();  // first: it reads everything below
   control_->stop();
   if (sweep_) sweep_->stop();  // the run stays in the journal, to be resumed
   if (capture_thread_.joinable()) {

@@ -346,7 +346,7 @@ nlohmann::json marker_record(const MarkerSettings& marker) {
 }
 
 DaemonConfig parse_daemon_config(const ConfigTable& root) {
-  root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "sweep", "rig"});
+  root.allow_only({"marker", "camera", "detector", "pipeline", "log", "control", "sweep", "web", "rig"});
   DaemonConfig config;
   config.source = root.source();
   config.config_dir = std::filesystem::path(root.source()).parent_path();
@@ -375,6 +375,7 @@ DaemonConfig parse_daemon_config(const ConfigTable& root) {
   config.log = parse_log(root.maybe_table("log").value_or(ConfigTable::parse("", root.source())), dir);
   config.control = parse_control(root.maybe_table("control").value_or(ConfigTable::parse("", root.source())), dir);
   config.sweep = parse_sweep(root.maybe_table("sweep").value_or(ConfigTable::parse("", root.source())), dir);
+  if (auto t = root.maybe_table("web")) config.web = parse_web_settings(*t);
   return config;
 }
 

@@ -90,6 +90,11 @@ nlohmann::json status_json(const Daemon& daemon) {
   j["sweep"] = daemon.sweep() != nullptr ? sweep::to_json(daemon.sweep()->progress()) : nlohmann::json();
   j["control"] = {{"socket", daemon.control().settings().socket_path.string()},
                   {"clients", daemon.control().stats().clients}};
+  if (const WebServer* web = daemon.web()) {
+    j["web"] = {{"url", web->url()}, {"listen_loopback", web->settings().loopback()}, {"previews", web->previews()}};
+  } else {
+    j["web"] = nullptr;
+  }
   j["status"] = daemon.status_line();
   return j;
 }

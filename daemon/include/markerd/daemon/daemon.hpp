@@ -19,6 +19,7 @@
 #include "markerd/daemon/frame_annotation.hpp"
 #include "markerd/daemon/latest_frame.hpp"
 #include "markerd/daemon/pipeline.hpp"
+#include "markerd/daemon/web/web_server.hpp"
 #include "markerd/rig/device_lock.hpp"
 #include "markerd/rig/rig.hpp"
 #include "markerd/sweep/runner.hpp"
@@ -42,8 +43,9 @@ class Daemon {
   Daemon& operator=(const Daemon&) = delete;
 
   // Opens the control socket (ControlSocketError when it cannot: another
-  // markerd on it, a missing group), starts the capture thread, and resumes
-  // the sweep the journal names, if one was cut off.
+  // markerd on it, a missing group) and, when [web] enables it, the web page
+  // (WebServerError when it cannot listen), starts the capture thread, and
+  // resumes the sweep the journal names, if one was cut off.
   void start();
   // Closes the control socket, stops capture, detects and logs what is in
   // flight (by the pipeline's policy), stops the axes and disables them, and
@@ -73,6 +75,8 @@ class Daemon {
   [[nodiscard]] const LatestFrame& latest_frame() const { return *latest_; }
   // What annotating a frame needs: the camera model, the marker's size, the axes' units.
   [[nodiscard]] AnnotationContext annotation_context() const;
+  // The web page's server; null unless [web] enables it.
+  [[nodiscard]] const WebServer* web() const { return web_.get(); }
   // The sweep runner; null without a rig.
   [[nodiscard]] sweep::SweepRunner* sweep() { return sweep_.get(); }
   [[nodiscard]] const sweep::SweepRunner* sweep() const { return sweep_.get(); }
@@ -98,6 +102,7 @@ class Daemon {
   std::unique_ptr<ControlServer> control_;
   std::unique_ptr<SweepEnvironment> sweep_environment_;
   std::unique_ptr<sweep::SweepRunner> sweep_;  // after everything it uses
+  std::unique_ptr<WebServer> web_;             // after everything it shows
   std::jthread capture_thread_;
   bool stopped_ = false;
 };

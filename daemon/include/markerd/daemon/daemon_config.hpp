@@ -20,6 +20,7 @@
 #include "markerd/daemon/control/control_server.hpp"
 #include "markerd/daemon/log_writer.hpp"
 #include "markerd/daemon/pipeline.hpp"
+#include "markerd/daemon/web/web_settings.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/render.hpp"
@@ -110,6 +111,7 @@ struct DaemonConfig {
   LogSettings log;
   ControlConfig control;
   SweepSettings sweep;
+  WebSettings web;                    // [web]: the read-only web page, off by default
   std::optional<rig::RigConfig> rig;  // absent: a daemon that only watches
 };
 
