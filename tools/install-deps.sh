@@ -51,8 +51,9 @@ packages=(
   # man and lexgrog render and index them, groff with its warnings; a
   # container image may lack both
   man-db groff-base
-  # markerd's web page (daemon/src/web/, docs/web.md): cpp-httplib
-  libcpp-httplib-dev
+  # markerd's web page (daemon/src/web/, docs/web.md): cpp-httplib; and the
+  # page's test in a real browser (tests/web/check_page.py), headless
+  libcpp-httplib-dev chromium
   # the sweep reports' plots (markerctl report, test_sweep_summary): gnuplot
   # renders SVG and PDF (its pdfcairo terminal) from the scripts the report
   # writes; -nox leaves out X and Qt
