@@ -117,7 +117,8 @@ void add_snapshot_command(CLI::App& parent, Commands& commands) {
       ->type_name("PATH");
   app->footer(
       "Talks to a running markerd over its control socket (docs/control.md). The frame is the newest\n"
-      "markerd copied (at most half a second old, a tenth while someone watches). Example:\n"
+      "markerd copied out of its pipeline: it copies one every half second (every tenth while someone\n"
+      "watches), so a frame is that much older at most than the pipeline's latest. Example:\n"
       "  markerctl snapshot --annotate -o aim.png");
   commands.push_back({app, [o] { return run_snapshot(*o); }});
 }

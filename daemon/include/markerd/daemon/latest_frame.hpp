@@ -32,7 +32,7 @@ namespace markerd::daemon {
 struct LatestFrameSettings {
   // How often a frame is copied while someone has looked within
   // `watch_window`, and otherwise: a preview at ten frames a second, and a
-  // snapshot at most half a second old when nobody watches.
+  // snapshot at most half a second behind the pipeline when nobody watches.
   std::chrono::milliseconds watched_interval{100};
   std::chrono::milliseconds unwatched_interval{500};
   std::chrono::milliseconds watch_window{5000};
