@@ -682,6 +682,7 @@ TEST_F(WebPageTest, TheReportIsServedAndNothingOutsideIt) {
   EXPECT_EQ(svg->get_header_value_count("Content-Security-Policy"), 1U);
   const auto listing = c.Get("/report/");
   ASSERT_TRUE(listing);
+  EXPECT_NE(listing->body.find("<h1>Run 20261201T071545Z-thesis</h1>"), std::string::npos) << listing->body;
   EXPECT_NE(listing->body.find("<a href=\"report.md\">report.md</a>"), std::string::npos) << listing->body;
   EXPECT_NE(json::parse(c.Get("/state.json")->body)["report"], nullptr);
 

@@ -15,6 +15,7 @@
 #include <chrono>
 #include <opencv2/core.hpp>
 #include <regex>
+#include <string_view>
 #include <thread>
 
 #include "markerd/base/ascii.hpp"
@@ -68,6 +69,21 @@ void text(httplib::Response& response, int status, const std::string& body) {
 bool report_name(const std::string& name) {
   static const std::regex kName("[A-Za-z0-9][A-Za-z0-9._-]{0,127}");
   return std::regex_match(name, kName) && name.find("..") == std::string::npos;
+}
+
+// Text for an HTML page: the characters that would be markup, escaped.
+std::string html_text(std::string_view text) {
+  std::string out;
+  for (const char c : text) {
+    switch (c) {
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '&': out += "&amp;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += c;
+    }
+  }
+  return out;
 }
 
 std::string report_type(const std::string& name) {
@@ -353,11 +369,9 @@ void WebServer::serve_report_index(httplib::Response& response, bool as_json) {
   if (!report) {
     html += "<p>No sweep run has a report yet.</p>\n";
   } else {
-    // Names are report_name()s: nothing in them needs escaping.
-    html += fmt::format("<h1>Run {}</h1>\n<ul>\n",
-                        index["run_id"].get<std::string>().find_first_of("<>&\"") == std::string::npos
-                            ? index["run_id"].get<std::string>()
-                            : std::string("(unnamed)"));
+    // A run id carries the plan's name, which may hold anything; file
+    // names are report_name()s, which need no escaping.
+    html += fmt::format("<h1>Run {}</h1>\n<ul>\n", html_text(report->run_id));
     for (const auto& name : index["files"]) {
       html += fmt::format("<li><a href=\"{0}\">{0}</a></li>\n", name.get<std::string>());
     }
