@@ -4,6 +4,7 @@
 #include "markerd/base/read_file.hpp"
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 #include "markerd/daemon/capture/v4l2_source.hpp"
+#include "markerd/daemon/control/camera_commands.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
 #include "markerd/daemon/control/snapshot_command.hpp"
 #include "markerd/daemon/control/sweep_commands.hpp"
@@ -242,6 +243,9 @@ void Daemon::register_commands() {
       "the cameras this machine has, through V4L2 and libcamera: formats, sizes, intervals, controls");
   register_snapshot_command(*control_, *latest_, annotation_context());
   control_->register_stream(*detections_, "follow the detection log live: one JSON line per frame");
+  register_camera_commands(*control_, *source_, *capture_loop_, [this](const std::string& change) {
+    if (sweep_) sweep_->record_event("camera_control", change);
+  });
   if (rig_) register_rig_commands(*control_, *rig_);
   if (sweep_) {
     register_sweep_commands(*control_, *sweep_);

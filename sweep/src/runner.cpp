@@ -343,7 +343,7 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
               throw RunFailed(fmt::format("step {}: {} ({} attempts)", step.index, interrupted.cause, attempts));
             }
             spdlog::warn("sweep {}: step {}: {}; trying it again", run_->run_id, step.index, interrupted.cause);
-            run_->recorder.append_event({std::chrono::system_clock::now(), "retried", interrupted.cause, step.index});
+            append_event({std::chrono::system_clock::now(), "retried", interrupted.cause, step.index});
             break;
         }
       }
@@ -364,6 +364,28 @@ void SweepRunner::run_thread(const std::stop_token& stop) {
   } catch (const std::exception& e) {
     spdlog::error("sweep {}: failed: {}", run_->run_id, e.what());
     end_run(RunState::failed, e.what());
+  }
+}
+
+void SweepRunner::append_event(const RunEvent& event) {
+  const std::lock_guard records(records_mutex_);
+  run_->recorder.append_event(event);
+}
+
+bool SweepRunner::record_event(const std::string& kind, const std::string& reason) noexcept {
+  try {
+    const std::lock_guard lock(mutex_);
+    if (!run_ || (state_ != RunState::running && state_ != RunState::paused && state_ != RunState::suspended)) {
+      return false;
+    }
+    const std::lock_guard records(records_mutex_);
+    run_->recorder.append_event({std::chrono::system_clock::now(), kind, reason, run_->done});
+    return true;
+  } catch (const std::exception& e) {
+    // The run ended a moment ago (its records are closed), or the disk
+    // refuses the line: the caller's own log has the event all the same.
+    spdlog::warn("sweep: cannot record the event '{}' ({}): {}", kind, reason, e.what());
+    return false;
   }
 }
 
@@ -555,7 +577,10 @@ void SweepRunner::collect(const PlanStep& step, std::chrono::system_clock::time_
   record.started = started;
   record.finished = std::chrono::system_clock::now();
   record.uid = new_uuid4();
-  run_->recorder.append_point(record);  // the step is done once this returns
+  {
+    const std::lock_guard records(records_mutex_);
+    run_->recorder.append_point(record);  // the step is done once this returns
+  }
 
   int detected = 0;
   for (const FrameSample& f : record.frames) detected += f.detected ? 1 : 0;
@@ -575,7 +600,7 @@ void SweepRunner::wait_paused() {
   changed_.notify_all();
   write_journal(run_->directory, kJournalPaused, true);
   const std::size_t at = run_->done;
-  run_->recorder.append_event({std::chrono::system_clock::now(), "paused", {}, at});
+  append_event({std::chrono::system_clock::now(), "paused", {}, at});
   spdlog::info("sweep {}: paused at step {}", run_->run_id, at);
   {
     std::unique_lock lock(mutex_);
@@ -588,7 +613,7 @@ void SweepRunner::wait_paused() {
   }
   changed_.notify_all();
   write_journal(run_->directory, kJournalRunning, false);
-  run_->recorder.append_event({std::chrono::system_clock::now(), "resumed", {}, at});
+  append_event({std::chrono::system_clock::now(), "resumed", {}, at});
   spdlog::info("sweep {}: resumed at step {}", run_->run_id, at);
 }
 
@@ -602,7 +627,7 @@ void SweepRunner::suspend(const std::string& cause) {
   }
   changed_.notify_all();
   const std::size_t at = run_->done;
-  run_->recorder.append_event({std::chrono::system_clock::now(), "suspended", cause, at});
+  append_event({std::chrono::system_clock::now(), "suspended", cause, at});
   spdlog::warn("sweep {}: suspended at step {}: {}", run_->run_id, at, cause);
 
   const auto since = Clock::now();
@@ -646,7 +671,7 @@ void SweepRunner::suspend(const std::string& cause) {
     reason_.clear();
   }
   changed_.notify_all();
-  run_->recorder.append_event({std::chrono::system_clock::now(), "fault_cleared", cause, at});
+  append_event({std::chrono::system_clock::now(), "fault_cleared", cause, at});
   spdlog::info("sweep {}: the fault cleared; resuming at step {}", run_->run_id, at);
 }
 
@@ -693,7 +718,7 @@ void SweepRunner::leave_for_restart() noexcept {
   const std::string reason = "markerd was stopped (SIGTERM, SIGINT or its service stopped)";
   try {
     write_journal(run_->directory, kJournalStopped, paused, reason);
-    run_->recorder.append_event({std::chrono::system_clock::now(), "stopped", reason, at});
+    append_event({std::chrono::system_clock::now(), "stopped", reason, at});
   } catch (const std::exception& e) {
     // The journal still names the run: the next markerd resumes it, and
     // records the interruption without its cause.
@@ -719,7 +744,10 @@ void SweepRunner::end_run(RunState state, const std::string& reason) {
   record.run_start = run_->start_uid;
   std::string ended_reason = reason;
   try {
-    run_->recorder.finish(record);
+    {
+      const std::lock_guard records(records_mutex_);
+      run_->recorder.finish(record);
+    }
     write_run_documents(run_->directory);
     std::error_code ec;
     fs::remove(settings_.journal, ec);

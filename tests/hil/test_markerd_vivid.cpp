@@ -12,7 +12,8 @@
 // vivid's platform device while markerd streams), checks that markerd says
 // so on its control socket and keeps running, plugs it back in (binds the
 // device again) and checks that markerd streams and logs again by itself,
-// and finally stops it with SIGTERM.
+// with a control set at run time before the unplug set again on the new
+// device, and finally stops it with SIGTERM.
 //
 // markerd opens the camera by a stable name, /dev/v4l/by-path/platform-
 // vivid.0-video-index0, which the test makes and removes as udev would on
@@ -300,6 +301,29 @@ TEST_F(MarkerdVivid, LogsTheMarkersShownSurvivesAnUnplugAndStopsCleanly) {
   // A little more, for a scene change or two in the log.
   std::this_thread::sleep_for(2s);
 
+  // ---- a control set at run time, through the socket: refused out of its
+  // range (vivid's brightness has another on the HDMI input than on the
+  // webcam's), taken in it, and set again on the new device after the replug
+  int brightness = 0;
+  {
+    daemon::ControlClient client(socket_);
+    json reply = client.call({{"cmd", "camera.get"}, {"names", {"brightness"}}}, 20s);
+    ASSERT_EQ(reply["ok"], true) << reply.dump();
+    const int min = reply["controls"][0]["min"];
+    const int max = reply["controls"][0]["max"];
+    reply = client.call({{"cmd", "camera.set"}, {"controls", {{"brightness", max + 1}}}}, 20s);
+    EXPECT_EQ(reply["ok"], false) << reply.dump();
+    EXPECT_EQ(reply.value("error", ""), "brightness: " + std::to_string(max + 1) + " is out of its range " +
+                                            std::to_string(min) + " to " + std::to_string(max) +
+                                            "; nothing was changed");
+    brightness = min + (max - min) / 3;
+    reply = client.call({{"cmd", "camera.set"}, {"controls", {{"brightness", brightness}}}}, 20s);
+    ASSERT_EQ(reply["ok"], true) << reply.dump();
+    EXPECT_EQ(reply["changed"][0]["new"], brightness) << reply.dump();
+    reply = client.call({{"cmd", "camera.get"}, {"names", {"brightness"}}}, 20s);
+    EXPECT_EQ(reply["controls"][0]["value"], brightness) << reply.dump();
+  }
+
   // ---- unplugged while streaming: vivid lets go of the device under the
   // open files, and udev would remove the name
   {
@@ -369,6 +393,12 @@ TEST_F(MarkerdVivid, LogsTheMarkersShownSurvivesAnUnplugAndStopsCleanly) {
   ASSERT_EQ(s["camera"]["state"], "streaming") << s.dump();
   EXPECT_GE(s["camera"]["reopens"].get<int>(), 1) << s.dump();
   std::cout << "streaming again " << seconds_since(replugged) << " s after the replug\n";
+  {
+    daemon::ControlClient client(socket_);
+    const json reply = client.call({{"cmd", "camera.get"}, {"names", {"brightness"}}}, 20s);
+    EXPECT_EQ(reply["controls"][0]["value"], brightness)
+        << "the new device got the value set at run time: " << reply.dump();
+  }
   ASSERT_TRUE(wait_for_both_ids(replugged, markerd))
       << "not both ids logged within " << kPhaseTimeout.count() << " s of the replug";
   std::this_thread::sleep_for(1s);

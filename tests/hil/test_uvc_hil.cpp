@@ -455,6 +455,44 @@ TEST_F(UvcHil, LibcameraListsAndCapturesTheWebcam) {
   EXPECT_EQ(values_set("ae_mode"), std::vector<std::int64_t>{8});
 }
 
+// A control set at run time goes to the camera with the next request, after
+// a check against libcamera's range for it.
+TEST_F(UvcHil, LibcameraControlsAreSetAtRunTimeWithTheNextRequests) {
+  ::setenv("LIBCAMERA_LOG_LEVELS", "*:ERROR", 0);  // NOLINT(concurrency-mt-unsafe): before libcamera starts
+  const auto cameras = daemon::list_libcamera_cameras();
+  ASSERT_EQ(cameras.size(), 1U);
+  daemon::LibcameraSettings settings = libcamera_settings(daemon::LibcameraPixelFormat::yuyv, cameras.front().id);
+  settings.controls = {{"Brightness", -0.25, "test"}};
+  const auto source = daemon::make_libcamera_source(settings);
+  EXPECT_THROW((void)source->read_controls(), daemon::CaptureError) << "not open: nothing to read";
+  source->open();
+  (void)capture(*source, 5);
+
+  const auto controls = source->read_controls();
+  const auto brightness =
+      std::find_if(controls.begin(), controls.end(), [](const auto& c) { return c.name == "Brightness"; });
+  ASSERT_NE(brightness, controls.end());
+  EXPECT_EQ(brightness->kind, daemon::ControlKind::real);
+  EXPECT_EQ(daemon::describe_range(*brightness), "-1 to 1");
+  ASSERT_TRUE(brightness->value.has_value()) << "what the config asked for";
+  EXPECT_DOUBLE_EQ(std::get<double>(*brightness->value), -0.25);
+
+  try {
+    (void)daemon::set_camera_controls(*source, std::vector<daemon::ControlAssignment>{{"Brightness", 2.0}});
+    ADD_FAILURE() << "Brightness 2 was taken";
+  } catch (const daemon::ControlValueError& e) {
+    EXPECT_STREQ(e.what(), "Brightness: 2 is out of its range -1 to 1; nothing was changed");
+  }
+  const auto changes =
+      daemon::set_camera_controls(*source, std::vector<daemon::ControlAssignment>{{"Brightness", 0.5}});
+  ASSERT_EQ(changes.size(), 1U);
+  EXPECT_DOUBLE_EQ(std::get<double>(*changes[0].old_value), -0.25);
+  (void)capture(*source, 10);  // the requests after the set carry it
+  source->close();
+  // -0.25 and 0.5 of the range about the default: -16 and 32.
+  EXPECT_EQ(values_set("brightness"), (std::vector<std::int64_t>{-16, 32}));
+}
+
 // ---------------------------------------------------------------- MJPEG
 
 // The format each commit asked for (bFormatIndex) and the one the server

@@ -531,6 +531,122 @@ TEST_F(V4l2Hil, ControlsSetByNameReachTheDriverAndBadOnesAreNamed) {
       << e.what();
 }
 
+// The mean grey level of a frame captured once earlier buffers have drained
+// (vivid's webcam input draws its test pattern with the brightness set).
+double settled_mean(CaptureSource& source, FramePool& pool) {
+  double mean = 0;
+  for (int i = 0; i < 6; ++i) {
+    if (!source.wait_frame(kFrameTimeout)) throw std::runtime_error(source.name() + ": no frame within the timeout");
+    Frame* frame = pool.try_acquire();
+    if (frame == nullptr) throw std::runtime_error("the test's frame pool is empty");
+    source.fill(*frame);
+    double sum = 0;
+    for (int y = 0; y < frame->image.height; ++y) {
+      const std::uint8_t* row = frame->image.row(y);
+      for (int x = 0; x < frame->image.width; ++x) sum += row[x];
+    }
+    mean = sum / (static_cast<double>(frame->image.width) * frame->image.height);
+    pool.release(*frame);
+  }
+  return mean;
+}
+
+std::string set_refusal(CaptureSource& source, const std::vector<ControlAssignment>& assignments) {
+  try {
+    (void)set_camera_controls(source, assignments);
+    return "(set)";
+  } catch (const ControlValueError& e) {
+    return e.what();
+  }
+}
+
+TEST_F(V4l2Hil, ControlsAreReadAndSetWhileStreamingAllOrNoneAndSetAgainAtAReopen) {
+  select_capture_input(vivid_.capture, kWebcamInput);
+  auto settings = webcam_settings(V4l2PixelFormat::yuyv, 320, 180);
+  settings.controls = {{"brightness", std::int64_t{77}, "test:1: camera.v4l2.controls.brightness"}};
+  auto source = make_v4l2_source(settings);
+  EXPECT_THROW((void)source->read_controls(), CaptureError) << "not open: nothing to read";
+  source->open();
+  FramePool pool({2, 320 * 180, 4});
+
+  const auto find = [](const std::vector<CameraControlInfo>& controls,
+                       const std::string& name) -> std::optional<CameraControlInfo> {
+    for (const auto& c : controls) {
+      if (c.name == name) return c;
+    }
+    return std::nullopt;
+  };
+  auto controls = source->read_controls();
+  auto brightness = find(controls, "brightness");
+  ASSERT_TRUE(brightness.has_value());
+  EXPECT_EQ(brightness->kind, ControlKind::integer);
+  EXPECT_EQ(describe_range(*brightness), "0 to 255");
+  ASSERT_TRUE(brightness->value.has_value());
+  EXPECT_EQ(std::get<std::int64_t>(*brightness->value), 77) << "the config's value";
+  const auto osd = find(controls, "osd_text_mode");
+  ASSERT_TRUE(osd.has_value());
+  EXPECT_EQ(describe_range(*osd), "0: All, 1: Counters Only, 2: None");
+
+  const std::uint32_t brightness_id = brightness->id;
+  const std::uint32_t contrast_id = [&] {
+    Node n(vivid_.capture);
+    return control_id(n.fd(), "contrast");
+  }();
+  const double dim = settled_mean(*source, pool);
+  const auto changes = set_camera_controls(*source, std::vector<ControlAssignment>{{"brightness", std::int64_t{200}}});
+  ASSERT_EQ(changes.size(), 1U);
+  EXPECT_EQ(std::get<std::int64_t>(*changes[0].old_value), 77);
+  EXPECT_EQ(get_control(vivid_.capture, brightness_id), 200) << "the driver has it";
+  const double bright = settled_mean(*source, pool);
+  EXPECT_GT(bright, dim + 20) << "vivid draws its test pattern brighter";
+  EXPECT_EQ(std::get<std::int64_t>(*find(source->read_controls(), "brightness")->value), 200);
+
+  // Refused, naming the control and its range, and nothing changes.
+  const std::int32_t contrast = get_control(vivid_.capture, contrast_id);
+  EXPECT_EQ(
+      set_refusal(*source, {{"contrast", std::int64_t{(contrast + 10) % 256}}, {"brightness", std::int64_t{300}}}),
+      "brightness: 300 is out of its range 0 to 255; nothing was changed");
+  EXPECT_EQ(set_refusal(*source, {{"osd_text_mode", std::string("Some")}}),
+            "osd_text_mode: 'Some' is not one of its items (0: All, 1: Counters Only, 2: None); nothing was changed");
+  EXPECT_EQ(get_control(vivid_.capture, brightness_id), 200);
+  EXPECT_EQ(get_control(vivid_.capture, contrast_id), contrast);
+  for (const auto& c : controls) {
+    if (c.type != "button") continue;
+    EXPECT_EQ(set_refusal(*source, {{c.name, std::int64_t{1}}}),
+              c.name + ": a button (an action, not a setting); nothing was changed");
+    break;
+  }
+
+  // vivid's gain is held by its automatic gain (V4L2_CID_AUTOGAIN, "Gain,
+  // Automatic"): refused while that is on, taken with it turned off in the
+  // same set.
+  std::string names;
+  for (const auto& c : controls) names += " " + c.name;
+  ASSERT_TRUE(find(controls, "gain_automatic") && find(controls, "gain")) << "vivid's controls:" << names;
+  (void)set_camera_controls(*source, std::vector<ControlAssignment>{{"gain_automatic", true}});
+  EXPECT_TRUE(has_flag(*find(source->read_controls(), "gain"), "inactive"));
+  const std::string inactive = set_refusal(*source, {{"gain", std::int64_t{50}}});
+  EXPECT_EQ(inactive.rfind("gain: inactive now (an automatic mode holds it: ", 0), 0U) << inactive;
+  EXPECT_NE(inactive.find("gain_automatic = true"), std::string::npos) << inactive;
+  (void)set_camera_controls(*source,
+                            std::vector<ControlAssignment>{{"gain", std::int64_t{50}}, {"gain_automatic", false}});
+  EXPECT_EQ(std::get<std::int64_t>(*find(source->read_controls(), "gain")->value), 50);
+
+  // A reopen sets the config's controls, then those set at run time.
+  source->close();
+  {
+    Node n(vivid_.capture);
+    v4l2_control reset{brightness_id, 10};
+    must(n.fd(), VIDIOC_S_CTRL, &reset, "VIDIOC_S_CTRL");
+  }
+  source->open();
+  EXPECT_EQ(get_control(vivid_.capture, brightness_id), 200);
+  source->close();
+  EXPECT_THROW((void)set_camera_controls(*source, std::vector<ControlAssignment>{{"brightness", std::int64_t{100}}}),
+               CaptureError)
+      << "closed: nothing to set";
+}
+
 TEST_F(V4l2Hil, AFormatOrSizeTheDeviceCannotDoIsRefusedWithWhatItOffers) {
   select_capture_input(vivid_.capture, kWebcamInput);
   auto source = make_v4l2_source(webcam_settings(V4l2PixelFormat::yuyv, 1000, 500));

@@ -17,8 +17,8 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
   local socket="--socket="
   case $1 in
     "")
-      echo "marker render detect evaluate rig cameras status detections call snapshot sweep report calibrate|-h" \
-        "--help --version"
+      echo "marker render detect evaluate rig cameras camera status detections call snapshot sweep report" \
+        "calibrate|-h --help --version"
       ;;
     marker)
       echo "|--family= --id= --size= --margin= --dpi= --image-px= --no-quiet-zone --json -o= --output= -h -h" \
@@ -45,6 +45,8 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     "rig move" | "rig jog") echo "|--rail= --turntable= --home --no-wait --config= $socket -h -h --help" ;;
     "rig stop") echo "|--emergency --no-wait --config= $socket -h -h --help" ;;
     cameras) echo "|--backend= --json -h -h --help" ;;
+    camera) echo "get set|-h --help" ;;
+    "camera get" | "camera set") echo "|$socket --json -h -h --help" ;;
     status) echo "|$socket --json -h -h --help" ;;
     detections) echo "|$socket --count= -h -h --help" ;;
     call) echo "|$socket --timeout= -h -h --help" ;;

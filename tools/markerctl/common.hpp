@@ -58,6 +58,7 @@ void add_detect_command(CLI::App& parent, Commands& commands);
 void add_evaluate_command(CLI::App& parent, Commands& commands);
 void add_rig_command(CLI::App& parent, Commands& commands);
 void add_cameras_command(CLI::App& parent, Commands& commands);
+void add_camera_command(CLI::App& parent, Commands& commands);
 void add_report_command(CLI::App& parent, Commands& commands);
 void add_sweep_command(CLI::App& parent, Commands& commands);
 void add_calibrate_command(CLI::App& parent, Commands& commands);

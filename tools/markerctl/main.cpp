@@ -87,6 +87,7 @@ int main(int argc, char** argv) {
       "  markerctl evaluate --family frame8\n"
       "  markerctl rig --config config/rig-sim.toml move --home --rail 250mm --turntable 30deg\n"
       "  markerctl cameras\n"
+      "  markerctl camera set gain=200   (markerd's camera, at run time)\n"
       "  markerctl status                  (and detections, call, rig without --config: a running markerd)\n"
       "  markerctl snapshot --annotate -o aim.png\n"
       "  markerctl sweep start --wait config/plans/thesis.toml\n"
@@ -107,6 +108,7 @@ int main(int argc, char** argv) {
   markerctl::add_evaluate_command(app, commands);
   markerctl::add_rig_command(app, commands);
   markerctl::add_cameras_command(app, commands);
+  markerctl::add_camera_command(app, commands);
   markerctl::add_daemon_commands(app, commands);
   markerctl::add_snapshot_command(app, commands);
   markerctl::add_sweep_command(app, commands);
@@ -116,8 +118,8 @@ int main(int argc, char** argv) {
   if (argc <= 1) {
     std::cerr << app.help();
     print_error("",
-                "no command given (marker, render, detect, evaluate, rig, cameras, status, detections, call, "
-                "snapshot, sweep, report or calibrate)");
+                "no command given (marker, render, detect, evaluate, rig, cameras, camera, status, detections, "
+                "call, snapshot, sweep, report or calibrate)");
     return markerctl::exit_usage;
   }
   try {

@@ -19,6 +19,8 @@
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
+#include <limits>
+#include <map>
 #include <mutex>
 #include <utility>
 
@@ -62,6 +64,12 @@ class Session : public std::enable_shared_from_this<Session> {
   void requeue(std::uint32_t index) noexcept;
 
   [[nodiscard]] const std::string& camera_id() const { return camera_id_; }
+
+  // ---- any thread, while open ----
+  // The camera's controls and their ranges (fixed once configured).
+  [[nodiscard]] const libcamera::ControlInfoMap& controls() const { return camera_->controls(); }
+  // The control goes with the next request queued.
+  void set_control(unsigned int id, const libcamera::ControlValue& value);
 
  private:
   struct Mapping {
@@ -118,6 +126,8 @@ class Session : public std::enable_shared_from_this<Session> {
   // queues a request once stop() has begun.
   std::mutex requeue_mutex_;
   bool running_ = false;
+  // Controls set at run time, for the next request queued; under requeue_mutex_.
+  std::optional<libcamera::ControlList> pending_;
 
   // Completed requests, from libcamera's thread to the capture thread: a
   // ring with room for every request (each is in it at most once), so
@@ -135,6 +145,7 @@ void Session::open(const LibcameraSettings& settings) {
   configure(settings);
   allocate_and_map();
   const libcamera::ControlList controls = start_controls(settings);
+  pending_.emplace(camera_->controls());
 
   camera_->requestCompleted.connect(this, &Session::on_request_completed);
   camera_->disconnected.connect(this, &Session::on_disconnected);
@@ -464,9 +475,18 @@ void Session::requeue(std::uint32_t index) noexcept {
   if (!running_) return;
   libcamera::Request& request = *slots_[index].request;
   request.reuse(libcamera::Request::ReuseBuffers);
+  if (pending_ && !pending_->empty()) {
+    request.controls().merge(*pending_);
+    pending_->clear();
+  }
   // A failure here (the camera going away) shows as the request not coming
   // back; the camera's disconnection is reported by wait().
   (void)camera_->queueRequest(&request);
+}
+
+void Session::set_control(unsigned int id, const libcamera::ControlValue& value) {
+  const std::lock_guard lock(requeue_mutex_);
+  if (pending_) pending_->set(id, value);
 }
 
 void Session::on_request_completed(libcamera::Request* request) {
@@ -497,6 +517,9 @@ class LibcameraSource final : public CaptureSource {
     name_ = fmt::format("libcamera {} {} {}x{}", settings_.camera.empty() ? "(first camera)" : settings_.camera,
                         to_string(settings_.format), settings_.width, settings_.height);
     if (settings_.fps > 0) name_ += fmt::format("@{}", settings_.fps);
+    for (const auto& c : settings_.controls) {
+      asked_[c.name] = std::visit([](auto v) { return ControlValue(v); }, c.value);
+    }
   }
   ~LibcameraSource() override { close(); }
   LibcameraSource(const LibcameraSource&) = delete;
@@ -514,19 +537,42 @@ class LibcameraSource final : public CaptureSource {
 
   void open() override {
     close();
+    // The config's controls, then those set at run time since markerd
+    // started, each in place of the config's of its name.
+    LibcameraSettings settings = settings_;
+    {
+      const std::lock_guard lock(controls_mutex_);
+      for (const auto& set : set_at_run_time_) {
+        const auto it = std::find_if(settings.controls.begin(), settings.controls.end(),
+                                     [&](const auto& c) { return c.name == set.name; });
+        if (it == settings.controls.end()) {
+          settings.controls.push_back(set);
+        } else {
+          *it = set;
+        }
+      }
+    }
     auto session = std::make_shared<Session>(shared_camera_manager(), name_);
-    session->open(settings_);
+    session->open(settings);
+    const std::lock_guard lock(controls_mutex_);
     session_ = std::move(session);
   }
 
   void close() noexcept override {
     ready_.reset();
-    if (!session_) return;
-    session_->stop();
+    std::shared_ptr<Session> session;
+    {
+      const std::lock_guard lock(controls_mutex_);
+      session = std::move(session_);
+    }
+    if (!session) return;
+    session->stop();
     // Frames still borrowing its buffers keep the session (and the camera)
     // until their release hooks have run.
-    session_.reset();
   }
+
+  [[nodiscard]] std::vector<CameraControlInfo> read_controls() override;
+  void write_control(const CameraControlInfo& control, const ControlValue& value) override;
 
   [[nodiscard]] bool is_open() const noexcept override { return session_ != nullptr; }
 
@@ -552,11 +598,147 @@ class LibcameraSource final : public CaptureSource {
   }
 
  private:
+  // The session while open, for the control server's thread: taken under
+  // controls_mutex_ there; the capture thread, which alone changes it,
+  // reads it without.
+  [[nodiscard]] std::shared_ptr<Session> open_session(std::string_view doing) const {
+    const std::lock_guard lock(controls_mutex_);
+    if (!session_) {
+      throw CaptureError(CaptureError::Kind::io,
+                         fmt::format("{}: not open: its controls are {} while it streams", name_, doing));
+    }
+    return session_;
+  }
+
   LibcameraSettings settings_;
   std::string name_;
+  mutable std::mutex controls_mutex_;  // guards session_'s changes and the two below
   std::shared_ptr<Session> session_;
+  // Controls set at run time (camera.set), set again at every open.
+  std::vector<LibcameraControlSetting> set_at_run_time_;
+  // What markerd asked each control for, by the config or at run time:
+  // libcamera reports no current values outside a request's metadata.
+  std::map<std::string, ControlValue, std::less<>> asked_;
   std::optional<std::uint32_t> ready_;  // a completed request, waiting for fill() or skip()
 };
+
+// Arrays and the frame rate are not markerd's to set here.
+std::string why_not_settable(const libcamera::ControlId& id) {
+  if (id.id() == libcamera::controls::FrameDurationLimits.id()) {
+    return "set the frame rate with [camera.libcamera] fps";
+  }
+  if (id.name() == "ColourGains" || id.name() == "ColourCorrectionMatrix" || id.name() == "SensorBlackLevels") {
+    return "an array control: markerd sets single values only";
+  }
+  switch (id.type()) {
+    case libcamera::ControlTypeBool:
+    case libcamera::ControlTypeByte:
+    case libcamera::ControlTypeInteger32:
+    case libcamera::ControlTypeInteger64:
+    case libcamera::ControlTypeFloat: return {};
+    default: return fmt::format("a {} control: markerd sets numbers and booleans only", type_name(id.type()));
+  }
+}
+
+std::optional<ControlValue> control_value_of(const libcamera::ControlValue& value) {
+  const LibcameraValue v = value_of(value);
+  if (const auto* b = std::get_if<bool>(&v)) return *b;
+  if (const auto* i = std::get_if<std::int64_t>(&v)) return *i;
+  if (const auto* d = std::get_if<double>(&v)) return *d;
+  return std::nullopt;
+}
+
+std::vector<CameraControlInfo> LibcameraSource::read_controls() {
+  const std::shared_ptr<Session> session = open_session("read");
+  std::vector<CameraControlInfo> controls;
+  for (const auto& [id, info] : session->controls()) {
+    CameraControlInfo c;
+    c.name = id->name();
+    c.id = id->id();
+    c.type = type_name(id->type());
+    c.why_not_settable = why_not_settable(*id);
+    if (c.why_not_settable.empty()) {
+      switch (id->type()) {
+        case libcamera::ControlTypeBool: c.kind = ControlKind::boolean; break;
+        case libcamera::ControlTypeFloat: c.kind = ControlKind::real; break;
+        default: c.kind = ControlKind::integer; break;
+      }
+    }
+    c.minimum = control_value_of(info.min());
+    c.maximum = control_value_of(info.max());
+    c.default_value = control_value_of(info.def());
+    // Where the camera gives no range, the type's.
+    if (id->type() == libcamera::ControlTypeByte) {
+      if (!c.minimum) c.minimum = std::int64_t{0};
+      if (!c.maximum) c.maximum = std::int64_t{255};
+    } else if (id->type() == libcamera::ControlTypeInteger32) {
+      if (!c.minimum) c.minimum = std::int64_t{std::numeric_limits<std::int32_t>::min()};
+      if (!c.maximum) c.maximum = std::int64_t{std::numeric_limits<std::int32_t>::max()};
+    }
+    for (const auto& value : info.values()) {
+      if (auto v = control_value_of(value)) c.allowed.push_back(*v);
+    }
+    const std::lock_guard lock(controls_mutex_);
+    if (const auto it = asked_.find(c.name); it != asked_.end()) c.value = it->second;
+    controls.push_back(std::move(c));
+  }
+  std::sort(controls.begin(), controls.end(), [](const auto& a, const auto& b) { return a.name < b.name; });
+  return controls;
+}
+
+void LibcameraSource::write_control(const CameraControlInfo& control, const ControlValue& value) {
+  const std::shared_ptr<Session> session = open_session("set");
+  const libcamera::ControlId* id = find_control(session->controls(), control.name);
+  if (id == nullptr) {
+    throw CaptureError(CaptureError::Kind::config, fmt::format("{}: no control {}", name_, control.name));
+  }
+  libcamera::ControlValue written;
+  LibcameraControlSetting setting;
+  setting.name = control.name;
+  setting.origin = "set at run time (camera.set)";
+  const auto whole = [&] {
+    if (const auto* b = std::get_if<bool>(&value)) return std::int64_t{*b ? 1 : 0};
+    if (const auto* i = std::get_if<std::int64_t>(&value)) return *i;
+    return static_cast<std::int64_t>(std::llround(std::get<double>(value)));
+  };
+  switch (id->type()) {
+    case libcamera::ControlTypeBool:
+      written = libcamera::ControlValue(whole() != 0);
+      setting.value = whole() != 0;
+      break;
+    case libcamera::ControlTypeByte:
+      written = libcamera::ControlValue(static_cast<std::uint8_t>(whole()));
+      setting.value = whole();
+      break;
+    case libcamera::ControlTypeInteger32:
+      written = libcamera::ControlValue(static_cast<std::int32_t>(whole()));
+      setting.value = whole();
+      break;
+    case libcamera::ControlTypeInteger64:
+      written = libcamera::ControlValue(whole());
+      setting.value = whole();
+      break;
+    case libcamera::ControlTypeFloat: {
+      const double number = std::visit([](auto v) { return static_cast<double>(v); }, value);
+      written = libcamera::ControlValue(static_cast<float>(number));
+      setting.value = number;
+      break;
+    }
+    default:
+      throw CaptureError(CaptureError::Kind::config,
+                         fmt::format("{}: control {}: {}", name_, control.name, why_not_settable(*id)));
+  }
+  session->set_control(id->id(), written);
+  const std::lock_guard lock(controls_mutex_);
+  asked_[control.name] = value;
+  const auto it = std::find_if(set_at_run_time_.begin(), set_at_run_time_.end(),
+                               [&](const auto& c) { return c.name == control.name; });
+  if (it == set_at_run_time_.end()) {
+    set_at_run_time_.push_back(std::move(setting));
+  } else {
+    *it = std::move(setting);
+  }
+}
 
 }  // namespace
 

@@ -27,14 +27,20 @@ std::uint64_t splitmix(std::uint64_t& state) {
 }  // namespace
 
 SimCameraSettings parse_sim_camera_settings(const ConfigTable& t) {
-  t.allow_only({"fps", "exposure", "blur_sigma_px", "noise_sigma", "supersample", "clutter", "distort", "seed",
-                "rail_mm", "turntable_deg", "outage_every_s", "outage_s", "cover", "cover_depth", "cover_reflectance",
-                "cover_height_m", "background_grey", "ambient"});
+  t.allow_only({"fps",     "exposure",    "blur_sigma_px",     "noise_sigma",    "supersample",     "clutter",
+                "distort", "seed",        "rail_mm",           "turntable_deg",  "outage_every_s",  "outage_s",
+                "cover",   "cover_depth", "cover_reflectance", "cover_height_m", "background_grey", "ambient",
+                "gain",    "auto_gain"});
   SimCameraSettings s;
   s.fps = t.optional<double>("fps", s.fps);
   if (!(s.fps > 0 && s.fps <= 1000)) t.fail("fps", fmt::format("must be > 0 and <= 1000, got {}", s.fps));
-  s.exposure = t.optional<double>("exposure", s.exposure);
-  if (!(s.exposure > 0 && s.exposure <= 4)) t.fail("exposure", fmt::format("must be > 0 and <= 4, got {}", s.exposure));
+  s.exposure = t.optional<double>("exposure", s.exposure, {kSimExposureMin, kSimExposureMax});
+  s.gain = t.optional<std::int64_t>("gain", s.gain, {kSimGainMin, kSimGainMax, "%"});
+  if ((s.gain - kSimGainMin) % kSimGainStep != 0) {
+    t.fail("gain",
+           fmt::format("must be a multiple of {} % (as the gain control's steps), got {}", kSimGainStep, s.gain));
+  }
+  s.auto_gain = t.optional<bool>("auto_gain", s.auto_gain);
   s.blur_sigma_px = t.optional<double>("blur_sigma_px", s.blur_sigma_px);
   if (!(s.blur_sigma_px >= 0 && s.blur_sigma_px <= 20)) {
     t.fail("blur_sigma_px", fmt::format("must be 0 .. 20, got {}", s.blur_sigma_px));
@@ -120,7 +126,13 @@ std::string_view to_string(detector::MarkerSide side) {
 }
 
 SimCamera::SimCamera(SimCameraSettings settings, detector::CameraModel camera, rig::RigGeometry geometry)
-    : settings_(std::move(settings)), camera_(camera), geometry_(geometry), scene_(make_scene()) {
+    : settings_(std::move(settings)),
+      camera_(camera),
+      geometry_(geometry),
+      exposure_(settings_.exposure),
+      gain_(settings_.gain),
+      auto_gain_(settings_.auto_gain),
+      scene_(make_scene()) {
   if (camera_.width <= 0 || camera_.height <= 0) {
     throw CaptureError(CaptureError::Kind::config, "simulated camera: the camera model has no image size");
   }
@@ -215,6 +227,10 @@ void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
   scene_.pose.rotation = truth.rotation;
   scene_.pose.translation = truth.translation;
   clean_ = detector::render_scene(camera_, scene_);
+  const std::size_t pixels = static_cast<std::size_t>(clean_.width()) * static_cast<std::size_t>(clean_.height());
+  std::uint64_t sum = 0;
+  for (std::size_t i = 0; i < pixels; ++i) sum += clean_.data()[i];
+  clean_mean_ = pixels > 0 ? static_cast<double>(sum) / static_cast<double>(pixels) : 0;
   rendered_at_ = {rail_mm, turntable_deg};
   ++renders_;
 }
@@ -222,6 +238,11 @@ void SimCamera::render_if_moved(double rail_mm, double turntable_deg) {
 void SimCamera::fill(Frame& frame) {
   const double rail = frame.rig ? frame.rig->rail.position : settings_.rail_mm;
   const double turntable = frame.rig ? frame.rig->turntable.position : settings_.turntable_deg;
+  // A new exposure is a new scene: rendered again, once.
+  if (const double exposure = exposure_.load(std::memory_order_relaxed); exposure != scene_.exposure) {
+    scene_.exposure = exposure;
+    rendered_at_.reset();
+  }
   try {
     render_if_moved(rail, turntable);
   } catch (const std::exception& e) {
@@ -237,26 +258,102 @@ void SimCamera::fill(Frame& frame) {
   std::uint8_t* dst = frame.pixel_buffer().data();
   const std::uint8_t* src = clean_.data();
   const std::size_t pixels = static_cast<std::size_t>(clean_.width()) * static_cast<std::size_t>(clean_.height());
+  // The gain in 1/256ths, applied before the noise as a sensor's amplifier
+  // does: automatic, the one that brings the render's mean to mid-grey,
+  // within the gain control's range.
+  const double gain = auto_gain_.load(std::memory_order_relaxed)
+                          ? std::clamp(128.0 / std::max(clean_mean_, 1.0), static_cast<double>(kSimGainMin) / 100,
+                                       static_cast<double>(kSimGainMax) / 100)
+                          : static_cast<double>(gain_.load(std::memory_order_relaxed)) / 100;
+  const auto g = static_cast<int>(std::lround(gain * 256));
+  std::uint64_t sum = 0;
   // Stamped when the image is complete, as a driver stamps a frame at the
   // end of its readout: the simulated sensor's work is not the pipeline's.
   if (settings_.noise_sigma <= 0) {
-    std::copy_n(src, pixels, dst);
-    frame.capture_time = std::chrono::steady_clock::now();
-    return;
+    for (std::size_t i = 0; i < pixels; ++i) {
+      const int v = std::min((src[i] * g + 128) >> 8, 255);
+      dst[i] = static_cast<std::uint8_t>(v);
+      sum += static_cast<std::uint64_t>(v);
+    }
+  } else {
+    // In runs that do not wrap around the table, so that the loop body is
+    // plain element-wise arithmetic the compiler vectorises.
+    std::size_t at = splitmix(noise_state_) & (noise_.size() - 1);
+    for (std::size_t done = 0; done < pixels;) {
+      const std::size_t run = std::min(pixels - done, noise_.size() - at);
+      const std::uint8_t* s = src + done;
+      const std::int8_t* n = noise_.data() + at;
+      std::uint8_t* d = dst + done;
+      for (std::size_t i = 0; i < run; ++i) {
+        const int v = std::clamp(((s[i] * g + 128) >> 8) + n[i], 0, 255);
+        d[i] = static_cast<std::uint8_t>(v);
+        sum += static_cast<std::uint64_t>(v);
+      }
+      done += run;
+      at = 0;
+    }
   }
-  // In runs that do not wrap around the table, so that the loop body is a
-  // plain element-wise add the compiler vectorises.
-  std::size_t at = splitmix(noise_state_) & (noise_.size() - 1);
-  for (std::size_t done = 0; done < pixels;) {
-    const std::size_t run = std::min(pixels - done, noise_.size() - at);
-    const std::uint8_t* s = src + done;
-    const std::int8_t* n = noise_.data() + at;
-    std::uint8_t* d = dst + done;
-    for (std::size_t i = 0; i < run; ++i) d[i] = static_cast<std::uint8_t>(std::clamp(s[i] + n[i], 0, 255));
-    done += run;
-    at = 0;
-  }
+  mean_grey_.store(static_cast<double>(sum) / static_cast<double>(pixels), std::memory_order_relaxed);
   frame.capture_time = std::chrono::steady_clock::now();
+}
+
+std::vector<CameraControlInfo> SimCamera::read_controls() {
+  const bool automatic = auto_gain_.load(std::memory_order_relaxed);
+  std::vector<CameraControlInfo> controls(4);
+  CameraControlInfo& auto_gain = controls[0];
+  auto_gain.name = "auto_gain";
+  auto_gain.type = "bool";
+  auto_gain.kind = ControlKind::boolean;
+  auto_gain.value = automatic;
+  auto_gain.minimum = false;
+  auto_gain.maximum = true;
+  auto_gain.default_value = settings_.auto_gain;
+
+  CameraControlInfo& exposure = controls[1];
+  exposure.name = "exposure";
+  exposure.type = "float";
+  exposure.kind = ControlKind::real;
+  exposure.value = exposure_.load(std::memory_order_relaxed);
+  exposure.minimum = kSimExposureMin;
+  exposure.maximum = kSimExposureMax;
+  exposure.default_value = settings_.exposure;
+
+  CameraControlInfo& gain = controls[2];
+  gain.name = "gain";
+  gain.type = "int";
+  gain.kind = ControlKind::integer;
+  gain.value = gain_.load(std::memory_order_relaxed);
+  gain.minimum = kSimGainMin;
+  gain.maximum = kSimGainMax;
+  gain.step = kSimGainStep;
+  gain.default_value = settings_.gain;
+  if (automatic) gain.flags.emplace_back("inactive");
+
+  // The noise table is drawn once, when the camera is made.
+  CameraControlInfo& noise = controls[3];
+  noise.name = "noise_sigma";
+  noise.type = "float";
+  noise.kind = ControlKind::real;
+  noise.value = settings_.noise_sigma;
+  noise.minimum = 0.0;
+  noise.maximum = 40.0;
+  noise.default_value = settings_.noise_sigma;
+  noise.flags.emplace_back("read-only");
+  for (std::uint32_t i = 0; i < controls.size(); ++i) controls[i].id = i + 1;
+  return controls;
+}
+
+void SimCamera::write_control(const CameraControlInfo& control, const ControlValue& value) {
+  if (control.name == "exposure" && std::holds_alternative<double>(value)) {
+    exposure_.store(std::get<double>(value), std::memory_order_relaxed);
+  } else if (control.name == "gain" && std::holds_alternative<std::int64_t>(value)) {
+    gain_.store(std::get<std::int64_t>(value), std::memory_order_relaxed);
+  } else if (control.name == "auto_gain" && std::holds_alternative<bool>(value)) {
+    auto_gain_.store(std::get<bool>(value), std::memory_order_relaxed);
+  } else {
+    throw CaptureError(CaptureError::Kind::config,
+                       fmt::format("{}: control {} cannot take {}", name_, control.name, to_text(value)));
+  }
 }
 
 }  // namespace markerd::daemon

@@ -217,6 +217,68 @@ std::vector<V4l2ControlInfo> enum_controls(int fd) {
   return controls;
 }
 
+CameraControlInfo camera_control(const V4l2ControlInfo& c) {
+  CameraControlInfo info;
+  info.name = c.name;
+  info.id = c.id;
+  info.type = c.type;
+  info.flags = c.flags;
+  if (c.value) info.value = *c.value;
+  if (c.type == "int" || c.type == "int64") {
+    info.kind = ControlKind::integer;
+    info.step = c.step;
+  } else if (c.type == "bool") {
+    info.kind = ControlKind::boolean;
+  } else if (c.type == "menu" || c.type == "intmenu") {
+    info.kind = ControlKind::menu;
+    for (const auto& item : c.menu) info.menu.push_back({item.index, item.name});
+  } else if (c.type == "bitmask") {
+    info.kind = ControlKind::bitmask;
+  } else {
+    info.kind = ControlKind::other;
+    info.why_not_settable = c.type == "button" ? "a button (an action, not a setting)"
+                                               : fmt::format(
+                                                     "a {} control: markerd sets numbers, booleans and "
+                                                     "menu items only",
+                                                     c.type);
+  }
+  if (info.kind == ControlKind::boolean) {
+    info.minimum = c.minimum != 0;
+    info.maximum = c.maximum != 0;
+    info.default_value = c.default_value != 0;
+    if (c.value) info.value = *c.value != 0;
+  } else if (info.kind != ControlKind::other) {
+    info.minimum = c.minimum;
+    info.maximum = c.maximum;
+    info.default_value = c.default_value;
+  }
+  return info;
+}
+
+int write_control(int fd, std::uint32_t id, bool int64, std::int64_t value) noexcept {
+  v4l2_ext_control control{};
+  control.id = id;
+  if (int64) {
+    control.value64 = value;
+  } else {
+    control.value = static_cast<std::int32_t>(value);
+  }
+  v4l2_ext_controls list{};
+  list.which = V4L2_CTRL_WHICH_CUR_VAL;
+  list.count = 1;
+  list.controls = &control;
+  int result = xioctl(fd, VIDIOC_S_EXT_CTRLS, &list);
+  if (result != 0 && errno == ENOTTY && !int64) {
+    v4l2_control old{id, static_cast<std::int32_t>(value)};
+    result = xioctl(fd, VIDIOC_S_CTRL, &old);
+  }
+  return result == 0 ? 0 : errno;
+}
+
+int write_control(int fd, const V4l2ControlInfo& control, std::int64_t value) noexcept {
+  return write_control(fd, control.id, control.type == "int64", value);
+}
+
 std::string offered_formats(int fd) {
   std::string text;
   for (const auto& format : enum_formats(fd, V4L2_BUF_TYPE_VIDEO_CAPTURE)) {

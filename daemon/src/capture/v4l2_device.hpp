@@ -11,6 +11,7 @@
 #include <string_view>
 #include <vector>
 
+#include "markerd/daemon/capture/camera_controls.hpp"
 #include "markerd/daemon/capture/v4l2_listing.hpp"
 
 namespace markerd::daemon::v4l2 {
@@ -36,6 +37,13 @@ std::vector<V4l2FormatInfo> enum_formats(int fd, std::uint32_t buffer_type);
 std::vector<V4l2InputInfo> enum_inputs(int fd);
 // Every control, with its range, menu and current value.
 std::vector<V4l2ControlInfo> enum_controls(int fd);
+// A control as camera.get and the value checks see it.
+CameraControlInfo camera_control(const V4l2ControlInfo& control);
+// Sets one control (VIDIOC_S_EXT_CTRLS, or VIDIOC_S_CTRL on a driver without
+// the control framework): 0, or the errno.
+int write_control(int fd, const V4l2ControlInfo& control, std::int64_t value) noexcept;
+int write_control(int fd, std::uint32_t id, bool int64, std::int64_t value) noexcept;
+
 // "YUYV 640x480 320x240, GREY 16x16 to 4096x2160": what a refusal of the
 // configured format lists (what S_FMT can choose from).
 std::string offered_formats(int fd);

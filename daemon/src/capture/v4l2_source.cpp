@@ -15,10 +15,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <mutex>
 #include <stdexcept>
 #include <utility>
 
-#include "markerd/base/ascii.hpp"
 #include "markerd/base/errno_text.hpp"
 #include "markerd/base/unique_fd.hpp"
 #include "markerd/daemon/capture/pixel_convert.hpp"
@@ -157,6 +157,9 @@ class V4l2Source final : public CaptureSource {
   void fill(Frame& frame) override;
   void skip() noexcept override;
 
+  [[nodiscard]] std::vector<CameraControlInfo> read_controls() override;
+  void write_control(const CameraControlInfo& control, const ControlValue& value) override;
+
  private:
   [[nodiscard]] CaptureGeometry configured_geometry() const {
     const bool converts = settings_.format == V4l2PixelFormat::yuyv || settings_.format == V4l2PixelFormat::mjpg;
@@ -191,7 +194,15 @@ class V4l2Source final : public CaptureSource {
   std::ptrdiff_t stride_ = 0;  // bytes per row of the mmap buffers
   std::size_t min_bytes_ = 0;  // what a buffer must hold for fill() to read the frame
 
+  // Held by open() and close() on the capture thread, and by the control
+  // server's thread while it reads or writes a control: never by the frame
+  // path (wait_frame, fill, skip), which reads stream_ on the thread that
+  // alone changes it. V4L2's control ioctls are safe beside streaming.
+  mutable std::mutex device_mutex_;
   Stream* stream_ = nullptr;
+  // Controls set at run time (camera.set), set again after the config's at
+  // every open. Under device_mutex_.
+  std::vector<V4l2ControlSetting> set_at_run_time_;
   v4l2_buffer ready_{};
   bool has_ready_ = false;
   Clock::time_point ready_time_{};
@@ -200,6 +211,7 @@ class V4l2Source final : public CaptureSource {
 
 void V4l2Source::open() {
   close();
+  const std::lock_guard lock(device_mutex_);
   geometry_ = configured_geometry();
   const fs::path path = resolve_v4l2_device(settings_.device);
   std::error_code ec;
@@ -337,64 +349,31 @@ void V4l2Source::set_frame_rate(int fd) {
 // The value to write for a configured control; a config error when the
 // device's control cannot take it.
 std::int64_t control_value(const V4l2ControlSetting& setting, const V4l2ControlInfo& c, const std::string& label) {
-  const auto refuse = [&](const std::string& why) {
-    return CaptureError(Kind::config, fmt::format("{}: control {} ({}): {}", label, setting.name, setting.origin, why));
-  };
-  const auto menu_text = [&] {
-    std::string text;
-    for (const auto& item : c.menu) text += fmt::format("{}{}: {}", text.empty() ? "" : ", ", item.index, item.name);
-    return text;
-  };
-  if (std::find(c.flags.begin(), c.flags.end(), "read-only") != c.flags.end()) {
-    throw refuse("the device's control is read-only");
+  const ControlInput input = std::visit([](const auto& v) { return ControlInput(v); }, setting.value);
+  ControlValue value;
+  try {
+    value = check_control_value(camera_control(c), input);
+  } catch (const ControlValueError& e) {
+    throw CaptureError(Kind::config,
+                       fmt::format("{}: control {} ({}): {}", label, setting.name, setting.origin, e.what()));
   }
-  if (c.type == "bool") {
-    if (const auto* b = std::get_if<bool>(&setting.value)) return *b ? 1 : 0;
-    if (const auto* i = std::get_if<std::int64_t>(&setting.value); i != nullptr && (*i == 0 || *i == 1)) return *i;
-    throw refuse("a boolean control: give true or false");
-  }
-  if (c.type == "int" || c.type == "int64" || c.type == "bitmask") {
-    const auto* i = std::get_if<std::int64_t>(&setting.value);
-    if (i == nullptr) {
-      throw refuse(fmt::format("an integer control ({} to {}): give a number", c.minimum, c.maximum));
-    }
-    if (c.type == "bitmask") {
-      if ((static_cast<std::uint64_t>(*i) & ~static_cast<std::uint64_t>(c.maximum)) != 0) {
-        throw refuse(fmt::format("{:#x} has bits outside the mask {:#x}", *i, c.maximum));
-      }
-      return *i;
-    }
-    if (*i < c.minimum || *i > c.maximum) {
-      throw refuse(fmt::format("{} is out of its range {} to {}", *i, c.minimum, c.maximum));
-    }
-    if (c.step > 1 && static_cast<std::uint64_t>(*i - c.minimum) % c.step != 0) {
-      throw refuse(fmt::format("{} is not on its steps: {} + a multiple of {}", *i, c.minimum, c.step));
-    }
-    return *i;
-  }
-  if (c.type == "menu" || c.type == "intmenu") {
-    if (const auto* i = std::get_if<std::int64_t>(&setting.value)) {
-      for (const auto& item : c.menu) {
-        if (item.index == *i) return *i;
-      }
-      throw refuse(fmt::format("{} is not one of its items ({})", *i, menu_text()));
-    }
-    if (const auto* text = std::get_if<std::string>(&setting.value)) {
-      for (const auto& item : c.menu) {
-        if (ascii_lower(item.name) == ascii_lower(*text) || v4l2_control_name(item.name) == v4l2_control_name(*text)) {
-          return item.index;
-        }
-      }
-      throw refuse(fmt::format("'{}' is not one of its items ({})", *text, menu_text()));
-    }
-    throw refuse(fmt::format("a menu: give an item's number or name ({})", menu_text()));
-  }
-  if (c.type == "button") throw refuse("a button (an action, not a setting): it cannot be set from the config");
-  throw refuse(fmt::format("a {} control: it cannot be set from the config", c.type));
+  if (const auto* b = std::get_if<bool>(&value)) return *b ? 1 : 0;
+  return std::get<std::int64_t>(value);
 }
 
 void V4l2Source::set_controls(int fd) {
-  if (settings_.controls.empty()) return;
+  // The config's, then those set at run time since markerd started, each
+  // in place of the config's of its name.
+  std::vector<V4l2ControlSetting> settings = settings_.controls;
+  for (const auto& set : set_at_run_time_) {
+    const auto it = std::find_if(settings.begin(), settings.end(), [&](const auto& s) { return s.name == set.name; });
+    if (it == settings.end()) {
+      settings.push_back(set);
+    } else {
+      *it = set;
+    }
+  }
+  if (settings.empty()) return;
   const auto controls = enum_controls(fd);
   const auto find = [&](const std::string& name) -> const V4l2ControlInfo* {
     for (const auto& c : controls) {
@@ -405,11 +384,9 @@ void V4l2Source::set_controls(int fd) {
   // Automatic modes first: exposure_time_absolute is refused or ignored
   // while auto_exposure still says automatic, whatever order the file has.
   std::vector<const V4l2ControlSetting*> order;
-  for (const auto& s : settings_.controls) order.push_back(&s);
-  std::stable_partition(order.begin(), order.end(), [&](const V4l2ControlSetting* s) {
-    const auto* c = find(s->name);
-    return c != nullptr && ascii_lower(c->label).find("auto") != std::string::npos;
-  });
+  for (const auto& s : settings) order.push_back(&s);
+  std::stable_partition(order.begin(), order.end(),
+                        [&](const V4l2ControlSetting* s) { return is_automatic_mode(s->name); });
   for (const auto* setting : order) {
     const auto* c = find(setting->name);
     if (c == nullptr) {
@@ -419,30 +396,56 @@ void V4l2Source::set_controls(int fd) {
                                             setting->name, setting->origin, names.empty() ? "none" : names));
     }
     const std::int64_t value = control_value(*setting, *c, label_);
-    v4l2_ext_control control{};
-    control.id = c->id;
-    if (c->type == "int64") {
-      control.value64 = value;
-    } else {
-      control.value = static_cast<std::int32_t>(value);
-    }
-    v4l2_ext_controls list{};
-    list.which = V4L2_CTRL_WHICH_CUR_VAL;
-    list.count = 1;
-    list.controls = &control;
-    int result = xioctl(fd, VIDIOC_S_EXT_CTRLS, &list);
-    if (result != 0 && errno == ENOTTY && c->type != "int64") {
-      v4l2_control old{c->id, static_cast<std::int32_t>(value)};
-      result = xioctl(fd, VIDIOC_S_CTRL, &old);
-    }
-    if (result != 0) {
-      const int e = errno;
+    if (const int e = v4l2::write_control(fd, *c, value); e != 0) {
       const std::string what = fmt::format("control {} ({}) = {}: VIDIOC_S_EXT_CTRLS: {}", setting->name,
                                            setting->origin, value, errno_text(e));
       if (e == EACCES) throw error(Kind::config, what + " (the device refuses it now: an automatic mode holds it?)");
       if (e == EINVAL || e == ERANGE) throw error(Kind::config, what);
       throw error(e == ENODEV ? Kind::vanished : Kind::io, what);
     }
+  }
+}
+
+std::vector<CameraControlInfo> V4l2Source::read_controls() {
+  const std::lock_guard lock(device_mutex_);
+  if (stream_ == nullptr) throw error(Kind::io, "not open: its controls are read while it streams");
+  std::vector<CameraControlInfo> controls;
+  for (const auto& c : enum_controls(stream_->fd())) controls.push_back(camera_control(c));
+  return controls;
+}
+
+void V4l2Source::write_control(const CameraControlInfo& control, const ControlValue& value) {
+  const std::lock_guard lock(device_mutex_);
+  if (stream_ == nullptr) throw error(Kind::io, "not open: its controls are set while it streams");
+  std::int64_t number = 0;
+  if (const auto* b = std::get_if<bool>(&value)) {
+    number = *b ? 1 : 0;
+  } else if (const auto* i = std::get_if<std::int64_t>(&value)) {
+    number = *i;
+  } else {
+    throw error(Kind::config,
+                fmt::format("control {}: V4L2 controls take whole numbers, not {}", control.name, to_text(value)));
+  }
+  if (const int e = v4l2::write_control(stream_->fd(), control.id, control.type == "int64", number); e != 0) {
+    std::string what = fmt::format("control {} = {}: VIDIOC_S_EXT_CTRLS: {}", control.name, number, errno_text(e));
+    if (e == EACCES) what += " (the device refuses it now: an automatic mode holds it?)";
+    if (e == EBUSY) what += " (the device cannot change it while streaming)";
+    throw error(e == ENODEV ? Kind::vanished : Kind::config, what);
+  }
+  V4l2ControlSetting setting;
+  setting.name = control.name;
+  if (const auto* b = std::get_if<bool>(&value)) {
+    setting.value = *b;
+  } else {
+    setting.value = number;
+  }
+  setting.origin = "set at run time (camera.set)";
+  const auto it = std::find_if(set_at_run_time_.begin(), set_at_run_time_.end(),
+                               [&](const auto& s) { return s.name == control.name; });
+  if (it == set_at_run_time_.end()) {
+    set_at_run_time_.push_back(std::move(setting));
+  } else {
+    *it = std::move(setting);
   }
 }
 
@@ -485,6 +488,7 @@ void V4l2Source::map_buffers(Stream& stream) {
 
 void V4l2Source::close() noexcept {
   has_ready_ = false;
+  const std::lock_guard lock(device_mutex_);
   if (stream_ == nullptr) return;
   stream_->streaming.store(false, std::memory_order_release);
   // Both fail with ENODEV on a device that is gone, which changes nothing.

@@ -164,6 +164,13 @@ class SweepRunner {
   // the run, allocates nothing once the collection buffer has grown.
   void observe(const FrameObservation& frame) noexcept;
 
+  // Any thread: an event of the run going on (running, paused or
+  // suspended) for its records, at the step it is at: something done to the
+  // rig or the camera from outside the run (a camera control set, kind
+  // "camera_control"). False when no run is going or the line could not be
+  // written (logged).
+  bool record_event(const std::string& kind, const std::string& reason) noexcept;
+
  private:
   struct Run;
   class Interrupted;
@@ -202,6 +209,8 @@ class SweepRunner {
   // when the stop record cannot be written.
   void finish_ended_run(const nlohmann::json& journal);
   void set_phase(const char* phase);
+  // The run thread's events; records_mutex_ lets record_event() write too.
+  void append_event(const RunEvent& event);
 
   rig::Rig& rig_;
   rig::RigConfig rig_config_;
@@ -218,7 +227,10 @@ class SweepRunner {
   std::string reason_;
   std::string phase_;
   std::mutex start_mutex_;  // one start() or resume_from_journal() at a time
-  std::stop_token stop_;    // the run thread's own
+  // The open run's records, written by the run thread and by record_event();
+  // taken after mutex_ where both are held.
+  std::mutex records_mutex_;
+  std::stop_token stop_;  // the run thread's own
 
   // The collection of the step in hand, filled by observe() (log thread).
   struct Collection {

@@ -30,7 +30,9 @@
 #include <stdexcept>
 #include <string>
 #include <string_view>
+#include <vector>
 
+#include "markerd/daemon/capture/camera_controls.hpp"
 #include "markerd/daemon/frame.hpp"
 
 namespace markerd::daemon {
@@ -103,6 +105,19 @@ class CaptureSource {
   // True once a finite source (a file source without `loop`) has delivered
   // its last frame.
   [[nodiscard]] virtual bool at_end() const noexcept { return false; }
+
+  // ---- controls at run time (camera.get, camera.set; camera_controls.hpp) ----
+  // Any thread (the control server's) while the capture thread streams: a
+  // backend guards its device itself, and never holds up wait_frame() or
+  // fill() for it. A value written lasts until markerd stops: a reopen of
+  // the camera sets it again after the config's.
+
+  // Every control with its value now. CaptureError when the controls cannot
+  // be read (the camera is not open). A source without controls has none.
+  [[nodiscard]] virtual std::vector<CameraControlInfo> read_controls() { return {}; }
+  // Writes one control, as read_controls() described it, with a value
+  // check_control_value() took. CaptureError when the device refuses it.
+  virtual void write_control(const CameraControlInfo& control, const ControlValue& value);
 };
 
 }  // namespace markerd::daemon

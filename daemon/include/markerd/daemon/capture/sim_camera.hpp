@@ -12,6 +12,11 @@
 // stands still a frame costs one pass over its pixels and allocates nothing;
 // while an axis moves every frame is a new render (tens of milliseconds at
 // 640x480, more with supersampling), and the frame rate drops accordingly.
+//
+// Its controls, as a camera's (camera.get, camera.set): exposure (the
+// scene's, so a change renders again), gain (scales each frame's grey
+// levels), auto_gain (the camera picks the gain that brings the image to
+// mid-grey; gain is inactive meanwhile), and the sensor noise, read-only.
 
 #include <atomic>
 #include <chrono>
@@ -55,7 +60,11 @@ struct SimCameraSettings {
   double background_grey = 128;  // with clutter = false
   double ambient = 0.3;
   // Imaging (see markerd::Scene).
-  double exposure = 1.0;
+  double exposure = 1.0;  // kSimExposure's range; also the exposure control's default
+  // The gain, in percent of the rendered grey levels (kSimGain's range and
+  // step), and the automatic gain; the controls' defaults.
+  std::int64_t gain = 100;
+  bool auto_gain = false;
   double blur_sigma_px = 0.6;
   double noise_sigma = 2.0;  // grey levels
   int supersample = 3;
@@ -71,6 +80,14 @@ struct SimCameraSettings {
   std::chrono::milliseconds outage_every{0};
   std::chrono::milliseconds outage_for{0};
 };
+
+// The ranges of the simulated camera's controls, and of the config keys that
+// set them at start.
+inline constexpr double kSimExposureMin = 0.01;
+inline constexpr double kSimExposureMax = 4;
+inline constexpr std::int64_t kSimGainMin = 25;
+inline constexpr std::int64_t kSimGainMax = 400;
+inline constexpr std::int64_t kSimGainStep = 25;
 
 // [camera.sim]: the imaging, the frame rate and the scene around the marker;
 // the marker and its mounting come from the config's [marker] table and the
@@ -98,6 +115,15 @@ class SimCamera final : public CaptureSource {
   [[nodiscard]] bool wait_frame(std::chrono::milliseconds timeout) override;
   void fill(Frame& frame) override;
   void skip() noexcept override;
+
+  // Any thread: exposure, gain, auto_gain and noise_sigma (read-only); a
+  // value written shows from the next frame on.
+  [[nodiscard]] std::vector<CameraControlInfo> read_controls() override;
+  void write_control(const CameraControlInfo& control, const ControlValue& value) override;
+
+  // Any thread: the mean grey level of the last frame delivered, what a
+  // change of exposure or gain shows in the frames.
+  [[nodiscard]] double mean_grey() const noexcept { return mean_grey_.load(std::memory_order_relaxed); }
 
   // Fault injection, from any thread: an unplugged camera vanishes at its
   // next frame (CaptureError vanished) and cannot be opened (not_found)
@@ -131,8 +157,15 @@ class SimCamera final : public CaptureSource {
   std::chrono::steady_clock::time_point next_frame_{};
   std::uint64_t sequence_ = 0;
 
+  // The controls, written by any thread, read by fill().
+  std::atomic<double> exposure_;
+  std::atomic<std::int64_t> gain_;
+  std::atomic<bool> auto_gain_;
+  std::atomic<double> mean_grey_{0};
+
   detector::Scene scene_;                                 // all but the pose, which each render sets
   detector::GreyImage clean_;                             // the last noise-free render
+  double clean_mean_ = 0;                                 // its mean grey level (auto_gain's measure)
   std::optional<std::pair<double, double>> rendered_at_;  // its rail and turntable positions
   std::uint64_t renders_ = 0;
   // Sensor noise: a table of Gaussian samples (in grey levels, rounded) read
