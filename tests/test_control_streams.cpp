@@ -510,9 +510,10 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
   server_->register_command("status", [](const json&) {
     return json::parse(R"({"responsive": true,
       "camera": {"state": "streaming", "source": "sim 640x480@30", "frames": 1200, "corrupt": 0,
-                 "last_frame_age_ms": 12.5, "last_error": null},
+                 "last_frame_age_ms": 12.5, "last_error": null, "fps": 29.97},
       "pipeline": {"dropped": 3, "detect": {"in": 1200, "out": 1197, "dropped": 0, "failed": 0},
-                   "latency": {"detect": {"p50_ms": 2.84, "p99_ms": 3.71}}, "workers": 2, "policy": "live"},
+                   "latency": {"detect": {"p50_ms": 2.84, "p99_ms": 3.71}}, "workers": 2, "policy": "live",
+                   "detect_fps": 29.5},
       "log": {"file": "/var/log/markerd/detections-R-000.jsonl", "lines": 1197, "lines_lost": 0, "last_error": null},
       "rig": {"rail": {"position": 250.0, "unit": "mm", "state": "idle", "homed": true, "settled": true,
                        "fault": null},
@@ -528,15 +529,16 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
   ASSERT_EQ(r.code, 0) << r.describe();
   EXPECT_EQ(r.out,
             "markerd    responsive\n"
-            "camera     streaming, sim 640x480@30; 1200 frames, 3 dropped, last 12 ms ago\n"
-            "detector   1197 frames, 0 failed; 2.8 ms p50, 3.7 ms p99; workers 2, live\n"
+            "camera     streaming, sim 640x480@30; 30.0 fps, 1200 frames\n"
+            "detector   29.5 fps, 1197 frames, 0 failed; 2.8 ms p50, 3.7 ms p99\n"
+            "pipeline   live, 2 workers; 3 dropped\n"
             "log        /var/log/markerd/detections-R-000.jsonl; 1197 lines\n"
             "rail       250.000 mm, idle, homed, settled\n"
             "turntable  30.000 deg, moving, homed\n"
             "truth      distance 0.5500 m, yaw 30.000 deg\n"
             "sweep      run R\n"
             "           [######------------------]    6/24   running  moving\n"
-            "control    /run/markerd/control.sock, 1 clients\n");
+            "control    /run/markerd/control.sock, 1 client\n");
   // One screen at 80 columns: no line wraps.
   std::istringstream lines(r.out);
   for (std::string line; std::getline(lines, line);) EXPECT_LE(line.size(), 80u) << line;
@@ -548,6 +550,41 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
   EXPECT_EQ(status["pipeline"]["latency"]["detect"]["p99_ms"], 3.71) << "everything, as markerd sent it";
   EXPECT_FALSE(status.contains("ok"));
   EXPECT_FALSE(status.contains("id"));
+}
+
+// A camera whose frames stopped: its rate falls to 0 and the last frame's
+// age is named; counts agree with their nouns; a status from a markerd
+// that measures no rates shows "?" where they would be.
+TEST_F(MarkerctlAgainstTheServer, StatusSaysWhenTheFramesStoppedAndCountsInWords) {
+  server_ = std::make_unique<ControlServer>(settings_);
+  auto calls = std::make_shared<std::atomic<int>>(0);
+  server_->register_command("status", [calls](const json&) {
+    json s = json::parse(R"({"responsive": true,
+      "camera": {"state": "streaming", "source": "v4l2 /dev/video0", "frames": 5, "last_frame_age_ms": 3250.0,
+                 "fps": 0.0},
+      "pipeline": {"dropped": 0, "detect": {"out": 5, "failed": 0}, "detect_fps": 0.0,
+                   "latency": {"detect": {"p50_ms": 2.0, "p99_ms": 2.0}}, "workers": 1, "policy": "lossless"},
+      "control": {"socket": "/run/markerd/control.sock", "clients": 2}})");
+    if (++*calls > 1) {
+      s["camera"].erase("fps");
+      s["pipeline"].erase("detect_fps");
+    }
+    return s;
+  });
+  server_->start();
+  Outcome r = run_markerctl({"status", "--socket", socket().string()});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_NE(r.out.find("camera     streaming, v4l2 /dev/video0; 0.0 fps, 5 frames, last frame 3.2 s ago\n"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("detector   0.0 fps, 5 frames, 0 failed;"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("pipeline   lossless, 1 worker; 0 dropped\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("control    /run/markerd/control.sock, 2 clients\n"), std::string::npos) << r.out;
+
+  r = run_markerctl({"status", "--socket", socket().string()});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_NE(r.out.find("camera     streaming, v4l2 /dev/video0; ? fps, 5 frames,"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("detector   ? fps, 5 frames,"), std::string::npos) << r.out;
 }
 
 TEST_F(MarkerctlAgainstTheServer, DetectionsFollowsTheStreamForCountLines) {

@@ -551,6 +551,17 @@ TEST_F(DaemonTest, SimulatedCameraRigDetectorAndLogEndToEnd) {
     EXPECT_EQ(status["pipeline"]["policy"], "lossless");
     EXPECT_EQ(status["log"]["file"], daemon.log().current_path());
     EXPECT_EQ(status["responsive"], true);
+    // The frame rates over the last seconds: frames came, so both are
+    // measured and above 0 (what they are depends on this machine).
+    nlohmann::json rates = status;
+    for (int i = 0; i < 300 && !(rates["camera"]["fps"].is_number() && rates["camera"]["fps"] > 0 &&
+                                 rates["pipeline"]["detect_fps"].is_number() && rates["pipeline"]["detect_fps"] > 0);
+         ++i) {
+      std::this_thread::sleep_for(100ms);
+      rates = client.call({{"cmd", "status"}});
+    }
+    EXPECT_GT(rates["camera"]["fps"].get<double>(), 0) << rates.dump();
+    EXPECT_GT(rates["pipeline"]["detect_fps"].get<double>(), 0) << rates.dump();
     const nlohmann::json rig_status = client.call({{"cmd", "rig.status"}});
     ASSERT_EQ(rig_status["ok"], true) << rig_status.dump();
     EXPECT_NE(rig_status.dump().find("650"), std::string::npos) << rig_status.dump();

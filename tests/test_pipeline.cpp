@@ -819,5 +819,43 @@ TEST(LatencyHistogram, PercentilesOfKnownValues) {
   EXPECT_EQ(e.summary().p50, 0ns);
 }
 
+// ---- the frame rates of the status
+
+// Ticks at given times (offsets from a time well into the clock's range,
+// whole buckets from its start), so nothing depends on this machine's speed.
+RateMeter::Clock::time_point at(std::chrono::milliseconds offset) {
+  return RateMeter::Clock::time_point(std::chrono::hours(1) + offset);
+}
+
+TEST(RateMeter, CountsPerSecondOverTheCompleteBucketsOfTheWindow) {
+  RateMeter meter;
+  EXPECT_FALSE(meter.rate(at(0ms)).has_value()) << "nothing counted yet";
+  // 30 events a second for 2 s: one every 33 ms from the start of a bucket.
+  for (int i = 0; i < 60; ++i) meter.tick(at(std::chrono::milliseconds(i * 100 / 3)));
+  EXPECT_FALSE(meter.rate(at(200ms)).has_value()) << "the first bucket is not complete yet";
+  // At 2 s: eight complete buckets of 250 ms hold all 60 events.
+  ASSERT_TRUE(meter.rate(at(2000ms)).has_value());
+  EXPECT_DOUBLE_EQ(*meter.rate(at(2000ms)), 30.0);
+  // The bucket in progress is left out: at 2.1 s still the same eight.
+  EXPECT_DOUBLE_EQ(*meter.rate(at(2100ms)), 30.0);
+  // No events since: the window (5 s) slides over the silence.
+  EXPECT_DOUBLE_EQ(*meter.rate(at(4000ms)), 15.0) << "60 events over the 4 s since the first";
+  EXPECT_DOUBLE_EQ(*meter.rate(at(6000ms)), 6.0) << "the window from 1 s on holds the last 30 events";
+  EXPECT_DOUBLE_EQ(*meter.rate(at(7000ms)), 0.0) << "nothing within the last 5 s";
+}
+
+TEST(RateMeter, ARateChangeShowsWithinTheWindowAndOldBucketsAreReused) {
+  RateMeter meter;
+  // 10 a second for 10 s, then 40 a second for 10 s: the buckets' ring
+  // (21 of them) goes round several times.
+  int ms = 0;
+  for (; ms < 10000; ms += 100) meter.tick(at(std::chrono::milliseconds(ms)));
+  EXPECT_DOUBLE_EQ(*meter.rate(at(10000ms)), 10.0);
+  for (; ms < 12500; ms += 25) meter.tick(at(std::chrono::milliseconds(ms)));
+  EXPECT_DOUBLE_EQ(*meter.rate(at(12500ms)), (2.5 * 10 + 2.5 * 40) / 5) << "half of each in the window";
+  for (; ms < 20000; ms += 25) meter.tick(at(std::chrono::milliseconds(ms)));
+  EXPECT_DOUBLE_EQ(*meter.rate(at(20000ms)), 40.0);
+}
+
 }  // namespace
 }  // namespace markerd::daemon

@@ -3,6 +3,8 @@
 #include <fmt/chrono.h>
 #include <fmt/format.h>
 
+#include <cmath>
+
 #include "markerd/base/utc_time.hpp"
 #include "markerd/daemon/control/rig_commands.hpp"
 #include "markerd/daemon/daemon.hpp"
@@ -37,6 +39,7 @@ nlohmann::json to_json(const CaptureStatus& s) {
   j["last_error"] = s.last_error.empty() ? nlohmann::json() : nlohmann::json(s.last_error);
   j["last_error_utc"] =
       s.last_error.empty() ? nlohmann::json() : nlohmann::json(format_utc(s.last_error_time, UtcForm::seconds));
+  j["fps"] = s.fps ? nlohmann::json(std::round(*s.fps * 100) / 100) : nlohmann::json();
   if (s.last_frame_time.time_since_epoch().count() > 0 && s.frames > 0) {
     j["last_frame_age_ms"] = ms(std::chrono::steady_clock::now() - s.last_frame_time);
   } else {
@@ -83,6 +86,8 @@ nlohmann::json status_json(const Daemon& daemon) {
   j["pipeline"] = to_json(daemon.pipeline().stats());
   j["pipeline"]["policy"] = daemon.pipeline().policy() == DropPolicy::live ? "live" : "lossless";
   j["pipeline"]["workers"] = daemon.pipeline().worker_count();
+  const auto detect_fps = daemon.log().frame_rate();
+  j["pipeline"]["detect_fps"] = detect_fps ? nlohmann::json(std::round(*detect_fps * 100) / 100) : nlohmann::json();
   nlohmann::json log = to_json(daemon.log().stats());
   log["file"] = daemon.log().current_path();
   j["log"] = std::move(log);

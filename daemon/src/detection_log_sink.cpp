@@ -22,6 +22,7 @@ void DetectionLogSink::note_path_if_changed() {
 }
 
 void DetectionLogSink::write(const Frame& frame) {
+  frame_rate_.tick(Clock::now());
   housekeeping();
   FrameRecordInput in;
   in.status = frame.status;

@@ -76,4 +76,40 @@ StageCounts StageCounters::snapshot() const noexcept {
           dropped_.load(std::memory_order_relaxed), failed_.load(std::memory_order_relaxed)};
 }
 
+std::int64_t RateMeter::bucket_index(Clock::time_point t) noexcept {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(t.time_since_epoch()).count() / kBucket.count();
+}
+
+void RateMeter::tick(Clock::time_point now) noexcept {
+  const std::int64_t index = bucket_index(now);
+  if (first_.load(std::memory_order_relaxed) == kNever) first_.store(index, std::memory_order_relaxed);
+  Bucket& b = buckets_[static_cast<std::size_t>(index) % kBuckets];
+  if (b.index.load(std::memory_order_relaxed) != index) {
+    // A bucket of time long past: emptied before it says it counts this one.
+    b.count.store(0, std::memory_order_relaxed);
+    b.index.store(index, std::memory_order_release);
+  }
+  // One counting thread: no read-modify-write needed.
+  b.count.store(b.count.load(std::memory_order_relaxed) + 1, std::memory_order_relaxed);
+}
+
+std::optional<double> RateMeter::rate(Clock::time_point now) const noexcept {
+  const std::int64_t current = bucket_index(now);
+  const std::int64_t first = first_.load(std::memory_order_relaxed);
+  if (first == kNever) return std::nullopt;
+  const std::int64_t from = std::max(first, current - static_cast<std::int64_t>(kBuckets - 1));
+  if (from >= current) return std::nullopt;
+  std::uint64_t events = 0;
+  for (std::int64_t i = from; i < current; ++i) {
+    const Bucket& b = buckets_[static_cast<std::size_t>(i) % kBuckets];
+    // A bucket that moved on to another time while being read counts for
+    // nothing: the counter's one thread was ahead of this reader's clock.
+    if (b.index.load(std::memory_order_acquire) != i) continue;
+    const std::uint64_t count = b.count.load(std::memory_order_relaxed);
+    if (b.index.load(std::memory_order_acquire) == i) events += count;
+  }
+  const double seconds = std::chrono::duration<double>(kBucket).count() * static_cast<double>(current - from);
+  return static_cast<double>(events) / seconds;
+}
+
 }  // namespace markerd::daemon

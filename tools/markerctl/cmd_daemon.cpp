@@ -69,6 +69,11 @@ std::string number_text(const json& value, int decimals) {
   return value.is_number() ? fmt::format("{:.{}f}", value.get<double>(), decimals) : "?";
 }
 
+// "1 client", "3 clients", "? clients" for a count the status lacks.
+std::string counted(const json& count, std::string_view noun) {
+  return fmt::format("{} {}{}", text_of(count), noun, count.is_number() && count.get<double>() == 1 ? "" : "s");
+}
+
 // True where `key` is there and true: a status from another version may
 // lack any key, and the summary reads every one through at().
 bool flag(const json& document, const char* key) {
@@ -86,8 +91,8 @@ std::string axis_summary(const json& axis) {
 }
 
 // What an operator looks at first, a line a part, on one screen: the daemon,
-// the camera, the detector, the log, the rig, the sweep, the socket. The
-// whole document is --json's.
+// the camera and the detector with their frame rates, the pipeline, the
+// log, the rig, the sweep, the socket. The whole document is --json's.
 std::string status_summary(const json& s) {
   std::string out;
   const auto line = [&out](std::string_view label, const std::string& text) {
@@ -97,23 +102,27 @@ std::string status_summary(const json& s) {
 
   const json& camera = at(s, {"camera"});
   std::string camera_text =
-      fmt::format("{}, {}; {} frames, {} dropped", text_of(at(camera, {"state"})), text_of(at(camera, {"source"})),
-                  text_of(at(camera, {"frames"})), text_of(at(s, {"pipeline", "dropped"})));
+      fmt::format("{}, {}; {} fps, {} frames", text_of(at(camera, {"state"})), text_of(at(camera, {"source"})),
+                  number_text(at(camera, {"fps"}), 1), text_of(at(camera, {"frames"})));
   if (const json& corrupt = at(camera, {"corrupt"}); corrupt.is_number() && corrupt.get<double>() > 0) {
     camera_text += fmt::format(", {} corrupt", text_of(corrupt));
   }
-  if (const json& age = at(camera, {"last_frame_age_ms"}); age.is_number()) {
-    camera_text += fmt::format(", last {} ms ago", number_text(age, 0));
+  // The frame rate says the frames come; the age of the last one is worth a
+  // word only when it says they have stopped.
+  if (const json& age = at(camera, {"last_frame_age_ms"}); age.is_number() && age.get<double>() >= 1000) {
+    camera_text += fmt::format(", last frame {:.1f} s ago", age.get<double>() / 1000);
   }
   line("camera", camera_text);
   if (const json& error = at(camera, {"last_error"}); !error.is_null()) line("", "last error: " + text_of(error));
 
   const json& pipeline = at(s, {"pipeline"});
-  line("detector", fmt::format("{} frames, {} failed; {} ms p50, {} ms p99; workers {}, {}",
-                               text_of(at(pipeline, {"detect", "out"})), text_of(at(pipeline, {"detect", "failed"})),
-                               number_text(at(pipeline, {"latency", "detect", "p50_ms"}), 1),
-                               number_text(at(pipeline, {"latency", "detect", "p99_ms"}), 1),
-                               text_of(at(pipeline, {"workers"})), text_of(at(pipeline, {"policy"}))));
+  line("detector",
+       fmt::format("{} fps, {} frames, {} failed; {} ms p50, {} ms p99", number_text(at(pipeline, {"detect_fps"}), 1),
+                   text_of(at(pipeline, {"detect", "out"})), text_of(at(pipeline, {"detect", "failed"})),
+                   number_text(at(pipeline, {"latency", "detect", "p50_ms"}), 1),
+                   number_text(at(pipeline, {"latency", "detect", "p99_ms"}), 1)));
+  line("pipeline", fmt::format("{}, {}; {} dropped", text_of(at(pipeline, {"policy"})),
+                               counted(at(pipeline, {"workers"}), "worker"), text_of(at(pipeline, {"dropped"}))));
 
   const json& log = at(s, {"log"});
   std::string log_text = fmt::format("{}; {} lines", text_of(at(log, {"file"}), "none"), text_of(at(log, {"lines"})));
@@ -143,7 +152,7 @@ std::string status_summary(const json& s) {
     line("", sweep_progress_line(sweep));
   }
   line("control",
-       fmt::format("{}, {} clients", text_of(at(s, {"control", "socket"})), text_of(at(s, {"control", "clients"}))));
+       fmt::format("{}, {}", text_of(at(s, {"control", "socket"})), counted(at(s, {"control", "clients"}), "client")));
   return out;
 }
 

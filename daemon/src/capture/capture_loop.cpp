@@ -120,6 +120,7 @@ void CaptureLoop::stream(const std::stop_token& stop) {
     last_frame_ns_.store(frame->capture_time.time_since_epoch().count(), std::memory_order_relaxed);
     pipeline_.publish(*frame);
     frames_.fetch_add(1, std::memory_order_relaxed);
+    frame_rate_.tick(std::chrono::steady_clock::now());
   }
 }
 
@@ -170,6 +171,7 @@ CaptureStatus CaptureLoop::status() const {
   s.stalls = stalls_.load(std::memory_order_relaxed);
   s.failures = failures_.load(std::memory_order_relaxed);
   s.reopens = reopens_.load(std::memory_order_relaxed);
+  s.fps = frame_rate_.rate(std::chrono::steady_clock::now());
   s.last_frame_time = std::chrono::steady_clock::time_point(
       std::chrono::steady_clock::duration(last_frame_ns_.load(std::memory_order_relaxed)));
   const std::lock_guard lock(error_mutex_);

@@ -19,6 +19,7 @@
 #include "markerd/daemon/frame.hpp"
 #include "markerd/daemon/latest_frame.hpp"
 #include "markerd/daemon/log_writer.hpp"
+#include "markerd/daemon/stats.hpp"
 #include "markerd/rig/geometry.hpp"
 
 namespace markerd::daemon {
@@ -69,6 +70,12 @@ class DetectionLogSink final : public FrameSink {
   [[nodiscard]] DetectionLogSinkStats stats() const;
   // The file lines go to now (a moment's view, for status).
   [[nodiscard]] std::string current_path() const;
+  // Frames through detection per second over the last few seconds, counted
+  // here, where every detected frame arrives (RateMeter); nothing until a
+  // quarter second has passed since the first.
+  [[nodiscard]] std::optional<double> frame_rate() const noexcept {
+    return frame_rate_.rate(std::chrono::steady_clock::now());
+  }
 
  private:
   void housekeeping();
@@ -84,6 +91,7 @@ class DetectionLogSink final : public FrameSink {
   LatestFrame* latest_ = nullptr;
   std::atomic<bool> reopen_requested_{false};
   std::atomic<std::uint64_t> lines_lost_{0};
+  RateMeter frame_rate_;
   std::uint64_t files_opened_seen_ = 0;
   // Error reports: one per distinct error, then at most one every
   // kReportEvery while it persists, so a full disk does not flood the journal.

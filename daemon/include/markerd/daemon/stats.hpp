@@ -11,6 +11,8 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
+#include <optional>
 
 namespace markerd::daemon {
 
@@ -48,6 +50,37 @@ class LatencyHistogram {
   std::array<std::atomic<std::uint64_t>, kBuckets> buckets_{};
   std::atomic<std::uint64_t> sum_ns_{0};
   std::atomic<std::uint64_t> max_ns_{0};
+};
+
+// Events per second over a recent window: the frame rates of the capture
+// and of detection in the status. One thread counts (tick(): two relaxed
+// loads and stores, no lock, no allocation), any thread reads (rate()).
+// Time falls into buckets of kBucket; the rate is over the complete buckets
+// of the last kWindow, or of the time since the first tick when that is
+// shorter (the bucket in progress is left out: only part of it has passed).
+class RateMeter {
+ public:
+  using Clock = std::chrono::steady_clock;
+  static constexpr std::chrono::milliseconds kBucket{250};
+  static constexpr std::chrono::milliseconds kWindow{5000};
+
+  // The counting thread: one event at `now`.
+  void tick(Clock::time_point now) noexcept;
+  // Events per second; nothing before a whole bucket has passed since the
+  // first tick. 0 once no event came for a window.
+  [[nodiscard]] std::optional<double> rate(Clock::time_point now) const noexcept;
+
+ private:
+  static constexpr std::size_t kBuckets = kWindow / kBucket + 1;  // the window's, and the one in progress
+  static constexpr std::int64_t kNever = std::numeric_limits<std::int64_t>::min();
+  struct Bucket {
+    std::atomic<std::int64_t> index{kNever};  // which bucket of time it counts now
+    std::atomic<std::uint64_t> count{0};
+  };
+  [[nodiscard]] static std::int64_t bucket_index(Clock::time_point t) noexcept;
+
+  std::array<Bucket, kBuckets> buckets_{};
+  std::atomic<std::int64_t> first_{kNever};  // the bucket of the first tick
 };
 
 struct StageCounts {

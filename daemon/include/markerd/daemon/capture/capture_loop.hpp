@@ -10,11 +10,13 @@
 #include <chrono>
 #include <cstdint>
 #include <mutex>
+#include <optional>
 #include <stop_token>
 #include <string>
 
 #include "markerd/daemon/capture/capture_source.hpp"
 #include "markerd/daemon/pipeline.hpp"
+#include "markerd/daemon/stats.hpp"
 #include "markerd/rig/rig.hpp"
 
 namespace markerd::daemon {
@@ -50,6 +52,9 @@ struct CaptureStatus {
   std::string last_error;      // the latest failure's words, or empty
   std::chrono::system_clock::time_point last_error_time{};
   std::chrono::steady_clock::time_point last_frame_time{};  // capture time of the latest frame
+  // Frames published per second over the last few seconds (RateMeter);
+  // nothing until a quarter second has passed since the first.
+  std::optional<double> fps;
 };
 
 class CaptureLoop {
@@ -91,6 +96,7 @@ class CaptureLoop {
   std::atomic<std::int64_t> last_frame_ns_{0};  // steady_clock, ns since its epoch
   std::atomic<std::int64_t> heartbeat_ns_{0};   // the same clock: the loop's latest round
   std::atomic<std::uint64_t> frames_{0}, dropped_{0}, corrupt_{0}, stalls_{0}, failures_{0}, reopens_{0};
+  RateMeter frame_rate_;  // frames published
   mutable std::mutex error_mutex_;
   std::string last_error_;  // under error_mutex_
   std::chrono::system_clock::time_point last_error_time_{};
