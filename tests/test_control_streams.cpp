@@ -464,8 +464,10 @@ TEST_F(MarkerctlAgainstTheServer, SweepStatusFollowJsonPrintsOneObjectALine) {
 }
 
 // The sweep's progress line on an 80-column terminal, as the user follows a
-// run: it is wider than that (about 110 columns), so it is cut to the width,
-// and each redraw replaces it instead of leaving a stale row.
+// run: whole it is wider than that (about 100 columns), so the bar narrows
+// and the rate and the phase are left out, keeping the steps, the point and
+// the time left; each redraw replaces the line instead of leaving a stale
+// row.
 TEST_F(MarkerctlAgainstTheServer, SweepProgressFitsAnEightyColumnTerminal) {
   server_ = std::make_unique<ControlServer>(settings_);
   auto calls = std::make_shared<std::atomic<int>>(0);
@@ -490,6 +492,19 @@ TEST_F(MarkerctlAgainstTheServer, SweepProgressFitsAnEightyColumnTerminal) {
       screen = std::make_unique<markerd::test_support::TmuxScreen>(
           std::vector<std::string>{MARKERCTL_PATH, "sweep", "status", "--follow", "--socket", socket().string()},
           std::vector<std::string>{}, 80, 24, dir_.path()));
+  // While it runs: the steps done, the point and the time left are there.
+  ASSERT_TRUE(screen->wait_for(" left")) << screen->text();
+  {
+    std::string live;
+    for (const std::string& line : screen->lines()) {
+      if (line.find("[#") != std::string::npos || line.find("[-") != std::string::npos) live = line;
+    }
+    EXPECT_NE(live.find("/30"), std::string::npos) << live;
+    EXPECT_NE(live.find("running  0.95 m "), std::string::npos) << live;
+    EXPECT_NE(live.find(" deg #3  about "), std::string::npos) << live;
+    EXPECT_EQ(live.find("rate"), std::string::npos) << "the rate is left out first: " << live;
+    EXPECT_LE(live.size(), 79U) << live;
+  }
   ASSERT_TRUE(screen->wait_for("[exit 0]")) << screen->text();
   const auto lines = screen->lines();
   int bars = 0;
@@ -520,7 +535,9 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
               "turntable": {"position": 30.0, "unit": "deg", "state": "moving", "homed": true, "settled": false,
                             "fault": null},
               "ground_truth": {"distance_m": 0.55, "yaw_deg": 30.0}},
-      "sweep": {"state": "running", "run_id": "R", "steps_done": 6, "steps_total": 24, "phase": "moving"},
+      "sweep": {"state": "running", "run_id": "R", "steps_done": 6, "steps_total": 24, "phase": "moving",
+                "step": {"distance_m": 0.5, "angle_deg": 30.0, "repeat": 0}, "last_rate": 1.0,
+                "remaining_s": 130.0},
       "control": {"socket": "/run/markerd/control.sock", "clients": 1},
       "status": "camera sim 640x480@30: streaming, 1200 frames, 3 dropped"})");
   });
@@ -537,7 +554,7 @@ TEST_F(MarkerctlAgainstTheServer, StatusPrintsTheDaemonsStatus) {
             "turntable  30.000 deg, moving, homed\n"
             "truth      distance 0.5500 m, yaw 30.000 deg\n"
             "sweep      run R\n"
-            "           [######------------------]    6/24   running  moving\n"
+            "           [##--------]    6/24   running  0.50 m 30.0 deg #1  about 2m10s left\n"
             "control    /run/markerd/control.sock, 1 client\n");
   // One screen at 80 columns: no line wraps.
   std::istringstream lines(r.out);

@@ -147,6 +147,8 @@ namespace {
 using markerctl::display_columns;
 using markerctl::fit_to_columns;
 using markerctl::join_fitting;
+using markerctl::join_keeping;
+using markerctl::LinePart;
 
 TEST(LiveLine, ColumnsAreCharactersNotBytes) {
   EXPECT_EQ(display_columns(""), 0u);
@@ -177,6 +179,29 @@ TEST(LiveLine, PartsThatDoNotFitAreLeftOutFromTheLast) {
   EXPECT_EQ(join_fitting(parts, " | ", 47), "rail 6.975 mm idle (homed)");
   // The first alone is cut.
   EXPECT_EQ(join_fitting(parts, " | ", 10), "rail 6.975");
+}
+
+TEST(LiveLine, PartsLeastKeptAreLeftOutFirstAndTheRestKeepTheirOrder) {
+  // A sweep's progress: the bar, the steps, the state, the point, the
+  // phase, the rate, the time left, as sweep_progress_line keeps them.
+  const std::vector<LinePart> parts{{"[####------]", 4, ""},   {" 169/310 ", 9, " "}, {"running", 8, " "},
+                                    {"0.95 m 75.0 deg #5", 8}, {"collecting 4/6", 3}, {"rate 83%", 2},
+                                    {"about 40s left", 8}};
+  const std::string whole =
+      "[####------]  169/310  running  0.95 m 75.0 deg #5  collecting 4/6  rate 83%  about 40s left";
+  EXPECT_EQ(join_keeping(parts, 200), whole);
+  EXPECT_EQ(join_keeping(parts, display_columns(whole)), whole);
+  // One column less: the rate goes first, then the phase, then the bar.
+  EXPECT_EQ(join_keeping(parts, display_columns(whole) - 1),
+            "[####------]  169/310  running  0.95 m 75.0 deg #5  collecting 4/6  about 40s left");
+  EXPECT_EQ(join_keeping(parts, 70), "[####------]  169/310  running  0.95 m 75.0 deg #5  about 40s left");
+  EXPECT_EQ(join_keeping(parts, 60), " 169/310  running  0.95 m 75.0 deg #5  about 40s left");
+  // Of equals, the later goes first: the time left before the point.
+  EXPECT_EQ(join_keeping(parts, 40), " 169/310  running  0.95 m 75.0 deg #5");
+  EXPECT_EQ(join_keeping(parts, 17), " 169/310  running");
+  // The last part left is cut.
+  EXPECT_EQ(join_keeping(parts, 5), " 169/");
+  EXPECT_EQ(join_keeping({}, 80), "");
 }
 
 }  // namespace

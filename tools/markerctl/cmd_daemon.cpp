@@ -149,7 +149,14 @@ std::string status_summary(const json& s) {
     line("sweep", "no run since markerd started");
   } else {
     line("sweep", fmt::format("run {}", text_of(at(sweep, {"run_id"}))));
-    line("", sweep_progress_line(sweep));
+    // Within the 80 columns of the screen, the label's 11 taken; the reason
+    // on a line of its own, whole.
+    json progress = sweep;
+    progress.erase("reason");
+    line("", sweep_progress_line(progress, 69));
+    if (const json& reason = at(sweep, {"reason"}); reason.is_string() && !reason.get<std::string>().empty()) {
+      line("", text_of(at(sweep, {"state"})) + ": " + text_of(reason));
+    }
   }
   line("control",
        fmt::format("{}, {}", text_of(at(s, {"control", "socket"})), counted(at(s, {"control", "clients"}), "client")));

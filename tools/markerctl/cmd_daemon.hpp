@@ -18,8 +18,11 @@ namespace markerctl {
 void add_daemon_commands(CLI::App& parent, Commands& commands);
 
 // A sweep's progress (sweep.status's reply) on one line: the bar, the step,
-// the phase, the last rate, the time left (cmd_sweep.cpp).
-std::string sweep_progress_line(const nlohmann::json& progress);
+// the phase, the last rate, the time left, the reason (cmd_sweep.cpp). In
+// fewer `columns` than it takes, the bar narrows and parts are left out,
+// the reason, the rate, the phase and the bar first, so that the steps done,
+// the step in hand and the time left stay.
+std::string sweep_progress_line(const nlohmann::json& progress, std::size_t columns = std::string::npos);
 
 // The socket markerctl talks to: --socket when given, else $MARKERD_SOCKET,
 // else /run/markerd/control.sock.

@@ -15,6 +15,7 @@
 #include <fmt/format.h>
 
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <iostream>
@@ -23,6 +24,7 @@
 #include <string>
 #include <thread>
 #include <variant>
+#include <vector>
 
 #include "cmd_daemon.hpp"
 #include "common.hpp"
@@ -61,17 +63,23 @@ std::string duration_text(double seconds) {
   return fmt::format("{}s", s);
 }
 
-}  // namespace
+std::string progress_bar(std::size_t done, std::size_t total, std::size_t width) {
+  const std::size_t filled = total == 0 ? 0 : std::min(width, width * done / total);
+  return "[" + std::string(filled, '#') + std::string(width - filled, '-') + "]";
+}
 
-// One line: "[#######-------------]  23/62  running  0.95 m 30.0 deg  collecting 3/6  rate 100%  about 2m10s left"
-std::string sweep_progress_line(const json& p) {
+// The line's parts, the bar `bar_width` cells wide, each with how long it
+// stays in a line too narrow for all: the steps done longest, then the
+// state, the step in hand and the time left; the bar goes before them, the
+// phase before the bar, the last rate before the phase, and the reason
+// (which a terminal's callers print on a line of their own) first.
+std::vector<LinePart> progress_parts(const json& p, std::size_t bar_width) {
   const auto done = p.value("steps_done", std::size_t{0});
   const auto total = p.value("steps_total", std::size_t{0});
-  constexpr int kWidth = 24;
-  const int filled = total == 0 ? 0 : static_cast<int>(kWidth * done / total);
-  std::string line = fmt::format("[{}{}] {:>4}/{:<4} {}", std::string(static_cast<std::size_t>(filled), '#'),
-                                 std::string(static_cast<std::size_t>(kWidth - filled), '-'), done, total,
-                                 p.value("state", std::string("?")));
+  std::vector<LinePart> parts;
+  parts.push_back({progress_bar(done, total, bar_width), 4, ""});
+  parts.push_back({fmt::format("{:>4}/{:<4}", done, total), 9, " "});
+  parts.push_back({p.value("state", std::string("?")), 8, " "});
   // A key a status lacks (another version's, or a run that has not got
   // that far) is null: a const json's operator[] has no such key to give.
   static const json none;
@@ -81,24 +89,37 @@ std::string sweep_progress_line(const json& p) {
   };
   const json& step = key("step");
   if (step.is_object()) {
-    line += fmt::format("  {:.2f} m {:.1f} deg #{}", step.value("distance_m", 0.0), step.value("angle_deg", 0.0),
-                        step.value("repeat", 0) + 1);
+    parts.push_back({fmt::format("{:.2f} m {:.1f} deg #{}", step.value("distance_m", 0.0), step.value("angle_deg", 0.0),
+                                 step.value("repeat", 0) + 1),
+                     8});
   }
   const std::string phase = p.value("phase", std::string());
   if (phase == "collecting") {
-    line += fmt::format("  collecting {}/{}", p.value("frames_collected", 0), p.value("frames_per_point", 0));
+    parts.push_back(
+        {fmt::format("collecting {}/{}", p.value("frames_collected", 0), p.value("frames_per_point", 0)), 3});
   } else if (!phase.empty()) {
-    line += "  " + phase;
+    parts.push_back({phase, 3});
   }
   if (const json& rate = key("last_rate"); rate.is_number()) {
-    line += fmt::format("  rate {:.0f}%", 100 * rate.get<double>());
+    parts.push_back({fmt::format("rate {:.0f}%", 100 * rate.get<double>()), 2});
   }
   if (const json& left = key("remaining_s"); left.is_number()) {
-    line += "  about " + duration_text(left.get<double>()) + " left";
+    parts.push_back({"about " + duration_text(left.get<double>()) + " left", 8});
   }
   const std::string reason = p.value("reason", std::string());
-  if (!reason.empty()) line += "  (" + reason + ")";
-  return line;
+  if (!reason.empty()) parts.push_back({"(" + reason + ")", 1});
+  return parts;
+}
+
+}  // namespace
+
+// One line: "[#######-------------]  23/62  running  0.95 m 30.0 deg  collecting 3/6  rate 100%  about 2m10s left"
+std::string sweep_progress_line(const json& p, std::size_t columns) {
+  constexpr std::size_t kBar = 24;
+  constexpr std::size_t kNarrowBar = 10;
+  std::string line = join_keeping(progress_parts(p, kBar), std::string::npos);
+  if (display_columns(line) <= columns) return line;
+  return join_keeping(progress_parts(p, kNarrowBar), columns);
 }
 
 namespace {
@@ -113,6 +134,7 @@ int follow(DaemonConnection& daemon, bool as_json) {
   LiveLine live(std::cout, STDOUT_FILENO);
   const bool tty = !as_json && live.on_terminal();
   std::string last;
+  std::string last_reason;
   for (;;) {
     const json p = daemon.call({{"cmd", "sweep.status"}});
     const std::string state = p.value("state", std::string());
@@ -126,20 +148,29 @@ int follow(DaemonConnection& daemon, bool as_json) {
         std::cout << "no run since markerd started\n";
         return exit_runtime;
       }
-      const std::string line = sweep_progress_line(p);
       if (tty) {
-        live.show(line);
-      } else if (line != last) {
+        // The reason (a fault while suspended) has a line of its own above
+        // the live one, whole, once each time it changes: the live line is
+        // cut to the terminal's width, its reason left out first.
+        const std::string reason = p.value("reason", std::string());
+        if (!reason.empty() && reason != last_reason && !finished(state)) live.print(state + ": " + reason);
+        last_reason = reason;
+        json progress = p;
+        progress.erase("reason");
+        live.show(sweep_progress_line(progress, live.columns()));
+      } else if (std::string line = sweep_progress_line(p); line != last) {
         std::cout << line << '\n' << std::flush;
+        last = std::move(line);
       }
-      last = line;
     }
     if (finished(state)) {
       if (!as_json) {
-        // The final state stays on the screen, whole.
+        // The final state stays on the screen.
         live.keep();
         // Two lines: with the run's directory one would not fit 80 columns.
-        std::cout << fmt::format("run {}: {}\nrecords in {}\n", p.value("run_id", std::string()), state,
+        const std::string reason = p.value("reason", std::string());
+        std::cout << fmt::format("run {}: {}{}\nrecords in {}\n", p.value("run_id", std::string()), state,
+                                 reason.empty() ? std::string() : " (" + reason + ")",
                                  p.value("run_directory", std::string()));
       }
       return state == "done" ? 0 : exit_runtime;

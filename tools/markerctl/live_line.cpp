@@ -45,6 +45,31 @@ std::string join_fitting(const std::vector<std::string>& parts, std::string_view
   return line;
 }
 
+std::string join_keeping(const std::vector<LinePart>& parts, std::size_t columns) {
+  std::vector<bool> kept(parts.size(), true);
+  const auto join = [&] {
+    std::string line;
+    bool first = true;
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      if (!kept[i]) continue;
+      if (!first) line += parts[i].separator;
+      line += parts[i].text;
+      first = false;
+    }
+    return line;
+  };
+  std::string line = join();
+  for (std::size_t left = parts.size(); left > 1 && display_columns(line) > columns; --left) {
+    std::size_t least = parts.size();
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      if (kept[i] && (least == parts.size() || parts[i].keep <= parts[least].keep)) least = i;
+    }
+    kept[least] = false;
+    line = join();
+  }
+  return std::string(fit_to_columns(line, columns));
+}
+
 std::size_t terminal_columns(int fd) {
   winsize size{};
   if (::ioctl(fd, TIOCGWINSZ, &size) == 0 && size.ws_col > 0) return size.ws_col;

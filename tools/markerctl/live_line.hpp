@@ -25,6 +25,19 @@ std::string_view fit_to_columns(std::string_view text, std::size_t columns);
 // (the most important) on; the first alone is cut to fit.
 std::string join_fitting(const std::vector<std::string>& parts, std::string_view separator, std::size_t columns);
 
+// A part of a line that may be left out when the line is too wide: the
+// parts of the lowest `keep` go first (of equals, the later one), and what
+// is left keeps its order. `separator` goes before it unless it comes first.
+struct LinePart {
+  std::string text;
+  int keep = 0;
+  std::string separator = "  ";
+};
+
+// The parts that fit in `columns`, leaving out the least kept first; the
+// last part left alone is cut to fit.
+std::string join_keeping(const std::vector<LinePart>& parts, std::size_t columns);
+
 // The width of the terminal on `fd` (TIOCGWINSZ), else $COLUMNS, else 80.
 std::size_t terminal_columns(int fd);
 
@@ -39,6 +52,8 @@ class LiveLine {
   LiveLine& operator=(const LiveLine&) = delete;
 
   [[nodiscard]] bool on_terminal() const { return terminal_; }
+  // The columns a line may take now (the terminal's, less the last).
+  [[nodiscard]] std::size_t columns() const { return width(); }
 
   // Redraws the line: its start that fits, the rest of the row cleared. The
   // last column is left free: a character there makes some terminals wrap.
