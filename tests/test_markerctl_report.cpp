@@ -5,8 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -258,6 +260,22 @@ TEST_F(MarkerctlReport, RunsOfDifferentMarkersInOneColumnAreNamed) {
   EXPECT_EQ(r.err,
             "markerctl: report: --socket: runs socket-distance (frame8 #165, 80 mm, on a socket frame) and "
             "socket-id-12 (frame8 #12, 80 mm, on a socket frame) measured different markers\n");
+}
+
+// --json: what was written, for scripts, and nothing else on stdout.
+TEST_F(MarkerctlReport, JsonNamesTheFilesWrittenAndHoldsTheTable) {
+  const Outcome text = markerctl({"report", "--paper", paper_distance_.string(), "-o", out(), "--no-plots"});
+  ASSERT_EQ(text.code, 0) << text.describe();
+  const Outcome r = markerctl({"report", "--paper", paper_distance_.string(), "-o", out(), "--no-plots", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  ASSERT_EQ(std::count(r.out.begin(), r.out.end(), '\n'), 1) << "one line: " << r.out;
+  const nlohmann::json j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["report"], (fs::path(out()) / "report.md").string());
+  EXPECT_TRUE(j["plots"].empty()) << "--no-plots";
+  ASSERT_FALSE(j["csv"].empty());
+  for (const auto& csv : j["csv"]) EXPECT_TRUE(fs::exists(csv.get<std::string>())) << csv;
+  // The same table as the text's, after its path and a blank line.
+  EXPECT_EQ(j["table_6_1"], text.out.substr(text.out.find("\n\n") + 2));
 }
 
 }  // namespace

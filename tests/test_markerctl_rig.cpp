@@ -191,6 +191,39 @@ TEST_F(MarkerctlRig, MoveWithHomeHomesThenMovesBothAxes) {
   EXPECT_NEAR(reported(jog.out, "turntable: at").value_or(1e9), -2.0, 0.02) << jog.out;
 }
 
+// --json: standard output is one JSON line, the rig as status --json shows
+// it once the command is done; the lines in words go to standard error.
+TEST_F(MarkerctlRig, HomeMoveAndJogWithJsonPrintTheRigOnceDone) {
+  const std::string config = sim_config(50);
+  Outcome r = run({"rig", "--config", config, "home", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  json j = json::parse(r.out);  // throws on anything but one JSON document
+  EXPECT_EQ(j["config"], config);
+  EXPECT_EQ(j["rail"]["homed"], true);
+  EXPECT_EQ(j["turntable"]["homed"], true);
+  EXPECT_NEAR(j["rail"]["position"].get<double>(), -3.0, 0.1);
+  EXPECT_NE(r.err.find("rail: homing\n"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("ground truth: distance "), std::string::npos) << r.err;
+
+  r = run({"rig", "--config", config, "move", "--home", "--rail", "25cm", "--turntable", "30deg", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  j = json::parse(r.out);
+  EXPECT_NEAR(j["rail"]["position"].get<double>(), 250.0, 1e-6);
+  EXPECT_EQ(j["rail"]["settled"], true);
+  EXPECT_NEAR(j["ground_truth"]["yaw_deg"].get<double>(), 30.0, 1e-6);
+  EXPECT_NE(r.err.find("rail: at 250.000 mm\n"), std::string::npos) << r.err;
+
+  r = run({"rig", "--config", config, "jog", "--home", "--turntable", "-2deg", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  j = json::parse(r.out);
+  EXPECT_NEAR(j["turntable"]["position"].get<double>(), -2.0, 0.02);
+
+  // A refusal is an error, as without --json: nothing on standard output.
+  r = run({"rig", "--config", config, "move", "--rail", "25cm", "--json"});
+  EXPECT_EQ(r.code, 1) << r.describe();
+  EXPECT_EQ(r.out, "");
+}
+
 TEST_F(MarkerctlRig, ASecondProcessIsRefusedWhileTheFirstHoldsTheRig) {
   // Real time: the homing alone takes about 50 s, far longer than the test needs.
   const std::string config = sim_config(1);

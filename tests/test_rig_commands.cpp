@@ -375,6 +375,25 @@ TEST_F(MarkerctlRigOnTheDaemon, StatusHomeMoveJogAndStopGoThroughTheSocket) {
   EXPECT_EQ(rig_->rail().status().state, markerd::rig::AxisState::idle);
   EXPECT_LT(rig_->rail().status().position, 2400.0);
 
+  // --json: the rig as rig.status shows it once done, on standard output
+  // alone; the lines in words on standard error.
+  r = run({"move", "--rail", "300mm", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  json j = json::parse(r.out);
+  EXPECT_NEAR(j["rail"]["position"].get<double>(), 300.0, 1e-9);
+  EXPECT_EQ(j["rail"]["settled"], true);
+  EXPECT_NE(r.err.find("rail: at 300.000 mm\n"), std::string::npos) << r.err;
+  r = run({"jog", "--turntable", "+1deg", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_NEAR(json::parse(r.out)["turntable"]["position"].get<double>(), 29.65, 1e-9);
+  r = run({"home", "--axis", "turntable", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(json::parse(r.out)["turntable"]["homed"], true);
+  r = run({"stop", "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(r.err.rfind("nothing was moving\nrail at 300.000 mm, ", 0), 0U) << r.err;
+  EXPECT_TRUE(json::parse(r.out).contains("rail"));
+
   r = run({"jog"});
   EXPECT_EQ(r.code, 2) << r.describe();
   EXPECT_EQ(r.err,

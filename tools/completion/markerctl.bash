@@ -41,9 +41,9 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     # rig's own options may also follow its command (CLI11's fallthrough).
     rig) echo "status home move jog stop|--config= $socket -h -h --help" ;;
     "rig status") echo "|--json --config= $socket -h -h --help" ;;
-    "rig home") echo "|--axis= --no-wait --config= $socket -h -h --help" ;;
-    "rig move" | "rig jog") echo "|--rail= --turntable= --home --no-wait --config= $socket -h -h --help" ;;
-    "rig stop") echo "|--emergency --no-wait --config= $socket -h -h --help" ;;
+    "rig home") echo "|--axis= --no-wait --json --config= $socket -h -h --help" ;;
+    "rig move" | "rig jog") echo "|--rail= --turntable= --home --no-wait --json --config= $socket -h -h --help" ;;
+    "rig stop") echo "|--emergency --no-wait --json --config= $socket -h -h --help" ;;
     cameras) echo "|--backend= --json -h -h --help" ;;
     camera) echo "get set|-h --help" ;;
     "camera get" | "camera set") echo "|$socket --json -h -h --help" ;;
@@ -57,7 +57,7 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     "sweep status") echo "|--follow $socket --json -h -h --help" ;;
     "sweep pause" | "sweep resume") echo "|$socket --json -h -h --help" ;;
     "sweep abort") echo "|--reason= $socket --json -h -h --help" ;;
-    report) echo "|--paper= --socket= -o= --output= --no-plots -h -h --help" ;;
+    report) echo "|--paper= --socket= -o= --output= --no-plots --json -h -h --help" ;;
     calibrate)
       echo "|--board= --board-type= --size= --marker-size= --spacing= --dictionary= --first-id= --model= --fix-k3" \
         "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --rig= --rig-out= --fix= --free= --json" \

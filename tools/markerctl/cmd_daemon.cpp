@@ -263,6 +263,18 @@ class DaemonRig {
  public:
   explicit DaemonRig(const DaemonRigRequest& request) : request_(request), daemon_(request.socket, request.context) {}
 
+  // Where the command's lines in words go: standard error when standard
+  // output is the command's JSON (--json).
+  [[nodiscard]] std::ostream& text() const { return request_.json ? std::cerr : std::cout; }
+  [[nodiscard]] int text_fd() const { return request_.json ? STDERR_FILENO : STDOUT_FILENO; }
+
+  // The end of home, move and stop: with --json, the rig as rig.status
+  // shows it now.
+  int finish() {
+    if (request_.json) std::cout << status().dump(-1, ' ', false, json::error_handler_t::replace) << '\n' << std::flush;
+    return 0;
+  }
+
   json status() { return daemon_.call({{"cmd", "rig.status"}}); }
   json call(const json& request) { return daemon_.call(request); }
 
@@ -274,8 +286,8 @@ class DaemonRig {
 
   void print_ground_truth(const json& status) {
     const json& truth = status["ground_truth"];
-    std::cout << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.value("distance_m", 0.0),
-                             truth.value("yaw_deg", 0.0));
+    text() << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.value("distance_m", 0.0),
+                          truth.value("yaw_deg", 0.0));
   }
 
   // Waits until every axis in `axes` has settled (or, for a stop, is at
@@ -284,7 +296,7 @@ class DaemonRig {
   json follow(const std::vector<std::string>& axes, std::string_view doing, bool rest_is_enough = false) {
     // On a terminal the progress is one line redrawn in place; a pipe or a
     // file gets only the lines before and after.
-    LiveLine live(std::cout, STDOUT_FILENO);
+    LiveLine live(text(), text_fd());
     auto next_progress = Clock::now();
     std::vector<std::optional<Clock::time_point>> idle_since(axes.size());
     for (;;) {
@@ -388,11 +400,11 @@ int rig_status(DaemonRig& rig, const DaemonRigRequest& request) {
 void home_and_follow(DaemonRig& rig, const std::vector<std::string>& axes, bool wait) {
   const json axis = axes.size() == 1 ? json(axes.front()) : json("both");
   (void)rig.call({{"cmd", "rig.home"}, {"axis", axis}});
-  for (const std::string& name : axes) std::cout << fmt::format("{}: homing\n", name) << std::flush;
+  for (const std::string& name : axes) rig.text() << fmt::format("{}: homing\n", name) << std::flush;
   if (!wait) return;
   const json s = rig.follow(axes, "homing");
   for (const std::string& name : axes) {
-    std::cout << fmt::format("{}: homed at {}\n", name, position_text(s[name])) << std::flush;
+    rig.text() << fmt::format("{}: homed at {}\n", name, position_text(s[name])) << std::flush;
   }
 }
 
@@ -402,7 +414,7 @@ int rig_home(DaemonRig& rig, const DaemonRigRequest& request) {
   if (request.home_axis.empty() || request.home_axis == "turntable") axes.emplace_back("turntable");
   home_and_follow(rig, axes, request.wait);
   if (request.wait) rig.print_ground_truth(rig.status());
-  return 0;
+  return rig.finish();
 }
 
 int rig_move(DaemonRig& rig, const DaemonRigRequest& request) {
@@ -421,30 +433,30 @@ int rig_move(DaemonRig& rig, const DaemonRigRequest& request) {
   if (!to_home.empty()) home_and_follow(rig, to_home, true);
   const json reply = rig.call(move);
   for (const std::string& name : axes) {
-    std::cout << fmt::format("{}: moving to {:.3f} {}\n", name, reply["moving"].value(name, 0.0),
-                             s[name].value("unit", std::string()))
-              << std::flush;
+    rig.text() << fmt::format("{}: moving to {:.3f} {}\n", name, reply["moving"].value(name, 0.0),
+                              s[name].value("unit", std::string()))
+               << std::flush;
   }
-  if (!request.wait) return 0;
+  if (!request.wait) return rig.finish();
   s = rig.follow(axes, request.relative ? "jog" : "move");
-  for (const std::string& name : axes) std::cout << fmt::format("{}: at {}\n", name, position_text(s[name]));
+  for (const std::string& name : axes) rig.text() << fmt::format("{}: at {}\n", name, position_text(s[name]));
   rig.print_ground_truth(s);
-  return 0;
+  return rig.finish();
 }
 
 int rig_stop(DaemonRig& rig, const DaemonRigRequest& request) {
   const json reply = rig.call({{"cmd", "rig.stop"}, {"emergency", request.emergency}});
   if (request.emergency) {
-    std::cout << "emergency stop: both axes disabled; home them again (markerctl rig home)\n" << std::flush;
+    rig.text() << "emergency stop: both axes disabled; home them again (markerctl rig home)\n" << std::flush;
   } else if (reply["stopping"].empty()) {
-    std::cout << "nothing was moving\n" << std::flush;
+    rig.text() << "nothing was moving\n" << std::flush;
   } else {
     std::vector<std::string> names = reply["stopping"].get<std::vector<std::string>>();
-    for (const std::string& name : names) std::cout << fmt::format("{}: stopping\n", name) << std::flush;
+    for (const std::string& name : names) rig.text() << fmt::format("{}: stopping\n", name) << std::flush;
     if (request.wait) (void)rig.follow(names, "stop", true);
   }
-  std::cout << rig.positions(rig.status()) << '\n';
-  return 0;
+  rig.text() << rig.positions(rig.status()) << '\n';
+  return rig.finish();
 }
 
 }  // namespace

@@ -87,7 +87,7 @@ struct DaemonRigRequest {
   Action action = Action::status;
   std::string context;                   // "rig move": the prefix of errors
   std::string socket;                    // --socket, or empty
-  bool json = false;                     // status
+  bool json = false;                     // status; home, move, stop: the rig once done, as JSON
   std::string home_axis;                 // home: "rail", "turntable", or empty for both
   std::vector<DaemonRigTarget> targets;  // move
   bool relative = false;                 // move: by the values (jog)

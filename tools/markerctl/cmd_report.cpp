@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -32,6 +33,7 @@ struct ReportCommandOptions {
   std::vector<std::string> socket;  // --socket: the socket marker's
   std::string output;
   bool no_plots = false;
+  bool json = false;
 };
 
 // read_run's messages name the file; the directory is what the user typed.
@@ -167,6 +169,19 @@ int run_report(const ReportCommandOptions& o) {
     throw runtime_error("report", e.what());
   }
 
+  if (o.json) {
+    // What was written, for scripts: the files, and Table 6.1 as report.md has it.
+    nlohmann::ordered_json j;
+    j["report"] = files.report.string();
+    j["csv"] = nlohmann::ordered_json::array();
+    for (const auto& csv : files.csv) j["csv"].push_back(csv.string());
+    j["plots"] = nlohmann::ordered_json::array();
+    for (const auto& plot : files.plots) j["plots"].push_back(plot.string());
+    j["table_6_1"] = files.table_6_1;
+    j["threshold_calls"] = files.threshold_calls;
+    std::cout << json_line(j) << '\n';
+    return 0;
+  }
   // The path alone on the first line, for scripts; the table and how sure
   // its limits are for people.
   std::cout << files.report.string() << "\n\n" << files.table_6_1 << "\nThreshold calls:\n\n" << files.threshold_calls;
@@ -190,8 +205,9 @@ void add_report_command(CLI::App& parent, Commands& commands) {
       "--paper RUN_DIR... --socket RUN_DIR...: the thesis's two markers compared, Table 6.1 with a column for each\n"
       "marker's runs together beside the thesis's; runs whose plans say [marker] mounting = \"paper\" or \"socket\",\n"
       "both among them, are compared so when given as RUN_DIR... too.\n"
-      "Prints the path of report.md, then Table 6.1 and its threshold calls. Exit status: 0 written, 1 a run that\n"
-      "cannot be read or a report that cannot be written (gnuplot missing or failing), 2 bad usage.");
+      "Prints the path of report.md, then Table 6.1 and its threshold calls (--json: one JSON object, \"report\",\n"
+      "\"csv\", \"plots\", \"table_6_1\" and \"threshold_calls\"). Exit status: 0 written, 1 a run that cannot be\n"
+      "read or a report that cannot be written (gnuplot missing or failing), 2 bad usage.");
   app->add_option("run", o->runs, "A sweep run's directory, as markerd wrote it")->type_name("RUN_DIR");
   app->add_option("--paper", o->paper,
                   "The paper marker's runs (its distance run, its angle runs): Table 6.1's paper column")
@@ -200,6 +216,7 @@ void add_report_command(CLI::App& parent, Commands& commands) {
   app->add_option("-o,--output", o->output, "Where the report goes (default RUN_DIR/report; required for several runs)")
       ->type_name("OUT_DIR");
   app->add_flag("--no-plots", o->no_plots, "Tables and CSVs only (gnuplot not needed)");
+  app->add_flag("--json", o->json, "One JSON object: the files written and Table 6.1");
   commands.push_back({app, [o] { return run_report(*o); }});
 }
 

@@ -62,27 +62,49 @@ struct RigOptions {
   bool no_wait = false;    // home, move, jog, stop: return once the daemon has started it
 };
 
-int run_status(const RigOptions& o, const std::string& context) {
-  Session session(o.config, context);
+// The rig as status --json shows it, and home, move and jog --json once done.
+nlohmann::ordered_json status_document(Session& session, const std::string& config) {
   auto& rig = session.rig();
   const AxisStatus rail = rig.rail().status();
   const AxisStatus turntable = rig.turntable().status();
   const auto truth = markerd::rig::ground_truth(rig.geometry(), rail.position, turntable.position);
+  nlohmann::ordered_json j;
+  j["config"] = config;
+  j["rail"] = axis_json(rig.rail().settings(), rail);
+  j["turntable"] = axis_json(rig.turntable().settings(), turntable);
+  const Eigen::Quaterniond q(truth.rotation);
+  j["ground_truth"] = {
+      {"distance_m", rounded(truth.distance_m, 9)},
+      {"yaw_deg", rounded(truth.yaw_deg, 9)},
+      {"tvec",
+       {rounded(truth.translation.x(), 9), rounded(truth.translation.y(), 9), rounded(truth.translation.z(), 9)}},
+      {"quaternion", {rounded(q.w(), 9), rounded(q.x(), 9), rounded(q.y(), 9), rounded(q.z(), 9)}}};
+  return j;
+}
+
+// A command's session: with --json its lines in words go to standard error,
+// standard output keeping the one JSON line of the end.
+std::unique_ptr<Session> open_session(const RigOptions& o, const std::string& context) {
+  auto session = std::make_unique<Session>(o.config, context);
+  if (o.json) session->text_to_stderr();
+  return session;
+}
+
+// The end of home, move and jog: the ground truth in words, and with --json
+// the rig as the command leaves it (markerctl disables the axes after it).
+int finish(Session& session, const RigOptions& o) {
+  session.print_ground_truth();
+  if (o.json) std::cout << json_line(status_document(session, o.config)) << '\n' << std::flush;
+  return 0;
+}
+
+int run_status(const RigOptions& o, const std::string& context) {
+  Session session(o.config, context);
   if (o.json) {
-    nlohmann::ordered_json j;
-    j["config"] = o.config;
-    j["rail"] = axis_json(rig.rail().settings(), rail);
-    j["turntable"] = axis_json(rig.turntable().settings(), turntable);
-    const Eigen::Quaterniond q(truth.rotation);
-    j["ground_truth"] = {
-        {"distance_m", rounded(truth.distance_m, 9)},
-        {"yaw_deg", rounded(truth.yaw_deg, 9)},
-        {"tvec",
-         {rounded(truth.translation.x(), 9), rounded(truth.translation.y(), 9), rounded(truth.translation.z(), 9)}},
-        {"quaternion", {rounded(q.w(), 9), rounded(q.x(), 9), rounded(q.y(), 9), rounded(q.z(), 9)}}};
-    std::cout << json_line(j) << '\n';
+    std::cout << json_line(status_document(session, o.config)) << '\n';
     return 0;
   }
+  auto& rig = session.rig();
   for (const Axis* axis : {&rig.rail(), &rig.turntable()}) {
     const AxisSettings& settings = axis->settings();
     const AxisStatus s = axis->status();
@@ -92,7 +114,7 @@ int run_status(const RigOptions& o, const std::string& context) {
                              position_text(settings, s.target), inputs_text(s.inputs));
     if (s.state == AxisState::fault) std::cout << fmt::format("{:<10} fault: {}\n", "", s.fault);
   }
-  std::cout << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.distance_m, truth.yaw_deg);
+  session.print_ground_truth();
   return 0;
 }
 
@@ -102,10 +124,9 @@ int run_home(const RigOptions& o, const std::string& context) {
   std::vector<const AxisKind*> kinds;
   if (o.home_axis.empty() || o.home_axis == "rail") kinds.push_back(&kRail);
   if (o.home_axis.empty() || o.home_axis == "turntable") kinds.push_back(&kTurntable);
-  Session session(o.config, context);
-  for (const AxisKind* kind : kinds) session.home(session.axis(*kind));
-  session.print_ground_truth();
-  return 0;
+  const auto session = open_session(o, context);
+  for (const AxisKind* kind : kinds) session->home(session->axis(*kind));
+  return finish(*session, o);
 }
 
 // ---------------------------------------------------------------- move, jog
@@ -133,7 +154,8 @@ void check_soft_limits(const Session& session, const AxisSettings& axis, double 
 
 // Absolute (move) or relative (jog) moves of the requested axes, together.
 int run_motion(const RigOptions& o, const std::vector<Request>& requests, bool relative, const std::string& context) {
-  Session session(o.config, context);
+  const auto held = open_session(o, context);
+  Session& session = *held;
   // Everything is checked before anything moves.
   std::vector<double> values;
   for (const Request& r : requests) {
@@ -173,17 +195,16 @@ int run_motion(const RigOptions& o, const std::vector<Request>& requests, bool r
     } catch (const AxisError& e) {
       throw runtime_error(context, e.what());
     }
-    std::cout << fmt::format("{}: moving to {}\n", axis.settings().name, position_text(axis.settings(), target))
-              << std::flush;
+    session.text() << fmt::format("{}: moving to {}\n", axis.settings().name, position_text(axis.settings(), target))
+                   << std::flush;
     moving.push_back(&axis);
   }
   session.follow(moving, relative ? "jog" : "move");
   for (const Axis* axis : moving) {
-    std::cout << fmt::format("{}: at {}\n", axis->settings().name,
-                             position_text(axis->settings(), axis->status().position));
+    session.text() << fmt::format("{}: at {}\n", axis->settings().name,
+                                  position_text(axis->settings(), axis->status().position));
   }
-  session.print_ground_truth();
-  return 0;
+  return finish(session, o);
 }
 
 // ---------------------------------------------------------------- markerd's rig
@@ -275,7 +296,10 @@ int run_configured_rig(const RigOptions& o, const RigSubcommands& sub) {
       throw usage_error("rig jog", "give --rail or --turntable, or run it on a terminal for the interactive jog");
     }
     Session session(o.config, "rig jog");
-    return run_interactive_jog(session);
+    const int status = run_interactive_jog(session);
+    // The jog itself is the terminal's; --json gives the state it ended in.
+    if (o.json) std::cout << json_line(status_document(session, o.config)) << '\n' << std::flush;
+    return status;
   }
   throw usage_error("rig", "no rig command given (status, home, move, jog or stop)");
 }
@@ -315,6 +339,8 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   app->add_option("--socket", o->socket, "markerd's control socket, for markerd's rig (no --config)")
       ->type_name("PATH");
 
+  const char* json_help =
+      "Once done, the rig as status --json shows it, one JSON line (the progress goes to standard error)";
   CLI::App* status = app->add_subcommand("status", "Each axis's state, position and inputs, and the ground truth");
   status->add_flag("--json", o->json, "One JSON object instead of text");
   status->fallthrough();
@@ -324,6 +350,7 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
       ->type_name("rail|turntable")
       ->check(CLI::IsMember({"rail", "turntable"}));
   home->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the homing has started");
+  home->add_flag("--json", o->json, json_help);
   home->fallthrough();
 
   CLI::App* move = app->add_subcommand("move", "Move the axes to absolute positions and wait until settled");
@@ -331,6 +358,7 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   move->add_option("--turntable", o->turntable, "Turntable angle (30deg, 0.5rad)")->type_name("ANGLE");
   move->add_flag("--home", o->home, "Home the axes that are not homed first");
   move->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the move has started");
+  move->add_flag("--json", o->json, json_help);
   move->fallthrough();
 
   CLI::App* jog = app->add_subcommand(
@@ -339,6 +367,7 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   jog->add_option("--turntable", o->turntable, "Turntable step (+2deg, -0.1rad)")->type_name("ANGLE");
   jog->add_flag("--home", o->home, "Home the axes that are not homed first");
   jog->add_flag("--no-wait", o->no_wait, "markerd's rig: return once the move has started");
+  jog->add_flag("--json", o->json, json_help);
   jog->footer(
       "Interactive keys: left/right arrows jog the rail, up/down the turntable; + and - change the step\n"
       "(0.1 mm / 0.05 deg up to 100 mm / 30 deg); h homes both axes; s stops; space is an emergency stop\n"
@@ -348,6 +377,7 @@ void add_rig_command(CLI::App& parent, Commands& commands) {
   CLI::App* stop = app->add_subcommand("stop", "markerd's rig: stop both axes (with a ramp) and wait until they rest");
   stop->add_flag("--emergency", o->emergency, "Stop at once and disable the axes (they must be homed again)");
   stop->add_flag("--no-wait", o->no_wait, "Return once the stop has been sent");
+  stop->add_flag("--json", o->json, json_help);
   stop->fallthrough();
 
   const RigSubcommands sub{status, home, move, jog, stop};

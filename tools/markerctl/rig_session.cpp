@@ -96,7 +96,7 @@ void Session::prepare(markerd::rig::Axis& axis, bool for_homing) {
       throw runtime_error(context_, fmt::format("{} is in fault ({}); home it (--home) to clear the fault",
                                                 axis.settings().name, s.fault));
     }
-    std::cout << fmt::format("{}: clearing the fault ({})\n", axis.settings().name, s.fault) << std::flush;
+    text() << fmt::format("{}: clearing the fault ({})\n", axis.settings().name, s.fault) << std::flush;
     axis.clear_fault();
   }
   if (axis.status().state == markerd::rig::AxisState::disabled) axis.enable();
@@ -104,18 +104,18 @@ void Session::prepare(markerd::rig::Axis& axis, bool for_homing) {
 
 void Session::home(markerd::rig::Axis& axis) {
   prepare(axis, true);
-  std::cout << fmt::format("{}: homing\n", axis.settings().name) << std::flush;
+  text() << fmt::format("{}: homing\n", axis.settings().name) << std::flush;
   axis.home();
   follow({&axis}, "homing");
   const markerd::rig::AxisStatus s = axis.status();
-  std::cout << fmt::format("{}: homed at {}\n", axis.settings().name, position_text(axis.settings(), s.position))
-            << std::flush;
+  text() << fmt::format("{}: homed at {}\n", axis.settings().name, position_text(axis.settings(), s.position))
+         << std::flush;
 }
 
 void Session::follow(const std::vector<markerd::rig::Axis*>& moving, std::string_view doing) {
   // On a terminal the progress is one line redrawn in place (a homing of 50 s
   // printed 50 lines); a pipe or a file gets only the lines before and after.
-  LiveLine live(std::cout, STDOUT_FILENO);
+  LiveLine live(*text_, text_fd_);
   auto next_progress = std::chrono::steady_clock::now();
   std::vector<std::optional<std::chrono::steady_clock::time_point>> idle_since(moving.size());
   for (;;) {
@@ -219,7 +219,7 @@ std::string Session::positions() {
 void Session::print_ground_truth() {
   const auto truth =
       markerd::rig::ground_truth(rig_->geometry(), rig_->rail().status().position, rig_->turntable().status().position);
-  std::cout << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.distance_m, truth.yaw_deg);
+  text() << fmt::format("ground truth: distance {:.4f} m, yaw {:.3f} deg\n", truth.distance_m, truth.yaw_deg);
 }
 
 }  // namespace markerctl

@@ -2,10 +2,13 @@
 // One markerctl rig command's hold on a rig built from its config, and how
 // the rig's state is shown.
 
+#include <unistd.h>
+
 #include <fmt/format.h>
 
 #include <algorithm>
 #include <chrono>
+#include <iostream>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -41,6 +44,14 @@ class Session {
   Session& operator=(const Session&) = delete;
 
   [[nodiscard]] const std::string& context() const { return context_; }
+  // Where the command's lines in words go (progress, positions, the ground
+  // truth): standard output, or standard error when standard output is the
+  // command's JSON.
+  [[nodiscard]] std::ostream& text() const { return *text_; }
+  void text_to_stderr() {
+    text_ = &std::cerr;
+    text_fd_ = STDERR_FILENO;
+  }
   [[nodiscard]] const markerd::rig::RigConfig& config() const { return config_; }
   [[nodiscard]] markerd::rig::Rig& rig() { return *rig_; }
   [[nodiscard]] const SignalWatch& signals() const { return signals_; }
@@ -74,6 +85,8 @@ class Session {
  private:
   SignalWatch signals_;  // first: blocks the signals before the rig starts its threads
   std::string context_;
+  std::ostream* text_ = &std::cout;
+  int text_fd_ = STDOUT_FILENO;
   markerd::rig::RigConfig config_;
   std::optional<markerd::rig::DeviceLock> lock_;
   std::unique_ptr<markerd::rig::Rig> rig_;
