@@ -224,6 +224,35 @@ TEST_F(MarkerctlRig, HomeMoveAndJogWithJsonPrintTheRigOnceDone) {
   EXPECT_EQ(r.out, "");
 }
 
+// markerd's config where a rig config belongs: the error says what it is,
+// where its rig is, and what to pass.
+TEST_F(MarkerctlRig, MarkerdsConfigIsNamedWithTheRigFileToPass) {
+  const std::string markerd_sim = (kSourceDir / "config/markerd-sim.toml").string();
+  const std::string rig_sim = (kSourceDir / "config/rig-sim.toml").string();
+  Outcome r = run({"rig", "--config", markerd_sim, "status"});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_EQ(r.err, "markerctl: rig status: " + markerd_sim + " is markerd's config, not a rig config: its rig is in " +
+                       rig_sim + " (line 5: rig = \"rig-sim.toml\"); pass --config " + rig_sim +
+                       ", or leave out --config to move the rig of the markerd that runs\n");
+  EXPECT_EQ(r.out, "");
+  // The rig it names is what to pass, and works.
+  const std::string config = sim_config(50);
+  EXPECT_EQ(run({"rig", "--config", config, "status"}).code, 0);
+
+  // A markerd config without a rig.
+  const fs::path no_rig = dir() / "markerd.toml";
+  {
+    std::ofstream out(no_rig);
+    out << "[camera]\nsource = \"sim\"\n";
+  }
+  r = run({"rig", "--config", no_rig.string(), "home"});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_EQ(r.err, "markerctl: rig home: " + no_rig.string() +
+                       " is markerd's config, not a rig config, and it names no rig (no [rig] tables, no rig = FILE): "
+                       "pass a rig config (config/rig-sim.toml and the other config/rig-*.toml are examples), or "
+                       "leave out --config to move the rig of the markerd that runs\n");
+}
+
 TEST_F(MarkerctlRig, ASecondProcessIsRefusedWhileTheFirstHoldsTheRig) {
   // Real time: the homing alone takes about 50 s, far longer than the test needs.
   const std::string config = sim_config(1);

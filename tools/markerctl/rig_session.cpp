@@ -2,9 +2,11 @@
 
 #include <unistd.h>
 
+#include <filesystem>
 #include <iostream>
 
 #include "live_line.hpp"
+#include "markerd/base/config_table.hpp"
 
 namespace markerctl {
 
@@ -47,7 +49,45 @@ nlohmann::ordered_json axis_json(const AxisSettings& settings, const AxisStatus&
   return j;
 }
 
+namespace {
+
+// markerd's config where a rig config belongs (the one markerd runs with is
+// the first file at hand): what it is, the rig file it names or that it
+// names none, and what to pass instead. Nothing when it is no markerd config
+// or has its rig inline ([rig] tables, which load as a rig config does).
+std::optional<std::string> markerd_config_given(const std::string& path) {
+  std::optional<markerd::ConfigTable> root;
+  try {
+    root = markerd::ConfigTable::load_file(path);
+  } catch (const markerd::ConfigError&) {
+    return std::nullopt;  // the rig config's loader says what is wrong with it
+  }
+  const toml::node* rig = root->raw().get("rig");
+  const std::string elsewhere = "or leave out --config to move the rig of the markerd that runs";
+  if (rig != nullptr && rig->is_string()) {
+    const std::string named = rig->value<std::string>().value_or("");
+    const std::filesystem::path file = std::filesystem::path(named).is_absolute()
+                                           ? std::filesystem::path(named)
+                                           : std::filesystem::path(path).parent_path() / named;
+    return fmt::format(
+        "{} is markerd's config, not a rig config: its rig is in {} (line {}: rig = \"{}\"); pass "
+        "--config {}, {}",
+        path, file.string(), rig->source().begin.line, named, file.string(), elsewhere);
+  }
+  if (rig == nullptr && (root->contains("camera") || root->contains("marker"))) {
+    return fmt::format(
+        "{} is markerd's config, not a rig config, and it names no rig (no [rig] tables, no rig = "
+        "FILE): pass a rig config (config/rig-sim.toml and the other config/rig-*.toml are examples), "
+        "{}",
+        path, elsewhere);
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
 Session::Session(const std::string& config_path, std::string context) : context_(std::move(context)) {
+  if (auto problem = markerd_config_given(config_path)) throw usage_error(context_, *problem);
   try {
     config_ = markerd::rig::load_rig_config(config_path);
   } catch (const markerd::ConfigError& e) {
