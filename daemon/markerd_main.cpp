@@ -30,10 +30,13 @@
 #include <exception>
 #include <iostream>
 #include <opencv2/core/utils/logger.hpp>
+#include <optional>
 #include <string>
+#include <vector>
 
 #include "markerd/base/config_table.hpp"
 #include "markerd/daemon/daemon.hpp"
+#include "markerd/rig/device_lock.hpp"
 
 #ifndef MARKERD_VERSION
 #define MARKERD_VERSION "unknown"
@@ -72,13 +75,56 @@ sigset_t block_signals() {
   return set;
 }
 
+// The rig's device locks, waited for while another process holds one (a
+// markerctl rig session): exiting instead would have systemd start markerd
+// again every RestartSec until its start limit left the unit failed. The
+// wait comes before READY, so systemd's start timeout is extended while it
+// lasts, and the status says what is held by whom. Nothing when SIGTERM or
+// SIGINT ends the wait.
+std::optional<markerd::rig::DeviceLock> wait_for_rig_devices(const markerd::rig::RigConfig& rig,
+                                                             const sigset_t& signals) {
+  const std::vector<markerd::rig::DeviceClaim> claims = markerd::rig::device_claims(rig);
+  const auto since = std::chrono::steady_clock::now();
+  std::string reported;
+  for (;;) {
+    try {
+      markerd::rig::DeviceLock lock(claims);
+      if (!reported.empty()) {
+        spdlog::info("the rig's devices are free after {:.0f} s of waiting; starting",
+                     std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count());
+      }
+      return lock;
+    } catch (const markerd::rig::DeviceLockError& e) {
+      if (!e.held()) throw;  // a lock that cannot be taken at all does not come free
+      if (e.what() != reported) {
+        spdlog::warn("{}; markerd waits until it is free, and starts then (SIGTERM stops it)", e.what());
+        reported = e.what();
+      }
+      // Renewed every second: while the wait goes on, so does the start.
+      sd_notifyf(0, "STATUS=waiting for the rig's devices: %s\nEXTEND_TIMEOUT_USEC=%llu", e.what(),
+                 static_cast<unsigned long long>(10'000'000));
+    }
+    const timespec second{1, 0};
+    const int sig = sigtimedwait(&signals, nullptr, &second);
+    if (sig == SIGTERM || sig == SIGINT) {
+      spdlog::info("{}: stopping while waiting for the rig's devices", sig == SIGTERM ? "SIGTERM" : "SIGINT");
+      return std::nullopt;
+    }
+  }
+}
+
 int run(const std::string& config_path) {
   const sigset_t signals = block_signals();
   markerd::daemon::DaemonConfig config = markerd::daemon::load_daemon_config(config_path);
   spdlog::set_level(spdlog::level::from_str(config.log.level));
   spdlog::info("markerd {} starting with {}", MARKERD_VERSION, config_path);
 
-  markerd::daemon::Daemon daemon(std::move(config));
+  std::optional<markerd::rig::DeviceLock> rig_lock;
+  if (config.rig) {
+    rig_lock = wait_for_rig_devices(*config.rig, signals);
+    if (!rig_lock) return 0;
+  }
+  markerd::daemon::Daemon daemon(std::move(config), std::move(rig_lock));
   daemon.start();
   spdlog::info("detection log: {}", daemon.log().current_path());
 

@@ -140,9 +140,15 @@ std::unique_ptr<CaptureSource> make_capture_source(const CameraSettings& camera,
       camera.source);
 }
 
-Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {
+Daemon::Daemon(DaemonConfig config) : Daemon(std::move(config), std::nullopt) {}
+
+Daemon::Daemon(DaemonConfig config, std::optional<rig::DeviceLock> rig_lock) : config_(std::move(config)) {
   if (config_.rig) {
-    rig_lock_.emplace(rig::lock_rig_devices(*config_.rig));
+    if (rig_lock) {
+      rig_lock_ = std::move(rig_lock);
+    } else {
+      rig_lock_.emplace(rig::lock_rig_devices(*config_.rig));
+    }
     rig_ = rig::make_rig(*config_.rig);
   }
   source_ = make_capture_source(config_.camera, config_.rig);

@@ -219,7 +219,8 @@ DeviceLock::DeviceLock(std::vector<DeviceClaim> claims, const std::filesystem::p
         const int error = errno;
         const std::string holder = error == EWOULDBLOCK ? describe_holder(fd.get()) : std::string();
         if (error == EWOULDBLOCK) {
-          throw DeviceLockError(fmt::format("{} is in use by {} (lock file {})", claim.what, holder, path.string()));
+          throw DeviceLockError(fmt::format("{} is in use by {} (lock file {})", claim.what, holder, path.string()),
+                                true);
         }
         throw DeviceLockError(fmt::format("{}: cannot lock {}: {}", claim.what, path.string(), errno_text(error)));
       }

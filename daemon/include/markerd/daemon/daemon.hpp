@@ -38,6 +38,10 @@ class Daemon {
   // CaptureError of kind config, ...) naming what failed. A camera that is
   // not there yet is no reason to fail: the capture loop waits for it.
   explicit Daemon(DaemonConfig config);
+  // The same with the rig's device locks taken already, or none to take
+  // them here: markerd's main() waits for them while another process holds
+  // one, rather than failing.
+  Daemon(DaemonConfig config, std::optional<rig::DeviceLock> rig_lock);
   ~Daemon();  // stop()
   Daemon(const Daemon&) = delete;
   Daemon& operator=(const Daemon&) = delete;

@@ -38,7 +38,14 @@ struct DeviceClaim {
 // message names the device, what uses it and the holder.
 class DeviceLockError : public std::runtime_error {
  public:
-  using std::runtime_error::runtime_error;
+  explicit DeviceLockError(const std::string& message, bool held = false) : std::runtime_error(message), held_(held) {}
+  // Another holder has the lock (it is free once that one lets go), rather
+  // than a lock that cannot be taken at all (a directory or file that
+  // cannot be made or opened).
+  [[nodiscard]] bool held() const noexcept { return held_; }
+
+ private:
+  bool held_;
 };
 
 class DeviceLock {
