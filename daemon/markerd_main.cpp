@@ -4,7 +4,7 @@
 // the watchdog while its threads are responsive, and logs to the journal.
 //
 //   markerd --config /etc/markerd/markerd.toml
-//   markerd --config FILE --check-config     validate and exit
+//   markerd --config FILE --check-config     validate and exit (--no-lock-check: not the device locks)
 //
 // Exit status: 0 after SIGTERM/SIGINT or a good config check, 1 when it
 // cannot start (the cause on stderr or in the journal), 2 for a usage error.
@@ -177,8 +177,13 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", fmt::format("markerd {}", MARKERD_VERSION));
   std::string config_path = "/etc/markerd/markerd.toml";
   bool check_only = false;
+  bool no_lock_check = false;
   app.add_option("-c,--config", config_path, "the configuration file")->capture_default_str();
-  app.add_flag("--check-config", check_only, "read and check the configuration, print what it sets up, and exit");
+  CLI::Option* check =
+      app.add_flag("--check-config", check_only, "read and check the configuration, print what it sets up, and exit");
+  app.add_flag("--no-lock-check", no_lock_check,
+               "with --check-config: leave out whether the rig's device locks are free (the start waits for them)")
+      ->needs(check);
   try {
     app.parse(argc, argv);
   } catch (const CLI::Success& e) {
@@ -195,6 +200,17 @@ int main(int argc, char** argv) {
       const auto config = markerd::daemon::load_daemon_config(config_path);
       markerd::daemon::check_control_setup(config.control);
       markerd::daemon::check_detector_setup(config);
+      // Another process on one of the rig's devices (a markerctl rig
+      // session, a running markerd) would keep markerd from driving it; the
+      // locks are taken and let go at once.
+      if (config.rig && !no_lock_check) {
+        try {
+          const markerd::rig::DeviceLock lock(markerd::rig::device_claims(*config.rig));
+        } catch (const markerd::rig::DeviceLockError& e) {
+          throw std::runtime_error(fmt::format("{}: rig: {}{}", config_path, e.what(),
+                                               e.held() ? " (markerd would wait for it at start)" : ""));
+        }
+      }
       std::cout << fmt::format(
           "{}: ok (camera: {}, marker: {} id {} {} m {}, rig: {}, detection log: {}, control: {})\n", config_path,
           config.camera.source_kind, markerd::detector::family_info(config.marker.family).name, config.marker.id,

@@ -251,5 +251,35 @@ TEST_F(MarkerdDeviceLock, SigtermEndsTheWaitForTheRigsDevices) {
   EXPECT_EQ(rail_.state(1).requests, 0U);
 }
 
+// markerd --check-config takes the rig's locks and lets go at once: a
+// device another process holds is a failed check naming the device and the
+// holder with its pid; --no-lock-check (the unit's ExecStartPre, since the
+// start waits for the device) leaves that out.
+TEST_F(MarkerdDeviceLock, CheckConfigReportsAHeldDeviceNamingItsHolder) {
+  const std::vector<rig::DeviceClaim> claims = rig::device_claims(rig_config_);
+  std::optional<rig::DeviceLock> held(rig::DeviceLock({claims.back()}));
+  const std::string holder = fmt::format("is in use by {} (pid {}: ", program_invocation_short_name, ::getpid());
+  Outcome r = test_support::run_program({MARKERD_PATH, "--check-config", "--config", config().string()});
+  EXPECT_EQ(r.code, 1) << r.describe();
+  EXPECT_EQ(r.err.rfind("markerd: " + config().string() + ": rig: " + claims.back().what + " " + holder, 0), 0U)
+      << r.describe();
+  EXPECT_NE(r.err.find("(markerd would wait for it at start)\n"), std::string::npos) << r.describe();
+  EXPECT_EQ(r.out, "");
+
+  r = test_support::run_program({MARKERD_PATH, "--check-config", "--no-lock-check", "--config", config().string()});
+  EXPECT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(r.out.rfind(config().string() + ": ok (", 0), 0U) << r.describe();
+
+  held.reset();
+  r = test_support::run_program({MARKERD_PATH, "--check-config", "--config", config().string()});
+  EXPECT_EQ(r.code, 0) << r.describe();
+  EXPECT_EQ(refusal(claims), "(not refused)") << "the check let go of every lock";
+  EXPECT_EQ(rail_.state(1).requests, 0U) << "a check speaks to no drive";
+
+  r = test_support::run_program({MARKERD_PATH, "--no-lock-check", "--config", config().string()});
+  EXPECT_EQ(r.code, 2) << r.describe();
+  EXPECT_NE(r.err.find("--no-lock-check requires --check-config"), std::string::npos) << r.describe();
+}
+
 }  // namespace
 }  // namespace markerd

@@ -72,7 +72,7 @@ check_prefix() {  # PREFIX
   local unit=$root$prefix/lib/systemd/system/markerd.service
   [[ -f $unit ]] || fail "$prefix/lib/systemd/system/markerd.service not installed"
   ! grep -n '@[A-Z_]*@' "$unit" || fail "$unit has placeholders left"
-  expect_line "$unit" "ExecStartPre=$prefix/bin/markerd --check-config --config $config_dir/markerd.toml"
+  expect_line "$unit" "ExecStartPre=$prefix/bin/markerd --check-config --no-lock-check --config $config_dir/markerd.toml"
   expect_line "$unit" "ExecStart=$prefix/bin/markerd --config $config_dir/markerd.toml"
   expect_line "$unit" "Documentation=man:markerd(8) man:markerd.toml(5) man:markerctl(1) file:$prefix/share/doc/markerd/systemd.md"
   [[ -f $root$prefix/share/doc/markerd/systemd.md ]] || fail "$prefix/share/doc/markerd/systemd.md not installed"

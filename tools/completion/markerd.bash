@@ -11,7 +11,7 @@ _markerd() {
     mapfile -t COMPREPLY < <(compgen -f -X '!*.toml' -- "$cur"; compgen -d -- "$cur")
     return 0
   fi
-  mapfile -t COMPREPLY < <(compgen -W "-c --config --check-config -h --help --version" -- "$cur")
+  mapfile -t COMPREPLY < <(compgen -W "-c --config --check-config --no-lock-check -h --help --version" -- "$cur")
   return 0
 }
 
