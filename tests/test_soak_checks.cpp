@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <fmt/format.h>
+
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -16,11 +18,14 @@
 #include <vector>
 
 #include "log_watch.hpp"
+#include "markerd/rig/device_lock.hpp"
+#include "markerd/rig/rig_config.hpp"
 #include "markerd/sweep/plan.hpp"
 #include "markerd/sweep/records.hpp"
 #include "run_checks.hpp"
 #include "support/files.hpp"
 #include "support/temp_dir.hpp"
+#include "support/toml_config.hpp"
 
 namespace markerd::soak {
 namespace {
@@ -171,6 +176,28 @@ TEST_F(SoakChecks, ACleanRunPassesAndEachKindOfLieIsReported) {
   EXPECT_EQ(totals.planned, 21U);
   EXPECT_EQ(totals.recorded, 3U + 4U + 2U + 1U + 3U + 3U + 1U);
   EXPECT_EQ(totals.failure_causes.at("the disk is full"), 1U);
+}
+
+// The soak's markerd must lock its rig in the soak's own directory
+// (MARKERD_LOCK_DIR), never the machine's: no lock file there is a problem
+// naming the device and the file; the lock markerd takes is none.
+TEST_F(SoakChecks, MarkerdsDeviceLocksMustBeInTheSoaksOwnDirectory) {
+  const fs::path rig = test_support::write_sim_rig_config(dir_ / "rig.toml", 20.0);
+  const fs::path locks = dir_ / "locks";
+  fs::create_directories(locks);
+  const auto claims = rig::device_claims(rig::load_rig_config(rig));
+  ASSERT_EQ(claims.size(), 1U) << "a simulated rig: its config file";
+  const auto problem = lock_directory_problem(locks, rig);
+  ASSERT_TRUE(problem.has_value());
+  EXPECT_EQ(*problem, fmt::format("markerd did not lock {} in the soak's lock directory (no {}): it locks elsewhere, "
+                                  "where the machine's own markerd or a markerctl rig session would meet it",
+                                  claims.front().what, rig::DeviceLock::file_for(claims.front(), locks).string()));
+  {
+    const rig::DeviceLock lock(claims, locks);  // as the soak's markerd takes it
+    EXPECT_EQ(lock_directory_problem(locks, rig), std::nullopt);
+  }
+  EXPECT_EQ(lock_directory_problem(locks, rig), std::nullopt) << "the file stays once the lock is let go";
+  EXPECT_NE(lock_directory_problem(locks, dir_ / "no-rig.toml"), std::nullopt);
 }
 
 }  // namespace

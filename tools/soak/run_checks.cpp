@@ -6,11 +6,30 @@
 #include <algorithm>
 #include <exception>
 
+#include "markerd/rig/device_lock.hpp"
+#include "markerd/rig/rig_config.hpp"
 #include "markerd/sweep/records.hpp"
 
 namespace markerd::soak {
 
 namespace fs = std::filesystem;
+
+std::optional<std::string> lock_directory_problem(const fs::path& directory, const fs::path& rig_config) {
+  try {
+    for (const rig::DeviceClaim& claim : rig::device_claims(rig::load_rig_config(rig_config))) {
+      const fs::path file = rig::DeviceLock::file_for(claim, directory);
+      if (!fs::exists(file)) {
+        return fmt::format(
+            "markerd did not lock {} in the soak's lock directory (no {}): it locks elsewhere, "
+            "where the machine's own markerd or a markerctl rig session would meet it",
+            claim.what, file.string());
+      }
+    }
+  } catch (const std::exception& e) {
+    return fmt::format("the rig's device locks cannot be checked: {}", e.what());
+  }
+  return std::nullopt;
+}
 
 namespace {
 

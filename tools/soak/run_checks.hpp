@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -42,6 +43,14 @@ struct RunTotals {
   std::uint64_t camera_suspensions = 0;                 // "suspended" events with the camera as the cause
   std::map<std::string, std::uint64_t> failure_causes;  // stop reasons of failed runs, shortened
 };
+
+// markerd in the soak locks its simulated rig (the config file
+// `rig_config`) in the soak's own lock directory (MARKERD_LOCK_DIR), not the
+// machine's /run/lock/markerd, where the machine's own markerd or a
+// markerctl rig session would meet it: a problem in words when `directory`
+// holds no lock file of that rig.
+std::optional<std::string> lock_directory_problem(const std::filesystem::path& directory,
+                                                  const std::filesystem::path& rig_config);
 
 // Reads every run under `runs_directory` and checks it against `seen`
 // (by run id); problems are appended, each naming the run.

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -746,6 +747,12 @@ int Soak::run() {
   }
   dir_ = fs::absolute(o_.work_dir);
   prepare_work_dir(dir_);
+  // The device locks of the markerds it starts in a directory of its own,
+  // not the machine's /run/lock/markerd: a markerd of the machine's own, or
+  // a markerctl rig session, must not meet the soak's there (nor the soak
+  // theirs). Before any thread: every child inherits it.
+  fs::create_directories(dir_ / "locks");
+  ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
   disk_ = std::make_unique<SmallDisk>(dir_ / "disk", o_.disk_mib);
   logs_ = dir_ / "disk/logs";
   state_ = dir_ / "disk/state";
@@ -766,6 +773,7 @@ int Soak::run() {
             << std::flush;
   start_markerd();
   if (!markerd_.running()) throw std::runtime_error("markerd does not start; its output: " + read_file(output_));
+  if (auto misplaced = lock_directory_problem(dir_ / "locks", dir_ / "rig.toml")) problem(*misplaced);
   // The baseline: the first markerd idle, a few seconds in (its threads up,
   // the camera streaming), before any run, fault or follower.
   std::this_thread::sleep_for(3s);
