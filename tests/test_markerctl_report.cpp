@@ -274,8 +274,13 @@ TEST_F(MarkerctlReport, JsonNamesTheFilesWrittenAndHoldsTheTable) {
   EXPECT_TRUE(j["plots"].empty()) << "--no-plots";
   ASSERT_FALSE(j["csv"].empty());
   for (const auto& csv : j["csv"]) EXPECT_TRUE(fs::exists(csv.get<std::string>())) << csv;
-  // The same table as the text's, after its path and a blank line.
-  EXPECT_EQ(j["table_6_1"], text.out.substr(text.out.find("\n\n") + 2));
+  // The same table and threshold calls as the text's: the path, a blank
+  // line, the table, then the calls under their heading.
+  const std::string kCalls = "\nThreshold calls:\n\n";
+  const std::size_t table = text.out.find("\n\n") + 2, calls = text.out.find(kCalls);
+  ASSERT_NE(calls, std::string::npos) << text.out;
+  EXPECT_EQ(j["table_6_1"], text.out.substr(table, calls - table));
+  EXPECT_EQ(j["threshold_calls"], text.out.substr(calls + kCalls.size()));
 }
 
 }  // namespace
