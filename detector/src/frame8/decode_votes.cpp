@@ -25,13 +25,13 @@ double Frame8Detector::confirming_cell_size(const Homography& H, CellSize size) 
     const Point2 along_grid = (1.0 / 5.0) * (gb - ga);
     const Point2 mid = 0.5 * (ga + gb);
     const Point2 across_grid{-along_grid.y, along_grid.x};
-    const Point2 along = grid_point(H, mid + along_grid) - grid_point(H, mid);
-    const Point2 across = grid_point(H, mid + across_grid) - grid_point(H, mid);
-    const double across_len = std::hypot(across.x, across.y);
+    const Point2 at = grid_point(H, mid), along = grid_point(H, mid + along_grid);
+    const Point2 across = grid_point(H, mid + across_grid);
+    const double across_len = distance(at, across);
     if (across_len <= 0) continue;
     // The distance between the lines that part a cell from its neighbours
     // along the edge: the along step's part square to the across one.
-    best = std::max(best, std::abs(along.x * across.y - along.y * across.x) / across_len);
+    best = std::max(best, std::abs(cross(at, along, across)) / across_len);
   }
   return std::min(size.mean, best);
 }
