@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <numeric>
 #include <string>
 #include <vector>
 
@@ -17,6 +18,7 @@
 #include "calibration_views.hpp"
 #include "markerd/detector/board.hpp"
 #include "markerd/detector/calibration.hpp"
+#include "markerd/detector/view_picker.hpp"
 #include "render_test_helpers.hpp"
 #include "support/files.hpp"
 #include "support/temp_dir.hpp"
@@ -329,6 +331,61 @@ TEST(Calibration, PoorCoverageIsRefused) {
 }
 
 // A ChArUco or frame8 board partly out of the image gives the points in it.
+// A 6x4 grid of board points, 40 px apart from (x, y), shifted by `dx`
+// and with the points from `first` on only.
+BoardPoints grid_points(double x, double y, double dx = 0, int first = 0) {
+  BoardPoints p;
+  for (int i = first; i < 24; ++i) {
+    p.index.push_back(i);
+    p.image.push_back({x + dx + 40.0 * (i % 6), y + 40.0 * (i / 6)});
+    p.object.emplace_back(0.04 * (i % 6), 0.04 * (i / 6), 0);
+  }
+  return p;
+}
+
+TEST(ViewPicker, KeepsABoardHeldStillAndApartFromTheViewsKept) {
+  ViewPicker picker(640, 480);  // 5% of the diagonal: 40 px
+  EXPECT_EQ(picker.offer({}).verdict, PickVerdict::no_board);
+  // The first frame has no frame before it to be still against.
+  Pick pick = picker.offer(grid_points(100, 100));
+  EXPECT_EQ(pick.verdict, PickVerdict::moving);
+  EXPECT_FALSE(pick.moved_px.has_value()) << "nothing shared with the frame before";
+  pick = picker.offer(grid_points(100, 100, 0.6));
+  ASSERT_EQ(pick.verdict, PickVerdict::kept);
+  EXPECT_EQ(pick.view, 0U);
+  // Still again, but where the view just kept is: like it.
+  pick = picker.offer(grid_points(100, 100, 0.9));
+  EXPECT_EQ(pick.verdict, PickVerdict::like_a_kept_view);
+  EXPECT_EQ(pick.view, 0U);
+  // Moving: 3 px since the frame before.
+  pick = picker.offer(grid_points(100, 100, 3.9));
+  EXPECT_EQ(pick.verdict, PickVerdict::moving);
+  EXPECT_NEAR(*pick.moved_px, 3.0, 1e-9);
+  // Still 39 px from the view kept: still like it; 41 px: a view of its own.
+  EXPECT_EQ(picker.offer(grid_points(139, 100)).verdict, PickVerdict::moving);
+  EXPECT_EQ(picker.offer(grid_points(139, 100)).verdict, PickVerdict::like_a_kept_view);
+  EXPECT_EQ(picker.offer(grid_points(141, 100)).verdict, PickVerdict::moving);
+  pick = picker.offer(grid_points(141, 100));
+  EXPECT_EQ(pick.verdict, PickVerdict::kept);
+  EXPECT_EQ(pick.view, 1U);
+  // Fewer points than a view needs (8).
+  EXPECT_EQ(picker.offer(grid_points(300, 300, 0, 20)).verdict, PickVerdict::too_few_points);
+  // Half the board out of view: the points shared with the frame before are
+  // too few to call it still, however little they moved.
+  pick = picker.offer(grid_points(300, 300, 0, 16));
+  EXPECT_EQ(pick.verdict, PickVerdict::moving);
+  EXPECT_EQ(pick.moved_px, 0.0);
+  EXPECT_EQ(picker.offer(grid_points(300, 300, 0, 16)).verdict, PickVerdict::kept);
+  ASSERT_EQ(picker.kept().size(), 3U);
+  EXPECT_EQ(picker.kept()[2].image.size(), 8U);
+  // Every kept point counted in its region, and the regions none reached named.
+  EXPECT_EQ(std::accumulate(picker.region_points().begin(), picker.region_points().end(), 0), 24 + 24 + 8);
+  EXPECT_EQ(picker.region_points()[0], 2 + 1) << "(100, 100), (140, 100) and (141, 100)";
+  EXPECT_EQ(empty_regions(picker.region_points()),
+            "the top-right corner, the right edge (2 regions), the left edge, the middle (2 regions), the bottom-left "
+            "corner");
+}
+
 TEST(BoardDetector, FindsTheSeenPartOfAChArUcoOrFrame8Board) {
   const CameraModel camera = calibration_test::distorted_camera();
   for (const BoardSpec& board : {calibration_test::charuco(), calibration_test::frame8_board()}) {

@@ -3,9 +3,13 @@
 // from rendered views of that board through a known camera written as
 // image files, some of them unreadable or of another board; what it wrote
 // (OpenCV's and ROS's YAML) reads back the same, and every command that
-// takes --camera reads both.
+// takes --camera reads both; and --live takes the views from a running
+// markerd instead.
 
 #include <gtest/gtest.h>
+#include <signal.h>
+
+#include <fmt/format.h>
 
 #include <cmath>
 #include <filesystem>
@@ -13,9 +17,12 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "calibration_views.hpp"
+#include "markerd/daemon/daemon.hpp"
+#include "markerd/daemon/daemon_config.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "support/files.hpp"
 #include "support/process.hpp"
@@ -232,7 +239,13 @@ TEST_F(MarkerctlCalibrate, RefusesTooFewViewsAndNamesWrongOptions) {
       {{images[0]},
        "markerctl: --board: give the board: COLSxROWS with --board-type and --size (as markerctl marker --board "
        "printed it), or its board file\n"},
-      {{"--board", board}, "markerctl: calibrate: no images given: the board's views, 10 to 30 of them\n"},
+      {{"--board", board},
+       "markerctl: calibrate: no images given: the board's views, 10 to 30 of them (or --live N to take them from "
+       "markerd)\n"},
+      {{"--board", board, "--live", "10", images[0]},
+       "markerctl: --live: takes its views from markerd's frames: give no image files with it\n"},
+      {{"--board", board, "--live", "3"}, "markerctl: --live: 3 views are fewer than --min-views 5\n"},
+      {{"--board", board, "--keep", path("kept"), images[0]}, "markerctl: --keep: is for --live N\n"},
       {{"--board", board, "--size", "20mm", images[0]},
        "markerctl: --size: the board file " + board + " gives the board's geometry\n"},
       {{"--board", board, "--board-type", "charuco", images[0]},
@@ -261,6 +274,97 @@ TEST_F(MarkerctlCalibrate, RefusesTooFewViewsAndNamesWrongOptions) {
   const Outcome bad_file = markerctl({"calibrate", "--board", wrong.string(), images[0]});
   EXPECT_EQ(bad_file.code, 1) << bad_file.describe();
   EXPECT_EQ(bad_file.err, "markerctl: --board: " + wrong.string() + ": missing key 'spacing_m' (a number)\n");
+  // --live with no markerd to ask.
+  const Outcome no_daemon =
+      markerctl({"calibrate", "--board", board, "--live", "10", "--socket", path("no-such.sock")});
+  EXPECT_EQ(no_daemon.code, 1) << no_daemon.describe();
+  EXPECT_EQ(no_daemon.err.rfind("markerctl: calibrate: cannot connect to " + path("no-such.sock"), 0), 0U)
+      << no_daemon.describe();
+}
+
+// --live: markerd replays the twelve views as a camera would see a board
+// moved from pose to pose and held still at each (a file source, each view
+// for 8 frames at 10 a second, round and round); markerctl keeps each pose
+// once, still, and calibrates as from the files.
+TEST_F(MarkerctlCalibrate, LiveTakesEachStillPoseOnceFromMarkerd) {
+  ASSERT_EQ(markerctl({"marker", "--board-type", "frame8", "--board", "4x3", "--size", "36mm", "--spacing", "9mm", "-o",
+                       path("board.pdf")})
+                .code,
+            0);
+  const std::vector<std::string> views = write_views();
+  fs::create_directories(path("frames"));
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    for (int k = 0; k < 8; ++k) fs::copy_file(views[i], path(fmt::format("frames/f{:02}-{}.png", i, k)));
+  }
+  ::setenv("MARKERD_LOCK_DIR", path("locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
+  test_support::write_file(dir_.path() / "markerd.toml", R"([marker]
+family = "frame8"
+id = 165
+size_m = 0.08
+
+[camera]
+source = "file"
+
+[camera.file]
+path = "frames"
+fps = 10
+loop = true
+
+[log]
+directory = "logs"
+
+[control]
+socket = "control.sock"
+)");
+  fs::create_directories(path("logs"));
+  daemon::Daemon markerd(daemon::load_daemon_config(dir_.path() / "markerd.toml"));
+  markerd.start();
+
+  const std::string board = path("board.toml");
+  const Outcome r = markerctl({"calibrate", "--board", board, "--live", "10", "--keep", path("kept"), "--socket",
+                               path("control.sock"), "--json"});
+  ASSERT_EQ(r.code, 0) << r.describe();
+  const json j = json::parse(r.out);
+  EXPECT_EQ(j["views_used"], 10);
+  ASSERT_EQ(j["views"].size(), 10U);
+  std::vector<std::string> kept;
+  for (std::size_t i = 0; i < 10; ++i) {
+    kept.push_back(path(fmt::format("kept/view-{:02}.png", i + 1)));
+    EXPECT_EQ(j["views"][i]["image"], kept.back());
+    EXPECT_EQ(j["views"][i]["points"], 48) << j["views"][i];
+    EXPECT_TRUE(fs::exists(kept.back()));
+  }
+  // Each pose once: no two kept views are the same picture.
+  for (std::size_t a = 0; a < kept.size(); ++a) {
+    for (std::size_t b = a + 1; b < kept.size(); ++b) {
+      EXPECT_NE(test_support::read_file(kept[a]), test_support::read_file(kept[b])) << a << " " << b;
+    }
+  }
+  const CameraModel camera = calibration_test::distorted_camera();
+  EXPECT_LT(std::abs(j["camera"]["fx"].get<double>() - camera.fx), 3 * j["std_dev"]["fx"].get<double>());
+  EXPECT_LT(std::abs(j["camera"]["cx"].get<double>() - camera.cx), 3 * j["std_dev"]["cx"].get<double>());
+  EXPECT_NE(r.err.find("calibrate: view 10 of 10 kept: " + kept.back() + ", 48 points; "), std::string::npos) << r.err;
+
+  // The kept files calibrate to the same camera.
+  std::vector<std::string> args{"calibrate", "--board", board, "--json"};
+  args.insert(args.end(), kept.begin(), kept.end());
+  const Outcome again = markerctl(args);
+  ASSERT_EQ(again.code, 0) << again.describe();
+  EXPECT_EQ(json::parse(again.out)["camera"], j["camera"]);
+
+  // Interrupted once it has kept enough: it calibrates from what it kept.
+  test_support::CapturedProcess live(
+      {MARKERCTL_PATH, "calibrate", "--board", board, "--live", "40", "--socket", path("control.sock")});
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(3);
+  while (live.err().find("view 10 of 40 kept") == std::string::npos && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ::kill(live.pid(), SIGINT);
+  const Outcome stopped = live.wait();
+  EXPECT_EQ(stopped.code, 0) << stopped.describe();
+  EXPECT_NE(stopped.err.find("calibrate: SIGINT: taking no more views, 10 kept"), std::string::npos)
+      << stopped.describe();
+  EXPECT_NE(stopped.out.find("10 of 10 views used, 640x480"), std::string::npos) << stopped.describe();
 }
 
 }  // namespace

@@ -117,13 +117,23 @@ std::string region_name(int col, int row) {
   return "the middle";
 }
 
-// Where the views used leave the image empty, in words ("the top-left
-// corner, the left edge (2 regions)").
-std::string empty_regions(const CalibrationResult& r) {
+}  // namespace
+
+std::string_view to_string(DistortionModel model) {
+  return model == DistortionModel::rational_polynomial ? "rational_polynomial" : "plumb_bob";
+}
+
+std::optional<DistortionModel> distortion_model_from_string(std::string_view name) {
+  if (name == "plumb_bob") return DistortionModel::plumb_bob;
+  if (name == "rational_polynomial") return DistortionModel::rational_polynomial;
+  return std::nullopt;
+}
+
+std::string empty_regions(const RegionPoints& region_points) {
   std::vector<std::pair<std::string, int>> places;
   for (int row = 0; row < kCoverageGrid; ++row) {
     for (int col = 0; col < kCoverageGrid; ++col) {
-      if (r.region_points[static_cast<std::size_t>(row * kCoverageGrid + col)] > 0) continue;
+      if (region_points[static_cast<std::size_t>(row * kCoverageGrid + col)] > 0) continue;
       const std::string name = region_name(col, row);
       const auto it = std::find_if(places.begin(), places.end(), [&](const auto& p) { return p.first == name; });
       if (it == places.end()) {
@@ -141,16 +151,10 @@ std::string empty_regions(const CalibrationResult& r) {
   return text;
 }
 
-}  // namespace
-
-std::string_view to_string(DistortionModel model) {
-  return model == DistortionModel::rational_polynomial ? "rational_polynomial" : "plumb_bob";
-}
-
-std::optional<DistortionModel> distortion_model_from_string(std::string_view name) {
-  if (name == "plumb_bob") return DistortionModel::plumb_bob;
-  if (name == "rational_polynomial") return DistortionModel::rational_polynomial;
-  return std::nullopt;
+std::size_t coverage_region(const Point2& p, int width, int height) {
+  const int col = std::clamp(static_cast<int>(std::floor((p.x + 0.5) * kCoverageGrid / width)), 0, kCoverageGrid - 1);
+  const int row = std::clamp(static_cast<int>(std::floor((p.y + 0.5) * kCoverageGrid / height)), 0, kCoverageGrid - 1);
+  return static_cast<std::size_t>(row * kCoverageGrid + col);
 }
 
 double CalibrationResult::coverage() const {
@@ -254,13 +258,7 @@ CalibrationResult calibrate_camera(const std::vector<CalibrationView>& views, in
     if (!r.used() && views[i].rejected.empty()) r.rms_px = view_rms(views[i].points, f.camera_matrix, f.distortion);
   }
   for (const std::size_t i : used) {
-    for (const Point2& p : views[i].points.image) {
-      const int col =
-          std::clamp(static_cast<int>(std::floor((p.x + 0.5) * kCoverageGrid / width)), 0, kCoverageGrid - 1);
-      const int row =
-          std::clamp(static_cast<int>(std::floor((p.y + 0.5) * kCoverageGrid / height)), 0, kCoverageGrid - 1);
-      ++result.region_points[static_cast<std::size_t>(row * kCoverageGrid + col)];
-    }
+    for (const Point2& p : views[i].points.image) ++result.region_points[coverage_region(p, width, height)];
   }
   if (result.coverage() < options.min_coverage) {
     constexpr int regions = kCoverageGrid * kCoverageGrid;
@@ -268,7 +266,8 @@ CalibrationResult calibrate_camera(const std::vector<CalibrationView>& views, in
     throw CalibrationError(
         fmt::format("the views' points reach {} of the image's {} regions ({}x{}), at least {:.0f}% are needed; none "
                     "in {}: take views with the board there",
-                    covered, regions, kCoverageGrid, kCoverageGrid, options.min_coverage * 100, empty_regions(result)),
+                    covered, regions, kCoverageGrid, kCoverageGrid, options.min_coverage * 100,
+                    empty_regions(result.region_points)),
         result.views);
   }
   return result;

@@ -60,7 +60,8 @@ _markerctl_spec() {  # PATH -> "subcommands|options"
     report) echo "|--paper= --socket= -o= --output= --no-plots --json -h -h --help" ;;
     calibrate)
       echo "|--board= --board-type= --size= --marker-size= --spacing= --dictionary= --first-id= --model= --fix-k3" \
-        "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --rig= --rig-out= --fix= --free= --json" \
+        "--min-views= --min-coverage= -o= --output= --ros= --camera-name= --live= --keep= --socket= --rig= --rig-out=" \
+        "--fix= --free= --json" \
         "-h --help"
       ;;
   esac
@@ -100,7 +101,7 @@ _markerctl_value() {  # PATH OPTION CURRENT
       ;;
     --camera) _markerctl_files "$cur" "*.y*ml" ;;
     --config) _markerctl_files "$cur" "*.toml" ;;
-    --debug) _markerctl_directories "$cur" ;;
+    --debug | --keep) _markerctl_directories "$cur" ;;
     --paper | --rig) _markerctl_directories "$cur" ;;
     --rig-out) _markerctl_files "$cur" "*.toml" ;;
     --fix | --free)

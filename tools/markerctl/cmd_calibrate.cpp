@@ -15,6 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "board_options.hpp"
+#include "calibrate_live.hpp"
 #include "cmd_calibrate_rig.hpp"
 #include "common.hpp"
 #include "live_line.hpp"
@@ -37,6 +38,7 @@ struct CalibrateOptions {
   std::string camera_name = "camera";
   bool json = false;
   std::vector<std::string> images;
+  LiveCalibrationOptions live;  // --live N: the views from markerd's frames instead
   RigCalibrationArguments rig;  // --rig: the camera and the rig from a sweep run instead
 };
 
@@ -202,6 +204,7 @@ int run_calibrate(const CalibrateOptions& o) {
     if (!o.images.empty()) throw usage_error("--rig", "takes no images: the run's records are its views");
     if (!o.board.board.empty()) throw usage_error("--rig", "takes no --board: the marker the run saw is the target");
     if (!o.ros.empty()) throw usage_error("--rig", "writes OpenCV's YAML with -o; --ros is for board calibrations");
+    if (o.live.views > 0) throw usage_error("--rig", "takes no --live: the run's records are its views");
     return run_rig_calibration(o.rig, o.output, o.json);
   }
   if (!o.rig.rig_out.empty() || !o.rig.fix.empty() || !o.rig.free.empty()) {
@@ -213,7 +216,20 @@ int run_calibrate(const CalibrateOptions& o) {
                       "--board printed it), or its board file");
   }
   const det::BoardSpec board = board_from_options(o.board, true);
-  if (o.images.empty()) throw usage_error("calibrate", "no images given: the board's views, 10 to 30 of them");
+  const bool live = o.live.views > 0;
+  if (live && !o.images.empty()) {
+    throw usage_error("--live", "takes its views from markerd's frames: give no image files with it");
+  }
+  if (!live && (!o.live.keep_dir.empty() || !o.live.socket.empty())) {
+    throw usage_error(o.live.keep_dir.empty() ? "--socket" : "--keep", "is for --live N");
+  }
+  if (live && o.live.views < o.min_views) {
+    throw usage_error("--live", fmt::format("{} views are fewer than --min-views {}", o.live.views, o.min_views));
+  }
+  if (!live && o.images.empty()) {
+    throw usage_error("calibrate",
+                      "no images given: the board's views, 10 to 30 of them (or --live N to take them from markerd)");
+  }
   if (std::find(o.images.begin(), o.images.end(), "-") != o.images.end()) {
     throw usage_error("calibrate", "'-': the views are read from files, not from standard input");
   }
@@ -240,7 +256,16 @@ int run_calibrate(const CalibrateOptions& o) {
 
   det::BoardDetector detector(board);
   int width = 0, height = 0;
-  const std::vector<det::CalibrationView> views = find_board(o, detector, width, height);
+  std::vector<det::CalibrationView> views;
+  if (live) {
+    LiveViews gathered = gather_live_views(o.live, detector, options.min_points);
+    views = std::move(gathered.views);
+    width = gathered.width;
+    height = gathered.height;
+    if (views.empty()) throw runtime_error("calibrate", "no view was kept: nothing to calibrate from");
+  } else {
+    views = find_board(o, detector, width, height);
+  }
   if (width == 0) {
     throw runtime_error("calibrate", fmt::format("none of the {} image{} could be read", o.images.size(),
                                                  o.images.size() == 1 ? "" : "s"));
@@ -300,6 +325,11 @@ void add_calibrate_command(CLI::App& parent, Commands& commands) {
       "overall RMS error, the intrinsics and distortion with their standard deviations, and writes\n"
       "-o FILE (OpenCV's calibration YAML) and --ros FILE (ROS camera_info YAML); --camera of every\n"
       "command reads both.\n"
+      "--live N takes the views from a running markerd instead of files: move the board before the camera\n"
+      "and hold it still at each pose; a frame becomes a view when the board's points moved under 1 px since\n"
+      "the frame before and, on average, over 5% of the image's diagonal from every view kept so far. A live\n"
+      "line says what each frame lacks and which regions of the image have no points yet; Ctrl-C ends the\n"
+      "gathering early and calibrates from the views kept; --keep DIR saves them as files.\n"
       "--rig RUN_DIR instead fits the camera's intrinsics and the rig's geometry (d0_mm, yaw0_deg, the marker's\n"
       "and the camera's offsets, the rail's tilt) to the marker's corners a sweep run detected at its rail\n"
       "positions and turntable angles, with their standard deviations (docs/calibration-rig.md); -o writes the\n"
@@ -333,6 +363,16 @@ void add_calibrate_command(CLI::App& parent, Commands& commands) {
       ->type_name("NAME")
       ->capture_default_str();
   app->add_flag("--json", o->json, "The result as one JSON object instead of text");
+  app->add_option("--live", o->live.views,
+                  "Take N views from markerd's frames (its control socket) while the board is moved before the "
+                  "camera, instead of image files")
+      ->type_name("N")
+      ->check(CLI::Range(1, 1000));
+  app->add_option("--keep", o->live.keep_dir, "With --live: save the views kept as PNG in DIR (made if missing)")
+      ->type_name("DIR");
+  app->add_option("--socket", o->live.socket,
+                  "With --live: markerd's control socket (default: $MARKERD_SOCKET, else /run/markerd/control.sock)")
+      ->type_name("PATH");
   add_rig_calibration_options(*app, o->rig);
   // Not required by CLI11: run_calibrate names what is missing, in words.
   app->add_option("images", o->images, "Image files of the board (PNG, JPEG, PGM/PPM/PBM, BMP, TIFF)")

@@ -55,6 +55,15 @@ struct CalibrationOptions {
 };
 
 inline constexpr int kCoverageGrid = 4;
+using RegionPoints = std::array<int, kCoverageGrid * kCoverageGrid>;
+
+// The coverage region a point of a width x height image falls in, row by
+// row from the top left.
+std::size_t coverage_region(const Point2& p, int width, int height);
+
+// The regions without points, in words ("the top-left corner, the left edge
+// (2 regions)"); empty when every region has some.
+std::string empty_regions(const RegionPoints& region_points);
 
 struct ViewResult {
   std::string name;
@@ -77,7 +86,7 @@ struct CalibrationResult {
   double std_fx = 0, std_fy = 0, std_cx = 0, std_cy = 0;
   std::array<double, 12> std_dist{};
   // Points of the views used in each region, row by row from the top left.
-  std::array<int, kCoverageGrid * kCoverageGrid> region_points{};
+  RegionPoints region_points{};
   [[nodiscard]] double coverage() const;
   [[nodiscard]] int used_views() const;
 };
