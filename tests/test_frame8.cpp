@@ -17,6 +17,7 @@
 #include "markerd/detector/detector.hpp"
 #include "markerd/detector/evaluate.hpp"
 #include "markerd/detector/frame8.hpp"
+#include "markerd/detector/pose.hpp"
 #include "markerd/detector/render.hpp"
 
 namespace markerd::detector {
@@ -283,6 +284,61 @@ TEST(Frame8, PoseDistanceWithinOnePercentAtOneMetre) {
       EXPECT_LT(diff.angle() * 180 / std::numbers::pi, 3.0) << "yaw " << yaw;
     }
   }
+}
+
+// Far, a marker facing the camera is found tilted by the error in its
+// hole's squeeze, and always some (a tilt is a length), and so nearer than
+// it is: 0.5 % at 2 m. The pose takes the tilt net of the squeeze's
+// variance that the pattern fit's scatter gives (shrink_tilt_by_noise).
+// bench_accuracy's scenes facing the camera (the print with its margin),
+// each pose compared with the one from the same hole's corners without
+// the correction.
+TEST(Frame8, AFarMarkerFacingTheCameraIsNotFoundTiltedAndNearer) {
+  auto det = make_detector(posed_config());
+  EvalSettings settings = benchmark_settings();
+  settings.scene.paper_margin_m = 0.01;
+  std::mt19937_64 rng(2026120701);
+  std::uniform_real_distribution<double> unit(0, 1);
+  const auto view_angle = [](const MarkerPose& p) {
+    return std::acos(std::clamp(p.rotation.col(2).dot(-p.translation.normalized()), -1.0, 1.0)) * 180 /
+           std::numbers::pi;
+  };
+  std::vector<double> bias, bias_uncorrected, tilt, tilt_uncorrected;
+  for (const double distance : {2.0, 2.1, 2.2}) {
+    for (int k = 0; k < 30; ++k) {
+      Scene s = settings.scene;
+      s.id = 1 + static_cast<int>(unit(rng) * 254);
+      // On the optical axis to within a few pixels, at any sub-pixel phase:
+      // the marker faces its line of sight.
+      s.pose = facing_pose(distance, 0, 0, 10 * (2 * unit(rng) - 1), 0.006 * (2 * unit(rng) - 1),
+                           0.006 * (2 * unit(rng) - 1));
+      s.seed = rng();
+      const auto found = detect(*det, render_scene(kCamera, s));
+      if (found.size() != 1 || found[0].id != s.id) continue;
+      ASSERT_TRUE(found[0].pose && found[0].inner_corners);
+      const auto uncorrected = estimate_square_pose(kCamera, *found[0].inner_corners, 0.08 * 0.7);
+      ASSERT_TRUE(uncorrected.has_value());
+      const double truth = s.pose.translation.norm();
+      bias.push_back(found[0].pose->best.translation.norm() / truth - 1);
+      bias_uncorrected.push_back(uncorrected->best.translation.norm() / truth - 1);
+      tilt.push_back(view_angle(found[0].pose->best) - view_angle(s.pose));
+      tilt_uncorrected.push_back(view_angle(uncorrected->best) - view_angle(s.pose));
+    }
+  }
+  ASSERT_GE(bias.size(), 80U);
+  const auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    return v[v.size() / 2];
+  };
+  RecordProperty("median_distance_bias_percent", std::to_string(median(bias) * 100));
+  RecordProperty("median_distance_bias_uncorrected_percent", std::to_string(median(bias_uncorrected) * 100));
+  // Measured: the tilt's median 6.6 -> 3.4 deg, the distance's -0.54 ->
+  // -0.38 %. What is left is not noise but the pattern's edges measured
+  // off by the pixels' phase (the same frame without noise is as far off).
+  EXPECT_GT(median(tilt_uncorrected), 5.0) << "the tilt this is about";
+  EXPECT_LT(median(tilt), 0.6 * median(tilt_uncorrected));
+  EXPECT_LT(median(bias_uncorrected), -0.004);
+  EXPECT_GT(median(bias) - median(bias_uncorrected), 0.001);
 }
 
 // At 2.6 m the thesis's 8 cm marker is 16 px wide: a cell is 1.6 px and the

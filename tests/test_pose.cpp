@@ -239,6 +239,90 @@ TEST(Pose, CornerNoiseAtOneMetre) {
   EXPECT_LT(median(rms), 0.1);
 }
 
+// Ideal normalized corners of a pose (a pinhole camera's pixels, unscaled).
+std::array<Vector2d, 4> normalized_corners(const CameraModel& cam, const MarkerPose& pose, double side = kSide) {
+  const Quad q = corners_px(cam, pose, side);
+  std::array<Vector2d, 4> n;
+  for (std::size_t i = 0; i < 4; ++i) n[i] = {(q[i].x - cam.cx) / cam.fx, (q[i].y - cam.cy) / cam.fy};
+  return n;
+}
+
+// The angle between the marker's normal and its line of sight.
+double view_angle(const MarkerPose& pose) {
+  return std::acos(std::clamp(pose.rotation.col(2).dot(-pose.translation.normalized()), -1.0, 1.0));
+}
+
+TEST(Pose, TheSqueezeOfASquareIsTheTangentSquaredOfHalfItsTilt) {
+  const CameraModel cam = pinhole_camera();
+  // Far (weak perspective), off the axis, turned in the image and tilted
+  // about either axis: the squeeze is measured against the line of sight.
+  for (const double tilt : {0.0, 10.0, 30.0, 60.0}) {
+    for (const MarkerPose& pose : {turned(20.0, tilt, 0, 20, 0.1, -0.05), turned(20.0, 0, tilt, -35, -0.2, 0.1)}) {
+      const auto squeeze = square_tilt_anisotropy(normalized_corners(cam, pose));
+      ASSERT_TRUE(squeeze.has_value());
+      EXPECT_NEAR(squeeze->norm(), std::pow(std::tan(view_angle(pose) / 2), 2), 2e-4) << tilt;
+    }
+  }
+}
+
+// A small square facing its line of sight, its corners noisy: the tilt
+// found is noise, and always some, and the square is put nearer than it
+// is to cover its pixels tilted. Taking the noise's variance out of the
+// squeeze removes most of that; a square tilted well beyond the noise keeps
+// its tilt.
+TEST(Pose, TiltShrunkByTheSqueezesNoiseTakesTheBiasOutOfAFacingSquaresDistance) {
+  const CameraModel cam = pinhole_camera();
+  const Vector3d sight = Vector3d(0.08, -0.05, 1).normalized();
+  const double distance = 2.2;
+  // The facing square turned onto its line of sight.
+  const Matrix3d onto_sight = Eigen::Quaterniond::FromTwoVectors(Vector3d::UnitZ(), sight).toRotationMatrix();
+  const MarkerPose facing = make_pose(onto_sight * kFacing * rot_z(deg(17)), distance * sight);
+  const MarkerPose tilted = make_pose(onto_sight * kFacing * rot_y(deg(35)) * rot_z(deg(17)), distance * sight);
+  const double side = 0.056;           // a frame8 hole's
+  const double sigma = 0.06 / cam.fx;  // corner noise per coordinate, normalized (0.06 px)
+  for (const MarkerPose* truth : {&facing, &tilted}) {
+    const auto clean = normalized_corners(cam, *truth, side);
+    const Vector2d clean_squeeze = *square_tilt_anisotropy(clean);
+    std::mt19937_64 rng(20261207);
+    std::normal_distribution<double> noise(0.0, sigma);
+    std::vector<std::array<Vector2d, 4>> draws(400);
+    // The squeeze's variance, as the detector gets it from its fit's scatter.
+    double variance = 0;
+    for (auto& corners : draws) {
+      corners = clean;
+      for (auto& c : corners) c += Vector2d(noise(rng), noise(rng));
+      variance += (*square_tilt_anisotropy(corners) - clean_squeeze).squaredNorm() / draws.size();
+    }
+    std::vector<double> bias_before, bias_after, tilt_before, tilt_after;
+    for (const auto& corners : draws) {
+      const auto est = estimate_square_pose_normalized(cam, corners, side);
+      ASSERT_TRUE(est.has_value());
+      MarkerPose pose = est->best;
+      bias_before.push_back(pose.translation.norm() / distance - 1);
+      tilt_before.push_back(view_angle(pose) - view_angle(*truth));
+      shrink_tilt_by_noise(cam, corners, side, variance, pose);
+      bias_after.push_back(pose.translation.norm() / distance - 1);
+      tilt_after.push_back(view_angle(pose) - view_angle(*truth));
+      // The corners are still met as well as the six parameters allow.
+      EXPECT_LT(pose.reprojection_error_px, 0.3);
+    }
+    std::cout << "[ shrink   ] " << (truth == &facing ? "facing" : "tilted 35 deg") << ": distance bias "
+              << median(bias_before) * 100 << " % -> " << median(bias_after) * 100 << " %, view angle error "
+              << median(tilt_before) * 180 / kPi << " -> " << median(tilt_after) * 180 / kPi << " deg\n";
+    if (truth == &facing) {
+      EXPECT_LT(median(bias_before), -0.003) << "the bias this is about";
+      EXPECT_GT(median(tilt_before), deg(5));
+      // What is left: the draws whose squeeze the noise made larger than
+      // its variance keep part of their tilt.
+      EXPECT_LT(std::abs(median(bias_after)), std::abs(median(bias_before)) / 3);
+      EXPECT_LT(median(tilt_after), deg(1));
+    } else {
+      EXPECT_LT(std::abs(median(bias_after) - median(bias_before)), 0.0005);
+      EXPECT_LT(std::abs(median(tilt_after) - median(tilt_before)), deg(0.5));
+    }
+  }
+}
+
 double rms_px(const CameraModel& cam, const MarkerPose& pose, const Quad& q) {
   const auto m = model_corners();
   double sum = 0;

@@ -166,14 +166,13 @@ bool same_pose(const MarkerPose& a, const MarkerPose& b) {
          (a.translation - b.translation).norm() < kSamePoseRad * a.translation.norm();
 }
 
-struct IppeResult {
-  std::array<MarkerPose, 2> poses;
-  std::array<bool, 2> valid{};  // finite and every corner in front of the camera
-  bool coincide = false;        // both branches are the same rotation (frontal)
+// The plane-to-image map at the square's centre, in IPPE's frame.
+struct CentreJacobian {
+  Mat3 rv;  // turns the optical axis onto the line of sight through the centre
+  Mat2 a;   // the Jacobian there, in that frame: its rotation's top 2x2 block, over the depth
 };
 
-std::optional<IppeResult> ippe_impl(const Corners2& q, double side) {
-  if (!(side > 0) || !std::isfinite(side) || !all_finite(q) || !is_proper_quad(q)) return std::nullopt;
+std::optional<CentreJacobian> centre_jacobian(const Corners2& q, double side) {
   Mat3 h;
   if (!square_homography(q, side, h)) return std::nullopt;
 
@@ -189,13 +188,29 @@ std::optional<IppeResult> ippe_impl(const Corners2& q, double side) {
   // the first two columns of the rotation, expressed in it, have the top 2x2
   // block A/gamma with A = B^-1 J, gamma = 1/depth its largest singular value.
   const Vec3 sight = Vec3(v.x(), v.y(), 1).normalized();
-  const Mat3 rv = Eigen::Quaterniond::FromTwoVectors(Vec3::UnitZ(), sight).toRotationMatrix();
+  CentreJacobian c;
+  c.rv = Eigen::Quaterniond::FromTwoVectors(Vec3::UnitZ(), sight).toRotationMatrix();
   Mat23 proj;
   proj << 1, 0, -v.x(), 0, 1, -v.y();
-  const Mat2 b = proj * rv.leftCols<2>();
-  const double det_b = b.determinant();
-  if (!(std::abs(det_b) > 1e-12)) return std::nullopt;
-  const Mat2 a = b.inverse() * jac;
+  const Mat2 b = proj * c.rv.leftCols<2>();
+  if (!(std::abs(b.determinant()) > 1e-12)) return std::nullopt;
+  c.a = b.inverse() * jac;
+  if (!c.a.allFinite()) return std::nullopt;
+  return c;
+}
+
+struct IppeResult {
+  std::array<MarkerPose, 2> poses;
+  std::array<bool, 2> valid{};  // finite and every corner in front of the camera
+  bool coincide = false;        // both branches are the same rotation (frontal)
+};
+
+std::optional<IppeResult> ippe_impl(const Corners2& q, double side) {
+  if (!(side > 0) || !std::isfinite(side) || !all_finite(q) || !is_proper_quad(q)) return std::nullopt;
+  const auto centre = centre_jacobian(q, side);
+  if (!centre) return std::nullopt;
+  const Mat3& rv = centre->rv;
+  const Mat2& a = centre->a;
   const double gamma = largest_singular_value(a);
   if (!(gamma > 0) || !std::isfinite(gamma)) return std::nullopt;
   const Mat2 r22 = a / gamma;
@@ -457,6 +472,80 @@ std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& c
     observed[i] = Vec2(px.x, px.y);
   }
   return estimate_impl(camera, normalized, observed, side);
+}
+
+std::optional<Eigen::Vector2d> square_tilt_anisotropy(const std::array<Eigen::Vector2d, 4>& normalized) {
+  if (!all_finite(normalized) || !is_proper_quad(normalized)) return std::nullopt;
+  const auto centre = centre_jacobian(normalized, 1.0);
+  if (!centre) return std::nullopt;
+  // A 2x2 matrix is a similarity (q) plus a reflected similarity (r); a
+  // rotation's top-left block, scaled, is one of them plus a smaller other,
+  // whose share is tan^2 of half the tilt (sigma2 / sigma1 = cos(tilt)).
+  // Which one is the larger depends only on the handedness of the frames.
+  const Mat2& a = centre->a;
+  const Vec2 q(a(0, 0) + a(1, 1), a(1, 0) - a(0, 1));
+  const Vec2 r(a(0, 0) - a(1, 1), a(1, 0) + a(0, 1));
+  const double q_norm = q.norm(), r_norm = r.norm();
+  const double larger = std::max(q_norm, r_norm);
+  if (!(larger > 0)) return std::nullopt;
+  return (q_norm >= r_norm ? r : q) / larger;
+}
+
+void shrink_tilt_by_noise(const CameraModel& camera, const std::array<Eigen::Vector2d, 4>& normalized, double side,
+                          double anisotropy_variance, MarkerPose& pose) {
+  if (!(anisotropy_variance > 0) || !std::isfinite(anisotropy_variance)) return;
+  const auto anisotropy = square_tilt_anisotropy(normalized);
+  if (!anisotropy) return;
+  // Half-tilt tangents squared: the share measured, and what is left of it
+  // once the noise's expected square is taken away.
+  const double measured = anisotropy->norm();
+  const double corrected = std::sqrt(std::max(0.0, measured * measured - anisotropy_variance));
+  const double tilt_measured = 2 * std::atan(std::sqrt(measured));
+  if (!(tilt_measured > 0)) return;
+  const double tilt_corrected = 2 * std::atan(std::sqrt(corrected));
+
+  const Vec3 normal = pose.rotation.col(2);  // out of the printed face, towards the camera
+  const Vec3 towards_camera = -pose.translation.normalized();
+  const Vec3 axis = normal.cross(towards_camera);
+  const double tilt = std::atan2(axis.norm(), normal.dot(towards_camera));
+  if (!(axis.norm() > 0) || !std::isfinite(tilt)) return;
+  // The polished pose's tilt, shrunk in the proportion the measurement's is.
+  const double turn = tilt * (1 - tilt_corrected / tilt_measured);
+  const Mat3 rotation = Eigen::AngleAxisd(turn, axis.normalized()).toRotationMatrix() * pose.rotation;
+
+  // The translation that puts the square, so turned, onto its corners.
+  const auto model = model_corners(side);
+  Vec3 t;
+  if (!solve_translation(rotation, model, normalized, t)) return;
+  for (int iter = 0; iter < 3; ++iter) {
+    Mat3 jtj = Mat3::Zero();
+    Vec3 jtr = Vec3::Zero();
+    for (std::size_t i = 0; i < 4; ++i) {
+      const Vec3 p = rotation * model[i] + t;
+      const double iz = 1 / p.z();
+      Mat23 j;
+      j << iz, 0, -p.x() * iz * iz, 0, iz, -p.y() * iz * iz;
+      const Vec2 res = Vec2(p.x() * iz, p.y() * iz) - normalized[i];
+      jtj.noalias() += j.transpose() * j;
+      jtr.noalias() += j.transpose() * res;
+    }
+    const Eigen::LDLT<Mat3> ldlt(jtj);
+    const Vec3 step = ldlt.solve(jtr);
+    if (ldlt.info() != Eigen::Success || !step.allFinite()) return;
+    t -= step;
+  }
+  MarkerPose shrunk;
+  shrunk.rotation = Eigen::Quaterniond(rotation).normalized().toRotationMatrix();
+  shrunk.translation = t;
+  Corners2 observed;
+  for (std::size_t i = 0; i < 4; ++i) {
+    const Point2 px = camera.normalized_to_pixel({normalized[i].x(), normalized[i].y()});
+    observed[i] = Vec2(px.x, px.y);
+  }
+  const double cost = cost_of(camera, shrunk.rotation, shrunk.translation, model, observed);
+  if (!std::isfinite(cost)) return;
+  shrunk.reprojection_error_px = std::sqrt(cost / 4);
+  pose = shrunk;
 }
 
 Point2 project(const CameraModel& camera, const MarkerPose& pose, const Eigen::Vector3d& marker_point) {

@@ -44,8 +44,7 @@ std::string coverage_text(const det::ViewPicker& picker) {
 
 std::string advice(const det::Pick& pick, const det::BoardPoints& points, int min_points) {
   switch (pick.verdict) {
-    case det::PickVerdict::no_board:
-      return "no board in view";
+    case det::PickVerdict::no_board: return "no board in view";
     case det::PickVerdict::too_few_points:
       return fmt::format("{} of the board's points in view, {} needed: show more of it", points.image.size(),
                          min_points);
@@ -54,8 +53,7 @@ std::string advice(const det::Pick& pick, const det::BoardPoints& points, int mi
                            : std::string("hold the board still");
     case det::PickVerdict::like_a_kept_view:
       return fmt::format("move or tilt the board: this is like view {}", pick.view + 1);
-    case det::PickVerdict::kept:
-      break;
+    case det::PickVerdict::kept: break;
   }
   return {};
 }
@@ -97,8 +95,8 @@ LiveViews gather_live_views(const LiveCalibrationOptions& options, det::BoardDet
   for (;;) {
     const SignalWatch::Wake wake = signals.wait(kPollInterval);
     if (wake.signal != 0) {
-      live.print(fmt::format("calibrate: {}: taking no more views, {} kept", signal_name(wake.signal),
-                             result.views.size()));
+      live.print(
+          fmt::format("calibrate: {}: taking no more views, {} kept", signal_name(wake.signal), result.views.size()));
       result.interrupted = true;
       return result;
     }
@@ -135,8 +133,8 @@ LiveViews gather_live_views(const LiveCalibrationOptions& options, det::BoardDet
           kept.name = file.string();
         }
         kept.points = std::move(points);
-        live.print(fmt::format("calibrate: view {} of {} kept: {}, {} points; {}", result.views.size(),
-                               options.views, kept.name, kept.points.image.size(), coverage_text(*picker)));
+        live.print(fmt::format("calibrate: view {} of {} kept: {}, {} points; {}", result.views.size(), options.views,
+                               kept.name, kept.points.image.size(), coverage_text(*picker)));
         if (std::cmp_greater_equal(result.views.size(), options.views)) return result;
       } else {
         live.show({fmt::format("calibrate: {} of {} views", result.views.size(), options.views),
@@ -145,14 +143,14 @@ LiveViews gather_live_views(const LiveCalibrationOptions& options, det::BoardDet
       }
     }
     if (Clock::now() - last_new_frame > kStalledAfter) {
-      throw runtime_error("calibrate",
-                          fmt::format("markerd sent no new frame for {} s: markerctl status shows the camera ({} "
-                                      "view{} kept{})",
-                                      kStalledAfter.count(), result.views.size(), result.views.size() == 1 ? "" : "s",
-                                      options.keep_dir.empty() || result.views.empty()
-                                          ? std::string()
-                                          : fmt::format(", in {}: markerctl calibrate takes them as files",
-                                                        options.keep_dir)));
+      throw runtime_error(
+          "calibrate",
+          fmt::format("markerd sent no new frame for {} s: markerctl status shows the camera ({} "
+                      "view{} kept{})",
+                      kStalledAfter.count(), result.views.size(), result.views.size() == 1 ? "" : "s",
+                      options.keep_dir.empty() || result.views.empty()
+                          ? std::string()
+                          : fmt::format(", in {}: markerctl calibrate takes them as files", options.keep_dir)));
     }
   }
 }

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <limits>
 #include <numbers>
+#include <span>
 #include <vector>
 
 #include "markerd/detector/pose.hpp"
@@ -29,19 +30,50 @@ bool Frame8Detector::convex(const Quad& q) {
 // camera) or to undistorted normalized coordinates (with one), and the
 // pose with a camera. Corner j of the marker is quad corner
 // (j + rotation) % 4.
-Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const {
-  static constexpr std::array<Point2, 4> kInnerGrid{{{kInnerLo, kInnerLo},
-                                                     {frame8::grid - kInnerLo, kInnerLo},
-                                                     {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
-                                                     {kInnerLo, frame8::grid - kInnerLo}}};
+namespace {
+
+constexpr std::array<Point2, 4> kInnerGrid{{{kInnerLo, kInnerLo},
+                                            {frame8::grid - kInnerLo, kInnerLo},
+                                            {frame8::grid - kInnerLo, frame8::grid - kInnerLo},
+                                            {kInnerLo, frame8::grid - kInnerLo}}};
+
+// The hole's corners through a map, in the marker's order (TL, TR, BR, BL).
+std::array<Eigen::Vector2d, 4> inner_corners(const Eigen::Matrix3d& grid_to_image, int rotation) {
+  std::array<Eigen::Vector2d, 4> corners{};
+  for (int j = 0; j < 4; ++j) {
+    const Point2 g = kInnerGrid[static_cast<std::size_t>((j + rotation) % 4)];
+    const Point2 p = map_grid(grid_to_image, g.x, g.y);
+    corners[static_cast<std::size_t>(j)] = {p.x, p.y};
+  }
+  return corners;
+}
+
+// The variance of the hole's squeeze (square_tilt_anisotropy) that the
+// map's noise makes: the squeeze's change along each of the map's
+// directions of noise, squared and summed.
+double squeeze_variance(const Eigen::Matrix3d& grid_to_image, int rotation,
+                        std::span<const Eigen::Matrix3d> map_deltas) {
+  double variance = 0;
+  for (const Eigen::Matrix3d& d : map_deltas) {
+    const auto plus = square_tilt_anisotropy(inner_corners(grid_to_image + d, rotation));
+    const auto minus = square_tilt_anisotropy(inner_corners(grid_to_image - d, rotation));
+    if (!plus || !minus) return 0;
+    variance += ((*plus - *minus) / 2).squaredNorm();
+  }
+  return variance;
+}
+
+}  // namespace
+
+Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det,
+                                 const GridMapNoise* noise) const {
   Quad in{}, outq{};
-  std::array<Eigen::Vector2d, 4> model_order{};
+  const std::array<Eigen::Vector2d, 4> model_order = inner_corners(grid_to_image, rotation);
   for (int j = 0; j < 4; ++j) {
     const auto q = static_cast<std::size_t>((j + rotation) % 4);
     const auto jj = static_cast<std::size_t>(j);
-    const Point2 inner = map_grid(grid_to_image, kInnerGrid[q].x, kInnerGrid[q].y);
+    const Point2 inner{model_order[jj].x(), model_order[jj].y()};
     const Point2 outer = map_grid(grid_to_image, kOuterGridCorners[q].x, kOuterGridCorners[q].y);
-    model_order[jj] = {inner.x, inner.y};
     in[jj] = config_.camera ? config_.camera->normalized_to_pixel(inner) : inner;
     outq[jj] = config_.camera ? config_.camera->normalized_to_pixel(outer) : outer;
   }
@@ -52,9 +84,15 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
   det.inner_corners = in;
   det.corners = outq;
   if (config_.camera) {
-    det.pose =
-        estimate_square_pose_normalized(*config_.camera, model_order, config_.marker_size_m * frame8::hole_fraction);
+    const double side = config_.marker_size_m * frame8::hole_fraction;
+    det.pose = estimate_square_pose_normalized(*config_.camera, model_order, side);
     if (!det.pose) return Rejection::no_pose;
+    if (noise) {
+      shrink_tilt_by_noise(*config_.camera, model_order, side,
+                           squeeze_variance(grid_to_image, rotation,
+                                            std::span(noise->deltas.data(), static_cast<std::size_t>(noise->count))),
+                           det.pose->best);
+    }
   }
   const Point2 top = det.corners[1] - det.corners[0];
   const int quarter = static_cast<int>(std::lround(std::atan2(top.y, top.x) / (std::numbers::pi / 2)));

@@ -193,11 +193,19 @@ class Frame8Detector final : public MarkerDetector {
                             HoleEdge hole_edge = HoleEdge::measured);
   int collect_pattern_edges(const Homography& H, const CellColours& colours, double cell_px,
                             const HiddenSide& hidden = {}, HoleEdge hole_edge = HoleEdge::measured);
-  bool fit_grid_map(Eigen::Matrix3d& grid_to_image);
+  // How uncertain a fitted map is: its change along each of the fit's free
+  // directions, by one standard deviation of the edges' scatter about it.
+  struct GridMapNoise {
+    std::array<Eigen::Matrix3d, 8> deltas{};
+    int count = 0;
+  };
+  bool fit_grid_map(Eigen::Matrix3d& grid_to_image, GridMapNoise* noise = nullptr);
   Rejection finish_by_pattern(int rotation, Detection& det);
 
-  // Stage 6: corners and pose (corners_and_pose.cpp).
-  Rejection report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det) const;
+  // Stage 6: corners and pose (corners_and_pose.cpp). With the map's noise,
+  // the pose's tilt is taken net of it (shrink_tilt_by_noise, pose.hpp).
+  Rejection report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det,
+                   const GridMapNoise* noise = nullptr) const;
 
   // The detector that runs them (detector.cpp).
   void consider_component(std::int32_t root, std::vector<Detection>& out);

@@ -171,7 +171,7 @@ int Frame8Detector::collect_pattern_edges(const Homography& H, const CellColours
 // point must lie on its grid line. The constraint is linear in the inverse
 // map, solved as a 9x9 eigenproblem and reweighted towards grid-unit
 // residuals, with one round of outlier rejection.
-bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
+bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image, GridMapNoise* noise) {
   const int n = pattern_count_;
   double mx = 0, my = 0, sw = 0;
   for (int i = 0; i < n; ++i) {
@@ -189,6 +189,9 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
   std::array<double, kMaxPatternEdges> weight{};
   for (int i = 0; i < n; ++i) weight[static_cast<std::size_t>(i)] = pattern_edges_[static_cast<std::size_t>(i)].w;
   bool have = false;
+  Eigen::Matrix<double, 9, 1> spread = Eigen::Matrix<double, 9, 1>::Zero();  // the last fit's eigenvalues
+  Eigen::Matrix<double, 9, 9> directions;                                    // and their directions
+  int last_used = 0;
   for (int iter = 0; iter < 3; ++iter) {
     Eigen::Matrix<double, 9, 9> ata = Eigen::Matrix<double, 9, 9>::Zero();
     int used = 0;
@@ -213,6 +216,9 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
     const Eigen::Matrix<double, 9, 1> g = eig.eigenvectors().col(0);
     G << g(0), g(1), g(2), g(3), g(4), g(5), g(6), g(7), g(8);
     have = true;
+    spread = eig.eigenvalues();
+    directions = eig.eigenvectors();
+    last_used = used;
     if (iter == 1) {
       // Drop edges a fifth of a cell off the fit: a cell that is not what
       // the code says (an occluder, a covered edge).
@@ -228,7 +234,24 @@ bool Frame8Detector::fit_grid_map(Eigen::Matrix3d& grid_to_image) {
   denorm << 1 / scale, 0, mx, 0, 1 / scale, my, 0, 0, 1;
   Eigen::FullPivLU<Eigen::Matrix3d> lu(G);
   if (!lu.isInvertible()) return false;
-  grid_to_image = denorm * lu.inverse();
+  const Eigen::Matrix3d G_inverse = lu.inverse();
+  grid_to_image = denorm * G_inverse;
+  if (noise) {
+    // Weighted least squares: the residuals' variance per unit weight is
+    // the smallest eigenvalue (the weighted sum of squares at the solution)
+    // over the degrees of freedom left, and along each other direction the
+    // solution scatters by that variance over its eigenvalue. The map moves
+    // by -G^-1 dG G^-1 for a change dG of its inverse.
+    noise->count = 0;
+    const double variance = spread(0) / std::max(1, last_used - 8);
+    for (int k = 1; k < 9; ++k) {
+      if (!(spread(k) > 0)) continue;
+      const Eigen::Matrix<double, 9, 1> d = directions.col(k) * std::sqrt(variance / spread(k));
+      Eigen::Matrix3d dG;
+      dG << d(0), d(1), d(2), d(3), d(4), d(5), d(6), d(7), d(8);
+      noise->deltas[static_cast<std::size_t>(noise->count++)] = -denorm * G_inverse * dG * G_inverse;
+    }
+  }
   return true;
 }
 
@@ -243,8 +266,9 @@ Rejection Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
     }
   }
   Eigen::Matrix3d M;
-  if (!fit_grid_map(M)) return Rejection::pattern_fit_failed;
-  return report(M, rotation, det);
+  GridMapNoise noise;
+  if (!fit_grid_map(M, &noise)) return Rejection::pattern_fit_failed;
+  return report(M, rotation, det, &noise);
 }
 
 }  // namespace markerd::detector::frame8

@@ -46,6 +46,28 @@ std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& c
                                                             const std::array<Eigen::Vector2d, 4>& normalized,
                                                             double side);
 
+// How a square's image is squeezed by its tilt against the line of sight
+// through its centre: the part of the plane-to-image Jacobian there (in
+// IPPE's frame) that is not a similarity, relative to the part that is. Its
+// length is tan^2(tilt / 2); its direction turns with the tilt's axis. It is
+// linear in the corners' noise, where the tilt is not: near a frontal view
+// the tilt grows as the square root of the squeeze. Nothing for a
+// degenerate quad.
+std::optional<Eigen::Vector2d> square_tilt_anisotropy(const std::array<Eigen::Vector2d, 4>& normalized);
+
+// A tilt is a length: noise in the squeeze adds to its square on average,
+// whatever the true tilt, so that a square facing the line of sight is
+// always found tilted, and, to cover the same pixels tilted, nearer than it
+// is (a far marker's distance came out 0.5 % short). Given the variance of
+// the squeeze's noise (the sum over its two components, from the fit the
+// corners came from), this takes the variance out of the squared length,
+// turns the pose's normal towards the line of sight in proportion, and fits
+// the translation again to the corners (ideal normalized, TL TR BR BL of a
+// square of side `side`). A pose tilted well beyond the noise is changed by
+// a fraction of the noise; one within it is turned to face the camera.
+void shrink_tilt_by_noise(const CameraModel& camera, const std::array<Eigen::Vector2d, 4>& normalized, double side,
+                          double anisotropy_variance, MarkerPose& pose);
+
 // Projects a point of the marker frame through pose and camera, to pixels.
 Point2 project(const CameraModel& camera, const MarkerPose& pose, const Eigen::Vector3d& marker_point);
 

@@ -32,11 +32,11 @@ struct ViewPickerOptions {
 };
 
 enum class PickVerdict {
-  no_board,         // nothing of the board found
-  too_few_points,   // found, but fewer than min_points
-  moving,           // the board moved since the frame before (or there was none to compare)
-  like_a_kept_view, // still, but too like a view already kept
-  kept,             // a new view
+  no_board,          // nothing of the board found
+  too_few_points,    // found, but fewer than min_points
+  moving,            // the board moved since the frame before (or there was none to compare)
+  like_a_kept_view,  // still, but too like a view already kept
+  kept,              // a new view
 };
 
 struct Pick {
@@ -58,9 +58,7 @@ class ViewPicker {
   [[nodiscard]] const std::vector<BoardPoints>& kept() const { return kept_; }
   // Points of the kept views in each of the image's coverage regions (as
   // CalibrationResult::region_points counts them).
-  [[nodiscard]] const std::array<int, kCoverageGrid * kCoverageGrid>& region_points() const {
-    return region_points_;
-  }
+  [[nodiscard]] const std::array<int, kCoverageGrid * kCoverageGrid>& region_points() const { return region_points_; }
 
  private:
   int width_;
