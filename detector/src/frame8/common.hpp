@@ -103,6 +103,14 @@ inline Homography Homography::from_grid_map(const Eigen::Matrix3d& grid_to_image
   return h;
 }
 
+// How uncertain a fitted grid-to-image map is: its change along each of
+// the fit's free directions, by one standard deviation of what the fit
+// leaves unexplained (the pattern's edges' scatter, the model's pixels').
+struct MapNoise {
+  std::array<Eigen::Matrix3d, 8> deltas{};
+  int count = 0;
+};
+
 inline Point2 map_grid(const Eigen::Matrix3d& M, double gx, double gy) {
   const Eigen::Vector3d q = M * Eigen::Vector3d(gx, gy, 1);
   return {q(0) / q(2), q(1) / q(2)};

@@ -59,7 +59,7 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   Eigen::Matrix3d M = grid_map(H);
   // First the levels where the quad puts the cells (a tenth of the cost):
   // enough when the quad is right, and to turn away what has no line.
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, false, levels_)) return false;
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::levels, levels_)) return false;
   const Rejection unaligned = decode(H, cell_size, det, rotation, &levels_);
   note_attempt(Read::ring_model, unaligned);
   if (unaligned == Rejection::none) return true;
@@ -67,7 +67,7 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   // light patch in a checkered surround, not of a ring a fraction of a
   // cell off: not worth moving the map for.
   if (!worth_remeasuring(unaligned) || unaligned == Rejection::c1_contradicted) return false;
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return false;
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::aligned_levels, levels_)) return false;
   const Homography aligned = Homography::from_grid_map(M);
   const Rejection aligned_read = decode(aligned, cell_size, det, rotation, &levels_);
   note_attempt(Read::aligned_ring_model, aligned_read);
@@ -93,7 +93,8 @@ Rejection Frame8Detector::confirm_by_model(const Homography& H, CellSize cell_si
   // (a side's line up to the white cells' level in a third of far socket
   // reads).
   Eigen::Matrix3d M = grid_map(H);
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, true, levels_)) return Rejection::model_disagrees;
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::aligned_levels, levels_))
+    return Rejection::model_disagrees;
   RingRead r;
   const Rejection why = read_code(Homography::from_grid_map(M), cell_size, &levels_, r);
   note_attempt(Read::model_check, why);

@@ -193,19 +193,22 @@ class Frame8Detector final : public MarkerDetector {
                             HoleEdge hole_edge = HoleEdge::measured);
   int collect_pattern_edges(const Homography& H, const CellColours& colours, double cell_px,
                             const HiddenSide& hidden = {}, HoleEdge hole_edge = HoleEdge::measured);
-  // How uncertain a fitted map is: its change along each of the fit's free
-  // directions, by one standard deviation of the edges' scatter about it.
-  struct GridMapNoise {
-    std::array<Eigen::Matrix3d, 8> deltas{};
-    int count = 0;
-  };
-  bool fit_grid_map(Eigen::Matrix3d& grid_to_image, GridMapNoise* noise = nullptr);
+  bool fit_grid_map(Eigen::Matrix3d& grid_to_image, MapNoise* noise = nullptr);
   Rejection finish_by_pattern(int rotation, Detection& det);
+  // Small cells: the corners (and the pose) from the ring model's map,
+  // aligned to every pixel the marker reaches (RingModel::Aim::geometry),
+  // started from `start` (grid to image pixels). False, with `det` as it
+  // was, when the model does not fit or its corners are no marker's.
+  bool finish_by_model(const Eigen::Matrix3d& start, int rotation, Detection& det);
 
-  // Stage 6: corners and pose (corners_and_pose.cpp). With the map's noise,
-  // the pose's tilt is taken net of it (shrink_tilt_by_noise, pose.hpp).
-  Rejection report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det,
-                   const GridMapNoise* noise = nullptr) const;
+  // Stage 6: corners and pose (corners_and_pose.cpp). The map goes from the
+  // grid to where the detector works (undistorted: normalized coordinates
+  // with a camera, pixels without), or to the image's pixels as they are.
+  // With the map's noise, the pose's tilt is taken net of it
+  // (shrink_tilt_by_noise, pose.hpp).
+  enum class MapSpace : std::uint8_t { undistorted, pixels };
+  Rejection report(const Eigen::Matrix3d& grid_to_image, int rotation, Detection& det, const MapNoise* noise = nullptr,
+                   MapSpace space = MapSpace::undistorted) const;
 
   // The detector that runs them (detector.cpp).
   void consider_component(std::int32_t root, std::vector<Detection>& out);

@@ -1,6 +1,7 @@
 #include "ring_model.hpp"
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <Eigen/LU>
 #include <algorithm>
 #include <array>
@@ -22,9 +23,18 @@ using detail::NormalTable;
 // sampling them is better and cheaper. An area, not a side: a marker turned
 // far is a tall sliver whose cells are a pixel wide however tall it is.
 constexpr double kMaxBoxPx = 72.0 * 72.0;
-// A pixel whose footprint lies more than this much outside the marker says
-// more about the background than about the ring.
-constexpr double kMaxOutside = 0.5;
+// To read the levels, a pixel whose footprint lies more than this much
+// outside the marker says more about the background than about the ring.
+constexpr double kMaxOutsideToRead = 0.5;
+// For the geometry, every pixel the marker's edge reaches: its other share
+// is the outside's level, which the fit finds too, and without the outer
+// half of the edge's blur the outer edge slid outwards as the cells shrank
+// (the hole 0.25 % too large at 2.2 m, 0.96 % at 2.8 m). But not the
+// pixels beyond: the outside is one level a side, and a marker rolled in
+// the image leaves whatever lies beyond its print in its box's corners
+// (corner error 0.13 px at 2.3 m rolled 45 deg with every pixel of the
+// box; 0.04 with those of a twentieth on the marker at least).
+constexpr double kMaxOutsideForGeometry = 0.95;
 // Pull of every level towards the mean grey, against the few combinations
 // that the pixels leave undetermined (an outside strip barely touched).
 constexpr double kRidge = 0.02;
@@ -38,6 +48,10 @@ constexpr double kReach = 3.5;
 // same reads on the fixed-seed sets to 3 m.
 constexpr int kAlignIterations = 4;
 constexpr double kAlignConverged = 0.05;
+// For the geometry, the map to a two-hundredth of a pixel: a fifth of the
+// corners' error at the smallest cells it serves.
+constexpr int kGeometryIterations = 10;
+constexpr double kGeometryConverged = 0.005;
 
 // The lines of the printed pattern along each grid axis, between -inf and
 // +inf: every region is a rectangle between two of them on each axis.
@@ -107,7 +121,7 @@ constexpr std::array<std::pair<int, int>, 4> kOuterCorners{{{0, 0}, {grid, 0}, {
 
 }  // namespace
 
-bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image) {
+bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image, double max_outside) {
   double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
   for (const auto& [gx, gy] : kOuterCorners) {
     const Eigen::Vector3d p = grid_to_image * Eigen::Vector3d(gx, gy, 1);
@@ -169,7 +183,7 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
         const int r = touched_[static_cast<std::size_t>(a)];
         if (r >= kOutside) outside += cover_[static_cast<std::size_t>(r)];
       }
-      const bool inside = n > 0 && outside <= kMaxOutside;
+      const bool inside = n > 0 && outside <= max_outside;
       inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = inside;
       if (inside) {
         sum += row[px];
@@ -300,6 +314,33 @@ bool RingModel::solve_levels(const GreyView& image) {
   return solve_accumulated_levels();
 }
 
+bool RingModel::drop_clutter(const GreyView& image) {
+  // The outside is one level a side; a pixel partly outside that the model
+  // misses by this many times the residuals' rms shows something else
+  // there (clutter's own edge beside a bare print).
+  constexpr double kClutterResiduals = 2.5;
+  const double limit = kClutterResiduals * rms_;
+  const int width = px1_ - px0_ + 1;
+  int dropped = 0;
+  for (int py = py0_; py <= py1_; ++py) {
+    const std::uint8_t* row = image.row(py);
+    for (int px = px0_; px <= px1_; ++px) {
+      double gx = 0, gy = 0, w = 0;
+      const int n = coverage(px, py, false, gx, gy, w);
+      double model = 0, outside = 0;
+      for (int a = 0; a < n; ++a) {
+        const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
+        model += level_(static_cast<int>(r)) * cover_[r];
+        if (static_cast<int>(r) >= kOutside) outside += cover_[r];
+      }
+      if (n == 0 || outside <= 0 || std::abs(row[px] - model) <= limit) continue;
+      inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = 0;
+      ++dropped;
+    }
+  }
+  return dropped > 0 && solve_levels(image);
+}
+
 bool RingModel::solve_accumulated_levels() {
   if (normal_.used == 0) return false;
   LevelsMatrix regularised = normal_.ata;
@@ -333,6 +374,8 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   Params jte = Params::Zero();
   std::array<std::array<double, 8>, kRegions> map_level{};
   std::array<double, 8 * 8> map_map{};
+  double squared_residuals = 0;
+  int pixels = 0;
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
@@ -351,6 +394,8 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
       const std::array<double, 8> geometry{dgx * u / w, dgx * v / w, dgx / w,         dgy * u / w,
                                            dgy * v / w, dgy / w,     -radial * u / w, -radial * v / w};
       const double e = row[px] - model;
+      squared_residuals += e * e;
+      ++pixels;
       add_levels(n, e, jtj, jte);
       // Deep in the hole or a cell, no line within reach: the map moves
       // nothing there.
@@ -378,6 +423,16 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
     jtj(r, r) += kRidge;
     jte(r) += kRidge * (prior_ - level_(r));
   }
+  if (keep_map_normal_) {
+    // The map's own normal equations once the levels are solved for: its
+    // block less what it shares with them (the Schur complement).
+    const Matrix full = jtj.selfadjointView<Eigen::Lower>();
+    const Eigen::LDLT<LevelsMatrix> levels(full.topLeftCorner<kRegions, kRegions>());
+    if (levels.info() != Eigen::Success) return false;
+    const Eigen::Matrix<double, kRegions, 8> shared = full.topRightCorner<kRegions, 8>();
+    map_normal_ = full.bottomRightCorner<8, 8>() - shared.transpose() * levels.solve(shared);
+    step_variance_ = pixels > kParams ? squared_residuals / (pixels - kParams) : 0.0;
+  }
   // Levenberg's damping keeps a step within what the linearisation holds.
   for (int k = kRegions; k < kParams; ++k) jtj(k, k) *= 1.0 + 1e-3;
   const Eigen::LDLT<Matrix> solver(jtj);
@@ -403,29 +458,66 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   return std::isfinite(moved);
 }
 
-bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align,
-                    Levels& out) {
+void RingModel::map_noise(MapNoise& out) const {
+  out.count = 0;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 8, 8>> eig(map_normal_);
+  if (eig.info() != Eigen::Success || !(step_variance_ > 0)) return;
+  // Along each principal direction of the normal equations the map
+  // scatters by the residuals' variance over its eigenvalue; the map to the
+  // image moves by -from_centred T^-1 dT T^-1 for a change dT of T, the map
+  // from centred pixels to the grid.
+  const Eigen::Matrix3d inverse = to_grid_.inverse();
+  for (int k = 0; k < 8; ++k) {
+    const double spread = eig.eigenvalues()(k);
+    if (!(spread > 0)) continue;
+    const Eigen::Matrix<double, 8, 1> d = eig.eigenvectors().col(k) * std::sqrt(step_variance_ / spread);
+    Eigen::Matrix3d change;
+    change << d(0), d(1), d(2), d(3), d(4), d(5), d(6), d(7), 0;
+    out.deltas[static_cast<std::size_t>(out.count++)] = -from_centred() * inverse * change * inverse;
+  }
+}
+
+bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, Aim aim, Levels& out,
+                    MapNoise* noise) {
   // A pixel's square convolved with the blur: close to a Gaussian whose
   // variance is the sum of the two.
   sigma_ = std::sqrt(1.0 / 12 + blur_sigma_px * blur_sigma_px);
-  if (!prepare(image, grid_to_image) || !solve_accumulated_levels()) return false;
-  if (align) {
+  const bool geometry = aim == Aim::geometry;
+  if (!prepare(image, grid_to_image, geometry ? kMaxOutsideForGeometry : kMaxOutsideToRead) ||
+      !solve_accumulated_levels())
+    return false;
+  if (aim != Aim::levels) {
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;
     const double start_rms = rms_;
-    for (int iter = 0; iter < kAlignIterations; ++iter) {
+    keep_map_normal_ = geometry && noise != nullptr;
+    const int iterations = geometry ? kGeometryIterations : kAlignIterations;
+    const double converged = geometry ? kGeometryConverged : kAlignConverged;
+    bool stepped = true;
+    for (int iter = 0; iter < iterations && stepped; ++iter) {
       double moved = 0;
-      if (!align_step(image, moved)) return false;
-      if (moved < kAlignConverged) break;
+      stepped = align_step(image, moved);
+      if (moved < converged) break;
     }
-    if (!solve_levels(image)) return false;
+    if (geometry && stepped && solve_levels(image) && drop_clutter(image)) {
+      // Fitted again without the pixels of whatever stood beside the print.
+      for (int iter = 0; iter < iterations && stepped; ++iter) {
+        double moved = 0;
+        stepped = align_step(image, moved);
+        if (moved < converged) break;
+      }
+    }
+    keep_map_normal_ = false;
+    if (!stepped || !solve_levels(image)) return false;
     if (rms_ > start_rms) {
       // The steps wandered off: keep where it started.
+      if (geometry) return false;
       to_grid_ = start;
       level_ = start_level;
       rms_ = start_rms;
     }
     grid_to_image = this->grid_to_image();
+    if (noise) map_noise(*noise);
   }
 
   for (int row = 0; row < grid; ++row) {

@@ -18,6 +18,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "frame8/common.hpp"
 #include "markerd/detector/image.hpp"
 
 namespace markerd::detector::frame8 {
@@ -48,7 +49,17 @@ class RingModel {
   // with Gauss-Newton steps of the map. False when the marker leaves the
   // image or is too large for this model to be the right tool (its cells are
   // then sampled).
-  bool fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, bool align, Levels& out);
+  //
+  // What the fit is for decides which pixels it takes and how far it goes.
+  // To read the levels (`levels`, `aligned_levels`), the pixels mostly on
+  // the marker: one mostly outside says more about the background than the
+  // ring; the map to a twentieth of a pixel. For the geometry (`geometry`),
+  // every pixel the marker's edge reaches (ring_model.cpp says why), and
+  // the map to a two-hundredth. `noise`, with `geometry`: the map's
+  // scatter, from the pixels' residuals.
+  enum class Aim : std::uint8_t { levels, aligned_levels, geometry };
+  bool fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, Aim aim, Levels& out,
+           MapNoise* noise = nullptr);
 
   // Index of a ring cell's region, -1 for a cell that is not on the ring.
   static constexpr int ring_region(int col, int row) {
@@ -68,7 +79,7 @@ class RingModel {
   // Pixels of the footprint, the map from (centred) pixels to the grid, and
   // the pixels the fit uses with their mean grey; the levels' normal
   // equations for that map.
-  bool prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image);
+  bool prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_image, double max_outside);
   // The levels for the current map (solve_levels), or for the normal
   // equations summed already.
   bool solve_levels(const GreyView& image);
@@ -78,6 +89,13 @@ class RingModel {
   // One Gauss-Newton step of the map for the current levels; false when it
   // cannot be taken. `moved` is the largest displacement it makes, pixels.
   bool align_step(const GreyView& image, double& moved);
+  // The geometry's fit: drops the pixels partly outside the marker that the
+  // model misses by far, and solves the levels again. False when none went.
+  bool drop_clutter(const GreyView& image);
+  // The map's scatter at the last align_step(): its covariance (the map's
+  // block of the inverse normal equations, times the residuals' variance)
+  // as one standard deviation along each principal direction.
+  void map_noise(MapNoise& out) const;
   // Each region's share of the pixel's footprint (cover_), and its slope
   // along the grid's axes (slope_x_, slope_y_) when `slopes`; the pixel's
   // grid coordinates in gx, gy, and the map's denominator in w. Returns the
@@ -112,6 +130,11 @@ class RingModel {
   } normal_;
   Vector level_ = Vector::Zero();
   double rms_ = 0;
+  // The last align_step()'s normal equations for the map, with the levels
+  // eliminated (their Schur complement), and its residuals' variance.
+  bool keep_map_normal_ = false;  // align_step() keeps them: the geometry's fit, asked for its noise
+  Eigen::Matrix<double, 8, 8> map_normal_ = Eigen::Matrix<double, 8, 8>::Zero();
+  double step_variance_ = 0;
 };
 
 }  // namespace markerd::detector::frame8
