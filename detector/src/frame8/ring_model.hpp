@@ -55,7 +55,7 @@ class RingModel {
   // the marker: one mostly outside says more about the background than the
   // ring; the map to a twentieth of a pixel. For the geometry (`geometry`),
   // every pixel the marker's edge reaches (ring_model.cpp says why), and
-  // the map to a two-hundredth. `noise`, with `geometry`: the map's
+  // the map to a hundredth. `noise`, with `geometry`: the map's
   // scatter, from the pixels' residuals.
   enum class Aim : std::uint8_t { levels, aligned_levels, geometry };
   bool fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, double blur_sigma_px, Aim aim, Levels& out,
