@@ -429,22 +429,21 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
     jtj(r, r) += kRidge;
     jte(r) += kRidge * (prior_ - level_(r));
   }
-  if (keep_map_normal_) {
-    // The map's own normal equations once the levels are solved for: its
-    // block less what it shares with them (the Schur complement).
-    const Matrix full = jtj.selfadjointView<Eigen::Lower>();
-    const Eigen::LDLT<LevelsMatrix> levels(full.topLeftCorner<kRegions, kRegions>());
-    if (levels.info() != Eigen::Success) return false;
-    const Eigen::Matrix<double, kRegions, 8> shared = full.topRightCorner<kRegions, 8>();
-    map_normal_ = full.bottomRightCorner<8, 8>() - shared.transpose() * levels.solve(shared);
-    step_variance_ = pixels > kParams ? squared_residuals / (pixels - kParams) : 0.0;
-  }
   // Levenberg's damping keeps a step within what the linearisation holds.
   for (int k = kRegions; k < kParams; ++k) jtj(k, k) *= 1.0 + 1e-3;
   const Eigen::LDLT<Matrix> solver(jtj);
   if (solver.info() != Eigen::Success) return false;
   const Params d = solver.solve(jte);
   if (!d.allFinite()) return false;
+  if (keep_map_covariance_) {
+    // The map's block of the inverse normal equations: its covariance per
+    // unit of the residuals' variance, the levels solved for with it (the
+    // damping, a thousandth of the diagonal, makes it that much smaller).
+    Eigen::Matrix<double, kParams, 8> unit = Eigen::Matrix<double, kParams, 8>::Zero();
+    unit.bottomRows<8>().setIdentity();
+    map_covariance_ = solver.solve(unit).bottomRows<8>();
+    step_variance_ = pixels > kParams ? squared_residuals / (pixels - kParams) : 0.0;
+  }
   level_ += d.head<kRegions>();
   const Eigen::Matrix3d before = grid_to_image();
   to_grid_(0, 0) += d(kRegions + 0);
@@ -466,17 +465,17 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
 
 void RingModel::map_noise(MapNoise& out) const {
   out.count = 0;
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 8, 8>> eig(map_normal_);
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 8, 8>> eig(map_covariance_);
   if (eig.info() != Eigen::Success || !(step_variance_ > 0)) return;
-  // Along each principal direction of the normal equations the map
-  // scatters by the residuals' variance over its eigenvalue; the map to the
-  // image moves by -from_centred T^-1 dT T^-1 for a change dT of T, the map
-  // from centred pixels to the grid.
+  // Along each principal direction the map scatters by the square root of
+  // the covariance's eigenvalue; the map to the image moves by
+  // -from_centred T^-1 dT T^-1 for a change dT of T, the map from centred
+  // pixels to the grid.
   const Eigen::Matrix3d inverse = to_grid_.inverse();
   for (int k = 0; k < 8; ++k) {
     const double spread = eig.eigenvalues()(k);
     if (!(spread > 0)) continue;
-    const Eigen::Matrix<double, 8, 1> d = eig.eigenvectors().col(k) * std::sqrt(step_variance_ / spread);
+    const Eigen::Matrix<double, 8, 1> d = eig.eigenvectors().col(k) * std::sqrt(step_variance_ * spread);
     Eigen::Matrix3d change;
     change << d(0), d(1), d(2), d(3), d(4), d(5), d(6), d(7), 0;
     out.deltas[static_cast<std::size_t>(out.count++)] = -from_centred() * inverse * change * inverse;
@@ -496,7 +495,7 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;
     const double start_rms = rms_;
-    keep_map_normal_ = geometry && noise != nullptr;
+    keep_map_covariance_ = geometry && noise != nullptr;
     const int iterations = geometry ? kGeometryIterations : kAlignIterations;
     const double converged = geometry ? kGeometryConverged : kAlignConverged;
     bool stepped = true;
@@ -513,7 +512,7 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
         if (moved < converged) break;
       }
     }
-    keep_map_normal_ = false;
+    keep_map_covariance_ = false;
     if (!stepped || !solve_levels(image)) return false;
     if (rms_ > start_rms) {
       // The steps wandered off: keep where it started.

@@ -92,9 +92,8 @@ class RingModel {
   // The geometry's fit: drops the pixels partly outside the marker that the
   // model misses by far, and solves the levels again. False when none went.
   bool drop_clutter(const GreyView& image);
-  // The map's scatter at the last align_step(): its covariance (the map's
-  // block of the inverse normal equations, times the residuals' variance)
-  // as one standard deviation along each principal direction.
+  // The map's scatter at the last align_step(): its covariance as one
+  // standard deviation along each principal direction.
   void map_noise(MapNoise& out) const;
   // Each region's share of the pixel's footprint (cover_), and its slope
   // along the grid's axes (slope_x_, slope_y_) when `slopes`; the pixel's
@@ -130,10 +129,11 @@ class RingModel {
   } normal_;
   Vector level_ = Vector::Zero();
   double rms_ = 0;
-  // The last align_step()'s normal equations for the map, with the levels
-  // eliminated (their Schur complement), and its residuals' variance.
-  bool keep_map_normal_ = false;  // align_step() keeps them: the geometry's fit, asked for its noise
-  Eigen::Matrix<double, 8, 8> map_normal_ = Eigen::Matrix<double, 8, 8>::Zero();
+  // The last align_step()'s covariance of the map per unit of the
+  // residuals' variance, and that variance; kept for the geometry's fit
+  // when its noise is asked for.
+  bool keep_map_covariance_ = false;
+  Eigen::Matrix<double, 8, 8> map_covariance_ = Eigen::Matrix<double, 8, 8>::Zero();
   double step_variance_ = 0;
 };
 
