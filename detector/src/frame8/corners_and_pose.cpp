@@ -43,7 +43,9 @@ Rejection Frame8Detector::report(const Eigen::Matrix3d& grid_to_image, int rotat
   const auto to_pixels = [&](Point2 p) {
     return camera && space == MapSpace::undistorted ? camera->normalized_to_pixel(p) : p;
   };
-  const auto to_normalized = [&](Point2 p) { return space == MapSpace::pixels ? camera->pixel_to_normalized(p) : p; };
+  const auto to_normalized = [&](Point2 p) {
+    return camera && space == MapSpace::pixels ? camera->pixel_to_normalized(p) : p;
+  };
   // The hole's corners through a map, in the marker's order (TL, TR, BR, BL), normalized.
   const auto hole_corners = [&](const Eigen::Matrix3d& map) {
     std::array<Eigen::Vector2d, 4> corners{};
