@@ -162,7 +162,7 @@ TEST(SweepPlan, ShippedDemoPlanHoldsAllThree) {
   const SweepPlan plan = load_plan(kSourceDir / "config/plans/thesis.toml");
   EXPECT_EQ(plan.name, "thesis");
   EXPECT_EQ(plan.repeats, 5);
-  EXPECT_EQ(plan.frames_per_point, 6);
+  EXPECT_EQ(plan.frames_per_point, 8);
   EXPECT_EQ(plan.settle, std::chrono::milliseconds(200));
   ASSERT_EQ(plan.grids.size(), 3U);
   EXPECT_EQ(plan.grids[0].name, "angle-50cm");
