@@ -275,7 +275,11 @@ TEST(Pose, TiltShrunkByTheSqueezesNoiseTakesTheBiasOutOfAFacingSquaresDistance) 
   const Vector3d sight = Vector3d(0.08, -0.05, 1).normalized();
   const double distance = 2.2;
   // The facing square turned onto its line of sight.
-  const Matrix3d onto_sight = Eigen::Quaterniond::FromTwoVectors(Vector3d::UnitZ(), sight).toRotationMatrix();
+  // (Not Quaternion::FromTwoVectors: its SVD, for opposite vectors, does not
+  // compile unoptimised under the sanitizers: Eigen's prefetch hint.)
+  const Vector3d axis = Vector3d::UnitZ().cross(sight);
+  const Matrix3d onto_sight =
+      Eigen::AngleAxisd(std::atan2(axis.norm(), sight.z()), axis.normalized()).toRotationMatrix();
   const MarkerPose facing = make_pose(onto_sight * kFacing * rot_z(deg(17)), distance * sight);
   const MarkerPose tilted = make_pose(onto_sight * kFacing * rot_y(deg(35)) * rot_z(deg(17)), distance * sight);
   const double side = 0.056;           // a frame8 hole's
