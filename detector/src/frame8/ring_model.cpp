@@ -364,7 +364,16 @@ bool RingModel::solve_accumulated_levels() {
   return true;
 }
 
-bool RingModel::align_step(const GreyView& image, double& moved) {
+bool RingModel::align(const GreyView& image, int iterations, double converged, bool keep_covariance) {
+  for (int iter = 0; iter < iterations; ++iter) {
+    double moved = 0;
+    if (!align_step(image, moved, keep_covariance)) return false;
+    if (moved < converged) break;
+  }
+  return true;
+}
+
+bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covariance) {
   // Gauss-Newton over the levels and the map together: apart, the two trade
   // against each other (a line drawn thinner and darker) and creep.
   // Parameters: the levels, then the eight free entries of the map from
@@ -435,7 +444,7 @@ bool RingModel::align_step(const GreyView& image, double& moved) {
   if (solver.info() != Eigen::Success) return false;
   const Params d = solver.solve(jte);
   if (!d.allFinite()) return false;
-  if (keep_map_covariance_) {
+  if (keep_covariance) {
     // The map's block of the inverse normal equations: its covariance per
     // unit of the residuals' variance, the levels solved for with it (the
     // damping, a thousandth of the diagonal, makes it that much smaller).
@@ -495,24 +504,14 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;
     const double start_rms = rms_;
-    keep_map_covariance_ = geometry && noise != nullptr;
+    const bool keep_covariance = geometry && noise != nullptr;
     const int iterations = geometry ? kGeometryIterations : kAlignIterations;
     const double converged = geometry ? kGeometryConverged : kAlignConverged;
-    bool stepped = true;
-    for (int iter = 0; iter < iterations && stepped; ++iter) {
-      double moved = 0;
-      stepped = align_step(image, moved);
-      if (moved < converged) break;
-    }
+    bool stepped = align(image, iterations, converged, keep_covariance);
     if (geometry && stepped && solve_levels(image) && drop_clutter(image)) {
       // Fitted again without the pixels of whatever stood beside the print.
-      for (int iter = 0; iter < iterations && stepped; ++iter) {
-        double moved = 0;
-        stepped = align_step(image, moved);
-        if (moved < converged) break;
-      }
+      stepped = align(image, iterations, converged, keep_covariance);
     }
-    keep_map_covariance_ = false;
     if (!stepped || !solve_levels(image)) return false;
     if (rms_ > start_rms) {
       // The steps wandered off: keep where it started.

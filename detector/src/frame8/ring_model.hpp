@@ -86,9 +86,14 @@ class RingModel {
   bool solve_accumulated_levels();
   void clear_levels_normal();
   void add_pixel_to_levels(int n, double grey);
+  // Gauss-Newton steps of the map until one moves it less than `converged`
+  // pixels, `iterations` at most; false when a step cannot be taken.
+  bool align(const GreyView& image, int iterations, double converged, bool keep_covariance);
   // One Gauss-Newton step of the map for the current levels; false when it
   // cannot be taken. `moved` is the largest displacement it makes, pixels.
-  bool align_step(const GreyView& image, double& moved);
+  // With `keep_covariance`, the map's covariance before the step is kept
+  // for map_noise().
+  bool align_step(const GreyView& image, double& moved, bool keep_covariance);
   // The geometry's fit: drops the pixels partly outside the marker that the
   // model misses by far, and solves the levels again. False when none went.
   bool drop_clutter(const GreyView& image);
@@ -132,7 +137,6 @@ class RingModel {
   // The last align_step()'s covariance of the map per unit of the
   // residuals' variance, and that variance; kept for the geometry's fit
   // when its noise is asked for.
-  bool keep_map_covariance_ = false;
   Eigen::Matrix<double, 8, 8> map_covariance_ = Eigen::Matrix<double, 8, 8>::Zero();
   double step_variance_ = 0;
 };
