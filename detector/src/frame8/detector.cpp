@@ -18,6 +18,7 @@
 #include <filesystem>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <system_error>
 #include <vector>
 
@@ -398,22 +399,22 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // as 129 at 2.8 px): the model must read it too, with its line ink.
   const bool model_checked = confirming_cell_size(H, cell_size) < kModelCheckedCells ||
                              (near_uniform(det.id) && cell_size.narrow < kResolvedCells);
-  if (model_checked && !by_model) {
-    // The model aligns its own map; started from the pattern's (where the
-    // quad's outer corners are up to a pixel off, the pattern's are a
-    // tenth of that), it needs one or two steps instead of four. A wrong
-    // code finds few of the edges it predicts where there are none, and
-    // the fit drops those it finds off the others: its map is the ring's
-    // all the same, and the model's levels, free of any code, still read.
-    Homography start = H;
-    if (Eigen::Matrix3d M; by_pattern && fit_grid_map(M)) start = Homography::from_grid_map(M);
+  const bool confirm = model_checked && !by_model;
+  const bool model_geometry = cell_px < kModelGeometryCells;
+  // The model aligns its own map; started from the pattern's (where the
+  // quad's outer corners are up to a pixel off, the pattern's are a tenth
+  // of that), it needs one or two steps instead of four.
+  std::optional<Eigen::Matrix3d> pattern_map;
+  if (Eigen::Matrix3d M; by_pattern && (confirm || model_geometry) && fit_grid_map(M)) pattern_map = M;
+  if (confirm) {
+    // A wrong code finds few of the edges it predicts where there are none,
+    // and the fit drops those it finds off the others: its map is the
+    // ring's all the same, and the model's levels, free of any code, still
+    // read.
+    const Homography start = pattern_map ? Homography::from_grid_map(*pattern_map) : H;
     if (const Rejection why = confirm_by_model(start, cell_size, det, rotation); why != Rejection::none) return why;
   }
-  if (cell_px < kModelGeometryCells) {
-    Eigen::Matrix3d start = grid_map(H);
-    if (Eigen::Matrix3d M; by_pattern && fit_grid_map(M)) start = M;
-    if (finish_by_model(start, rotation, det)) return Rejection::none;
-  }
+  if (model_geometry && finish_by_model(pattern_map.value_or(grid_map(H)), rotation, det)) return Rejection::none;
   if (by_pattern) return finish_by_pattern(rotation, det);
 
   if (!config_.camera) return report(grid_map(H), rotation, det);
