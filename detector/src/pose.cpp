@@ -122,12 +122,31 @@ bool square_homography(const Corners2& p, double side, Mat3& h_out) {
   return true;
 }
 
+// A 2x2 matrix as a similarity (q: scale and rotation) plus a reflected
+// similarity (r), each as its two free entries. Its singular values are
+// (|q| + |r|) / 2 and ||q| - |r|| / 2.
+struct SimilarityParts {
+  Vec2 q, r;
+};
+SimilarityParts similarity_parts(const Mat2& a) {
+  return {Vec2(a(0, 0) + a(1, 1), a(1, 0) - a(0, 1)), Vec2(a(0, 0) - a(1, 1), a(1, 0) + a(0, 1))};
+}
+
 // Largest singular value of a 2x2 matrix, in the form that stays accurate when
 // the two singular values are close (a frontal marker).
 double largest_singular_value(const Mat2& a) {
-  const double q = std::hypot(a(0, 0) + a(1, 1), a(1, 0) - a(0, 1));
-  const double r = std::hypot(a(0, 0) - a(1, 1), a(1, 0) + a(0, 1));
-  return 0.5 * (q + r);
+  const SimilarityParts parts = similarity_parts(a);
+  return 0.5 * (std::hypot(parts.q.x(), parts.q.y()) + std::hypot(parts.r.x(), parts.r.y()));
+}
+
+// Pixels of ideal normalized points, through the camera's distortion.
+Corners2 pixels_of(const CameraModel& camera, const Corners2& normalized) {
+  Corners2 pixels;
+  for (std::size_t i = 0; i < 4; ++i) {
+    const Point2 px = camera.normalized_to_pixel({normalized[i].x(), normalized[i].y()});
+    pixels[i] = Vec2(px.x, px.y);
+  }
+  return pixels;
 }
 
 // Translation that best aligns R * model with the rays of the normalized
@@ -466,12 +485,7 @@ std::optional<PoseEstimate> estimate_square_pose(const CameraModel& camera, cons
 std::optional<PoseEstimate> estimate_square_pose_normalized(const CameraModel& camera,
                                                             const std::array<Eigen::Vector2d, 4>& normalized,
                                                             double side) {
-  Corners2 observed;
-  for (std::size_t i = 0; i < 4; ++i) {
-    const Point2 px = camera.normalized_to_pixel({normalized[i].x(), normalized[i].y()});
-    observed[i] = Vec2(px.x, px.y);
-  }
-  return estimate_impl(camera, normalized, observed, side);
+  return estimate_impl(camera, normalized, pixels_of(camera, normalized), side);
 }
 
 std::optional<Eigen::Vector2d> square_tilt_anisotropy(const std::array<Eigen::Vector2d, 4>& normalized) {
@@ -482,9 +496,7 @@ std::optional<Eigen::Vector2d> square_tilt_anisotropy(const std::array<Eigen::Ve
   // rotation's top-left block, scaled, is one of them plus a smaller other,
   // whose share is tan^2 of half the tilt (sigma2 / sigma1 = cos(tilt)).
   // Which one is the larger depends only on the handedness of the frames.
-  const Mat2& a = centre->a;
-  const Vec2 q(a(0, 0) + a(1, 1), a(1, 0) - a(0, 1));
-  const Vec2 r(a(0, 0) - a(1, 1), a(1, 0) + a(0, 1));
+  const auto [q, r] = similarity_parts(centre->a);
   const double q_norm = q.norm(), r_norm = r.norm();
   const double larger = std::max(q_norm, r_norm);
   if (!(larger > 0)) return std::nullopt;
@@ -537,12 +549,7 @@ void shrink_tilt_by_noise(const CameraModel& camera, const std::array<Eigen::Vec
   MarkerPose shrunk;
   shrunk.rotation = Eigen::Quaterniond(rotation).normalized().toRotationMatrix();
   shrunk.translation = t;
-  Corners2 observed;
-  for (std::size_t i = 0; i < 4; ++i) {
-    const Point2 px = camera.normalized_to_pixel({normalized[i].x(), normalized[i].y()});
-    observed[i] = Vec2(px.x, px.y);
-  }
-  const double cost = cost_of(camera, shrunk.rotation, shrunk.translation, model, observed);
+  const double cost = cost_of(camera, shrunk.rotation, shrunk.translation, model, pixels_of(camera, normalized));
   if (!std::isfinite(cost)) return;
   shrunk.reprojection_error_px = std::sqrt(cost / 4);
   pose = shrunk;
