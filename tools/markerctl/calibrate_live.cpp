@@ -14,9 +14,9 @@
 #include <utility>
 
 #include "cmd_daemon.hpp"
+#include "cmd_snapshot.hpp"
 #include "common.hpp"
 #include "live_line.hpp"
-#include "markerd/base/base64.hpp"
 #include "markerd/detector/view_picker.hpp"
 #include "signal_watch.hpp"
 
@@ -58,15 +58,11 @@ std::string advice(const det::Pick& pick, const det::BoardPoints& points, int mi
   return {};
 }
 
-// The frame's pixels, grey, from the snapshot's base64 PGM.
+// The frame's pixels, grey, from the snapshot's PGM.
 cv::Mat decode_frame(const json& reply) {
-  const json& image = reply["image"];
-  const auto bytes = markerd::base64_decode(image.value("data", std::string()));
-  cv::Mat grey;
-  if (bytes) grey = cv::imdecode(*bytes, cv::IMREAD_GRAYSCALE);
-  if (grey.empty() || !grey.isContinuous()) {
+  const cv::Mat grey = cv::imdecode(snapshot_image_bytes(reply, "calibrate"), cv::IMREAD_GRAYSCALE);
+  if (grey.empty())
     throw runtime_error("calibrate", "markerd's snapshot holds no readable image (its PGM does not decode)");
-  }
   return grey;
 }
 

@@ -78,16 +78,11 @@ int run_snapshot(const SnapshotOptions& o) {
   json reply = daemon.call(
       {{"cmd", "snapshot"}, {"format", std::string(markerd::daemon::to_string(format))}, {"annotate", o.annotate}},
       std::chrono::seconds(30));
+  const std::vector<std::uint8_t> bytes = snapshot_image_bytes(reply, "snapshot");
   json& image = reply["image"];
-  const auto bytes = markerd::base64_decode(image.value("data", std::string()));
-  if (!bytes || bytes->size() != image.value("bytes", std::size_t{0})) {
-    throw runtime_error("snapshot",
-                        "markerd's reply holds no readable image (its base64 data does not decode to "
-                        "the bytes it announces)");
-  }
   {
     std::ofstream file(o.output, std::ios::binary | std::ios::trunc);
-    if (file) file.write(reinterpret_cast<const char*>(bytes->data()), static_cast<std::streamsize>(bytes->size()));
+    if (file) file.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
     if (file) file.close();
     if (!file) throw runtime_error("snapshot", fmt::format("cannot write {}", o.output));
   }
@@ -103,6 +98,17 @@ int run_snapshot(const SnapshotOptions& o) {
 }
 
 }  // namespace
+
+std::vector<std::uint8_t> snapshot_image_bytes(const json& reply, const std::string& context) {
+  const json& image = reply["image"];
+  auto bytes = markerd::base64_decode(image.value("data", std::string()));
+  if (!bytes || bytes->size() != image.value("bytes", std::size_t{0})) {
+    throw runtime_error(context,
+                        "markerd's reply holds no readable image (its base64 data does not decode to "
+                        "the bytes it announces)");
+  }
+  return std::move(*bytes);
+}
 
 void add_snapshot_command(CLI::App& parent, Commands& commands) {
   auto o = std::make_shared<SnapshotOptions>();
