@@ -31,6 +31,7 @@
 #include "markerd/sweep/plan.hpp"
 #include "markerd/sweep/records.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -388,9 +389,7 @@ TEST(SimCameraControls, GainAndExposureScaleTheFramesAndAutoGainBringsThemToMidG
 class CameraCommandsTest : public testing::Test {
  protected:
   void SetUp() override {
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     test_support::write_sim_rig_config(dir_ / "rig.toml", 100.0);
     test_support::TomlConfig::load(test_support::kSourceTree / "tests/data/markerd-sweep.toml")
         .set("camera.model", (test_support::kSourceTree / "config/cameras/thesis-640x480.yaml").string())

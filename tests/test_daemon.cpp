@@ -31,6 +31,7 @@
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/detector/render.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -48,11 +49,7 @@ using test_support::write_file;
 class DaemonTest : public testing::Test {
  protected:
   void SetUp() override {
-    // markerd locks its rig's devices (here the simulated rig's file): in a
-    // directory of the test's own, not the machine's /run/lock/markerd.
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     // The example rig, with simulated time running 50 times faster than real
     // time, so that homing and moves take about a second.
     test_support::write_sim_rig_config(dir_ / "rig.toml", 50.0);

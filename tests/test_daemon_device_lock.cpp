@@ -36,6 +36,7 @@
 #include "markerd/rig/testing/modbus_drive_sim.hpp"
 #include "support/child_process.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -67,11 +68,7 @@ std::string refusal(const std::vector<rig::DeviceClaim>& claims) {
 class MarkerdDeviceLock : public testing::Test {
  protected:
   void SetUp() override {
-    // Before any thread starts: the markerd children inherit it, and this
-    // process's own DeviceLocks use the same directory.
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     rail_.start();
     turntable_.start();
     test_support::write_modbus_tcp_rig_config(dir_ / "rig.toml", rail_.port(), turntable_.port());

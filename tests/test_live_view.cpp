@@ -34,6 +34,7 @@
 #include "markerd/detector/render.hpp"
 #include "markerd/rig/geometry.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -348,9 +349,7 @@ TEST(FrameAnnotation, ImagesEncodeAndDecodeAsTheFormatSays) {
 class LiveViewTest : public testing::Test {
  protected:
   void SetUp() override {
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     test_support::write_sim_rig_config(dir_ / "rig.toml", 50.0);
   }
 

@@ -25,6 +25,7 @@
 #include "markerd/daemon/daemon_config.hpp"
 #include "markerd/detector/camera_model.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 
@@ -296,7 +297,7 @@ TEST_F(MarkerctlCalibrate, LiveTakesEachStillPoseOnceFromMarkerd) {
   for (std::size_t i = 0; i < views.size(); ++i) {
     for (int k = 0; k < 8; ++k) fs::copy_file(views[i], path(fmt::format("frames/f{:02}-{}.png", i, k)));
   }
-  ::setenv("MARKERD_LOCK_DIR", path("locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
+  test_support::prepare_markerd_dir(dir_.path());
   test_support::write_file(dir_.path() / "markerd.toml", R"([marker]
 family = "frame8"
 id = 165
@@ -316,7 +317,6 @@ directory = "logs"
 [control]
 socket = "control.sock"
 )");
-  fs::create_directories(path("logs"));
   daemon::Daemon markerd(daemon::load_daemon_config(dir_.path() / "markerd.toml"));
   markerd.start();
 

@@ -27,6 +27,7 @@
 #include "markerd/sweep/records.hpp"
 #include "markerd/sweep/runner.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/process.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
@@ -66,9 +67,7 @@ order = "snake"
 class RigCalibrationRun : public testing::Test {
  protected:
   void SetUp() override {
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     test_support::write_sim_rig_config(dir_ / "rig.toml", 100.0);
     rig_text_ = test_support::read_file(dir_ / "rig.toml") +
                 fmt::format("\n[rig.sim.geometry]\nd0_mm = {}\nyaw0_deg = {}\nmarker_offset_normal_mm = {}\n", kTrueD0,

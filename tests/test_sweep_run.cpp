@@ -39,6 +39,7 @@
 #include "markerd/sweep/summary.hpp"
 #include "support/bluesky.hpp"
 #include "support/files.hpp"
+#include "support/markerd_dir.hpp"
 #include "support/temp_dir.hpp"
 #include "support/toml_config.hpp"
 
@@ -62,11 +63,7 @@ const std::string kPlan = read_file(test_support::kSourceTree / "tests/data/plan
 class SweepRunTest : public testing::Test {
  protected:
   void SetUp() override {
-    // markerd locks its rig's devices (here the simulated rig's file): in a
-    // directory of the test's own, not the machine's /run/lock/markerd.
-    ::setenv("MARKERD_LOCK_DIR", (dir_ / "locks").c_str(), 1);  // NOLINT(concurrency-mt-unsafe): no threads yet
-    fs::create_directories(dir_ / "logs");
-    fs::create_directories(dir_ / "state");
+    test_support::prepare_markerd_dir(dir_);
     // The example rig with simulated time 100 times faster than real time:
     // homing and the longest move take well under a second.
     test_support::write_sim_rig_config(dir_ / "rig.toml", 100.0);
