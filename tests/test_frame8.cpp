@@ -1255,6 +1255,17 @@ TEST(Frame8, ToldItsMountingTheDetectorFindsWhatItFindsUntold) {
       expect_same(*paper, s);
     }
   }
+  // Far and turned in the image, the hole bulges out of its quad by its
+  // blurred corners: told paper, it once refused such holes.
+  for (const double d : {1.8, 2.2, 2.6}) {
+    for (const double roll : {-45.0, -38.0, 33.0, 40.0}) {
+      ++seed;
+      Scene s = scene(static_cast<int>((seed * 37) % 254) + 1, d, 0, roll, seed);
+      s.clutter = true;
+      s.paper_margin_m = 0.01;
+      expect_same(*paper, s);
+    }
+  }
   auto cover = told(Mounting::cover_frame);
   for (const double yaw : {-60.0, -45.0, 45.0, 60.0}) {
     ++seed;
@@ -1263,8 +1274,8 @@ TEST(Frame8, ToldItsMountingTheDetectorFindsWhatItFindsUntold) {
     s.insert = Insert::socket;
     expect_same(*cover, s);
   }
-  // Measured: markers found in 12 of the 16 scenes, by both alike.
-  EXPECT_GE(compared, 10);
+  // Measured: markers found in 24 of the 28 scenes, by both alike.
+  EXPECT_GE(compared, 20);
   auto cut = told(Mounting::cut_hole);
   const Tally all = evaluate_facing(*untold, cut_hole_over(0, 12), {1.5});
   EXPECT_EQ(evaluate_facing(*cut, cut_hole_over(0, 12), {1.5}).detected, all.detected);

@@ -352,11 +352,12 @@ TEST_F(Frame8StageTest, QuadFitLeavesAHexagonAThirdShort) {
 
 // A hole 14 px across with light bumps two pixels beyond two of its sides:
 // a cover frame's opening seen from 2.2 m or more, its blurred rounded
-// corner and a white cell joined through a line under a pixel wide. Its
-// hull exceeds its largest quad by more than a paper print's hole may (6%
-// and the pixels' staircase), less than a rounded one may: a quad only
-// where the mounting may round the hole.
-TEST_F(Frame8StageTest, QuadFitTakesASmallBulgingHoleOnlyWhereTheMountingRoundsHoles) {
+// corner and a white cell joined through a line under a pixel wide (a
+// paper print's hole turned 30 to 45 deg in the image bulges alike by its
+// blurred corners). Its hull exceeds its largest quad by more than 6% and
+// the pixels' staircase, less than a rounded hole may: a quad on any
+// mount, marked as bulging.
+TEST_F(Frame8StageTest, QuadFitTakesASmallBulgingHoleOnAnyMountAndMarksIt) {
   GreyImage img(64, 64, 50);
   auto light = [&](int x0, int y0, int x1, int y1) {
     for (int y = y0; y < y1; ++y) {
@@ -367,16 +368,16 @@ TEST_F(Frame8StageTest, QuadFitTakesASmallBulgingHoleOnlyWhereTheMountingRoundsH
   light(38, 31, 40, 35);  // a white cell through the line
   light(27, 38, 31, 40);  // and the blurred roll
   double excess = 0;
-  EXPECT_EQ(fit_quad_at(img, Mounting::paper, 30, 30, excess), Rejection::not_a_quad);
-  EXPECT_GT(excess, 0.06);  // 0.155
   // Marked so: a grid's two squares joined bulge alike, and such a quad
   // reading a near-uniform id or outvoting a cell is refused.
-  bool bulging = false;
-  EXPECT_EQ(fit_quad_at(img, Mounting::cover_frame, 30, 30, excess, &bulging), Rejection::none);
-  EXPECT_TRUE(bulging);
-  EXPECT_EQ(fit_quad_at(img, Mounting::any, 30, 30, excess, &bulging), Rejection::none);
-  EXPECT_TRUE(bulging);
+  for (const Mounting mounting : {Mounting::paper, Mounting::cover_frame, Mounting::any}) {
+    bool bulging = false;
+    EXPECT_EQ(fit_quad_at(img, mounting, 30, 30, excess, &bulging), Rejection::none);
+    EXPECT_GT(excess, 0.06);  // 0.155
+    EXPECT_TRUE(bulging);
+  }
   // A square without the bumps is no such quad.
+  bool bulging = false;
   GreyImage square(64, 64, 50);
   for (int y = 24; y < 38; ++y) {
     for (int x = 24; x < 38; ++x) square.row(y)[x] = 210;

@@ -67,20 +67,21 @@ Rejection Frame8Detector::fit_quad(Component& c, std::array<Point2, 4>& quad) {
   // something else joined to the hole (clutter behind a cut-out hole)
   // sticks out of one side further, and would place the cells a cell off.
   const double perimeter = quad_perimeter(quad), staircase = hull_staircase(perimeter);
-  // Under 20 px a side (cells of 3 px) a bulge of a pixel or two is all a
-  // misplaced quad shows: on a paper print only larger holes may have
-  // rounded corners. A cover frame's hole has them at any size: from 2.2 m
-  // its 14 px hole bulges by its blurred corners and by a white cell
-  // joined through a line under a pixel wide (the socket frame facing at
-  // 2.2 m, four seeds: 88 to 96% of frames found, 96 to 100% with these).
+  // Under 20 px a side (cells of 3 px) a hole bulges out of its quad on
+  // any mount: a cover frame's hole from 2.2 m, 14 px, by its blurred
+  // corners and by a white cell joined through a line under a pixel wide
+  // (the socket frame facing at 2.2 m, four seeds: 88 to 96% of frames
+  // found, 96 to 100% with these); a paper print's hole turned 30 to 45 deg
+  // in the image from 1.6 m, whose blurred corners fall on the pixels'
+  // staircase (told it is paper and refusing such holes: 72 to 92% found
+  // from 1.6 to 3.0 m, against 96 to 100% to 2.6 m). But a bulge of a
+  // pixel or two is also all that two squares of a grid joined show, which
+  // read as one: such a hole's read must not look like a grid's.
   // The blur rounds a far socket frame's corners further: its hole of 25
   // to 30 px, turned 30 deg at 0.95 m, falls 0.11 to 0.16 short of its hull.
   constexpr double kRoundedMinSide = 20;
   if (hull_area - quad_area > 0.06 * hull_area + staircase) {
-    if (perimeter / 4 < kRoundedMinSide) {
-      if (!seeks_reshaped_hole_) return Rejection::not_a_quad;
-      c.small_and_bulging = true;
-    }
+    if (perimeter / 4 < kRoundedMinSide) c.small_and_bulging = true;
     constexpr double kRoundedBulge = 0.11;  // of the mean side, and a pixel of staircase
     if (hull_area - quad_area > kRoundedShortfall * hull_area + staircase) return Rejection::not_a_quad;
     double bulge = 0;
