@@ -52,6 +52,7 @@ Frame8Detector::Frame8Detector(const DetectorConfig& config) : config_(config) {
   const Mounting mounting = config_.frame8.mounting;
   seeks_reshaped_hole_ = mounting != Mounting::paper;
   seeks_ink_outline_ = mounting == Mounting::any || mounting == Mounting::cut_hole;
+  hole_printed_blank_ = mounting == Mounting::paper;
   profile_sigma_ = std::sqrt(config_.frame8.blur_sigma_px * config_.frame8.blur_sigma_px + 1.0 / 12 + 1.0 / 8);
 }
 
@@ -390,6 +391,7 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   if (near_uniform(det.id) && cell_size.narrow < kResolvedCells && !second_pass_agrees) {
     return Rejection::near_uniform_unconfirmed;
   }
+  if (hole_printed_blank_ && !hole_blank(H, H, -1)) return Rejection::hole_not_blank;
 
   // With the code known, every edge of the printed pattern is a measurement.
   const bool by_pattern =

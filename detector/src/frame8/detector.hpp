@@ -227,6 +227,10 @@ class Frame8Detector final : public MarkerDetector {
     return false;
   }
   [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
+  // Whether the hole seen (its unit square; through H, the whole hole
+  // whose line gives the contrast, hidden_side -1 or the side hidden) shows
+  // nothing darker than blank paper may (blank_hole.cpp).
+  [[nodiscard]] bool hole_blank(const Homography& seen, const Homography& H, int hidden_side) const;
   bool read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation, HiddenSide& hidden,
                              Homography& H);
   // Where the quad seen ends across its hidden side: at the cover's edge,
@@ -388,6 +392,8 @@ class Frame8Detector final : public MarkerDetector {
   // ink outline: a cut-out hole no lighter than the line (stage 2c).
   bool seeks_reshaped_hole_ = true;
   bool seeks_ink_outline_ = true;
+  // Told paper, the hole is blank paper (blank_hole.cpp).
+  bool hole_printed_blank_ = false;
   LocalRule rule_ = LocalRule::brightest_neighbour;  // the look under way
   // The blur an edge profile sees: the lens, the pixel's area and the
   // bilinear sampling of the profile (a quarter pixel squared on average).

@@ -204,6 +204,13 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
     }
   }
   if (id < 0) return false;
+  if (hole_printed_blank_) {
+    std::array<Point2, 4> whole{};
+    if (!hole_for(kHiddenDepth[best_k], whole) || !hole_blank(seen, H, side)) {
+      note_attempt(Read::side_hidden, Rejection::hole_not_blank);
+      return false;
+    }
+  }
   if (!config_.camera) {
     unsigned rest = reads;
     for (int skip = (std::popcount(reads) - 1) / 2; skip > 0; --skip) rest &= rest - 1;

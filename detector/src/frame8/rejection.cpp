@@ -46,6 +46,7 @@ Stage stage_of(Rejection r) {
     case Rejection::line_not_dark: return Stage::structure;
     case Rejection::line_not_ink: return Stage::structure;
     case Rejection::hole_not_lighter: return Stage::structure;
+    case Rejection::hole_not_blank: return Stage::structure;
     case Rejection::open_hole_unread: return Stage::quad_fit;
     case Rejection::ink_outline_unread: return Stage::quad_fit;
     case Rejection::ink_cells_unresolved: return Stage::cells;
@@ -126,6 +127,7 @@ const char* rejection_name(Rejection r) {
     case Rejection::line_corner_light: return "line_corner_light";
     case Rejection::line_not_dark: return "line_not_dark";
     case Rejection::line_not_ink: return "line_not_ink";
+    case Rejection::hole_not_blank: return "hole_not_blank";
     case Rejection::hole_not_lighter: return "hole_not_lighter";
     case Rejection::open_hole_unread: return "open_hole_unread";
     case Rejection::grid_like_read: return "grid_like_read";
