@@ -391,7 +391,7 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   if (near_uniform(det.id) && cell_size.narrow < kResolvedCells && !second_pass_agrees) {
     return Rejection::near_uniform_unconfirmed;
   }
-  if (hole_printed_blank_ && !hole_blank(H, H, -1)) return Rejection::hole_not_blank;
+  if (hole_printed_blank_ && !hole_is_blank_paper(H, H, -1)) return Rejection::hole_not_blank;
 
   // With the code known, every edge of the printed pattern is a measurement.
   const bool by_pattern =

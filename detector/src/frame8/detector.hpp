@@ -227,10 +227,10 @@ class Frame8Detector final : public MarkerDetector {
     return false;
   }
   [[nodiscard]] double square_misfit(const std::array<Point2, 4>& hole) const;
-  // Whether the hole seen (its unit square; through H, the whole hole
-  // whose line gives the contrast, hidden_side -1 or the side hidden) shows
-  // nothing darker than blank paper may (blank_hole.cpp).
-  [[nodiscard]] bool hole_blank(const Homography& seen, const Homography& H, int hidden_side) const;
+  // Whether the hole seen (its unit square; through H, the whole hole,
+  // whose line gives the contrast and ring the paper's grey; hidden_side -1
+  // or the side hidden) is blank paper (blank_hole.cpp).
+  [[nodiscard]] bool hole_is_blank_paper(const Homography& seen, const Homography& H, int hidden_side) const;
   bool read_with_side_hidden(const std::array<Point2, 4>& inner, Detection& det, int& rotation, HiddenSide& hidden,
                              Homography& H);
   // Where the quad seen ends across its hidden side: at the cover's edge,

@@ -206,7 +206,7 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
   if (id < 0) return false;
   if (hole_printed_blank_) {
     std::array<Point2, 4> whole{};
-    if (!hole_for(kHiddenDepth[best_k], whole) || !hole_blank(seen, H, side)) {
+    if (!hole_for(kHiddenDepth[best_k], whole) || !hole_is_blank_paper(seen, H, side)) {
       note_attempt(Read::side_hidden, Rejection::hole_not_blank);
       return false;
     }

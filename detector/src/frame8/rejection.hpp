@@ -77,7 +77,7 @@ enum class Rejection : std::uint8_t {
   line_not_dark,              // the line is not dark all around
   line_not_ink,               // the line is not the black cells' ink
   hole_not_lighter,           // a cell outvoted, and the hole no lighter than its line on two sides or more
-  hole_not_blank,             // told paper, something dark inside the hole (a key's glyph)
+  hole_not_blank,             // told paper, the hole not blank paper (a key's glyph, a tile darker than its grout)
   hidden_side_disagrees,      // read again with a covered side hidden, another id
   covered_side_small_cells,   // cells outvoted beside a covered side, too small to read it hidden
   covered_side_unread,        // (second look, near-uniform ids) cells outvoted, the covered side unread hidden
