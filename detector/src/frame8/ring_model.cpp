@@ -8,6 +8,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <span>
 #include <utility>
 
 #include "markerd/detector/frame8.hpp"
@@ -40,6 +41,8 @@ constexpr double kMaxOutsideForGeometry = 0.95;
 constexpr double kRidge = 0.02;
 // How far (in footprint widths) a grid line still counts for a pixel.
 constexpr double kReach = 3.5;
+// A region's share of a pixel (or its slope) under this is left out.
+constexpr double kNegligible = 1e-5;
 // Steps of the map per alignment, and the step (largest corner
 // displacement, pixels) under which it has converged: the alignment places
 // cells for their levels, and a twentieth of a pixel is a fortieth of the
@@ -150,6 +153,7 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
   to_grid_ = lu.inverse() * from_centred();
   if (std::abs(to_grid_(2, 2)) < 1e-12) return false;
   to_grid_ /= to_grid_(2, 2);
+  map_moved();
   blur_map_ = to_grid_;
   // The footprint's width in the grid, per pixel: held fixed while the map
   // moves, so the model's slopes are its exact derivatives.
@@ -174,23 +178,23 @@ bool RingModel::prepare(const GreyView& image, const Eigen::Matrix3d& grid_to_im
   // The levels' normal equations for this map are summed on the way, as
   // solve_levels() would sum them: the coverages are the ones it needs.
   inside_.assign(static_cast<std::size_t>(width) * (py1_ - py0_ + 1), 1);
+  pixel_coverage_.assign(inside_.size(), PixelCoverage{});
   clear_levels_normal();
   double sum = 0;
   for (int py = py0_; py <= py1_; ++py) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
-      const int n = coverage(px, py, false, gx, gy, w);
+      const std::span<const RegionCoverage> regions = coverage(px, py, false, gx, gy, w);
       double outside = 0;
-      for (int a = 0; a < n; ++a) {
-        const int r = touched_[static_cast<std::size_t>(a)];
-        if (r >= kOutside) outside += cover_[static_cast<std::size_t>(r)];
+      for (const RegionCoverage& region : regions) {
+        if (region.region >= kOutside) outside += region.cover;
       }
-      const bool inside = n > 0 && outside <= max_outside;
+      const bool inside = !regions.empty() && outside <= max_outside;
       inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = inside;
       if (inside) {
         sum += row[px];
-        add_pixel_to_levels(n, row[px]);
+        add_pixel_to_levels(regions, row[px]);
       }
     }
   }
@@ -207,9 +211,34 @@ Eigen::Matrix3d RingModel::from_centred() const {
 
 Eigen::Matrix3d RingModel::grid_to_image() const { return from_centred() * to_grid_.inverse(); }
 
-int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, double& w) {
+std::span<const RingModel::RegionCoverage> RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy,
+                                                               double& w) {
   const auto pixel = static_cast<std::size_t>(py - py0_) * (px1_ - px0_ + 1) + (px - px0_);
-  if (!inside_[pixel]) return 0;
+  if (!inside_[pixel]) return {};
+  PixelCoverage& cached = pixel_coverage_[pixel];
+  if (cached.version != map_version_) {
+    // The first pass with this map: computed, and kept for the next.
+    if (covered_version_ != map_version_) {
+      covered_.clear();
+      covered_version_ = map_version_;
+    }
+    cached.version = map_version_;
+    cached.first = static_cast<std::uint32_t>(covered_.size());
+    cached.n = compute_coverage(pixel, px, py, cached.gx, cached.gy, cached.w);
+  }
+  gx = cached.gx;
+  gy = cached.gy;
+  w = cached.w;
+  const std::span<const RegionCoverage> all(covered_.data() + cached.first, static_cast<std::size_t>(cached.n));
+  if (slopes) return all;
+  // Without slopes, only the regions whose share matters: rarely fewer.
+  const auto negligible = [](const RegionCoverage& region) { return region.cover < kNegligible; };
+  if (std::none_of(all.begin(), all.end(), negligible)) return all;
+  const auto end = std::remove_copy_if(all.begin(), all.end(), shares_.begin(), negligible);
+  return {shares_.data(), static_cast<std::size_t>(end - shares_.begin())};
+}
+
+int RingModel::compute_coverage(std::size_t pixel, int px, int py, double& gx, double& gy, double& w) {
   const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
   const Eigen::Vector3d g = to_grid_ * Eigen::Vector3d(u, v, 1);
   w = g(2);
@@ -262,30 +291,25 @@ int RingModel::coverage(int px, int py, bool slopes, double& gx, double& gy, dou
     const auto y0 = static_cast<std::size_t>(q.y0), y1 = static_cast<std::size_t>(q.y1);
     const double mx = fx[x1] - fx[x0], my = fy[y1] - fy[y0];
     const double c = mx * my;
-    const double sxr = slopes ? (dx[x1] - dx[x0]) * my : 0, syr = slopes ? mx * (dy[y1] - dy[y0]) : 0;
-    if (c < 1e-5 && std::abs(sxr) < 1e-5 && std::abs(syr) < 1e-5) continue;
-    cover_[static_cast<std::size_t>(r)] = c;
-    slope_x_[static_cast<std::size_t>(r)] = sxr;
-    slope_y_[static_cast<std::size_t>(r)] = syr;
-    touched_[static_cast<std::size_t>(n++)] = r;
+    const double sxr = (dx[x1] - dx[x0]) * my, syr = mx * (dy[y1] - dy[y0]);
+    if (c < kNegligible && std::abs(sxr) < kNegligible && std::abs(syr) < kNegligible) continue;
+    covered_.push_back({r, c, sxr, syr});
+    ++n;
   }
   return n;
 }
 
 // The levels' rows of the normal equations for one pixel: its regions'
-// coverages against each other, the lower triangle only (touched_ ascends:
-// LDLT reads no more, and this is most of a fit's time), and against the
-// pixel's grey (or, aligning, its residual).
+// coverages against each other, the lower triangle only (the regions
+// ascend: LDLT reads no more, and this is most of a fit's time), and
+// against the pixel's grey (or, aligning, its residual).
 template <typename Normal, typename Rhs>
-void RingModel::add_levels(int n, double value, Normal& normal, Rhs& rhs) const {
-  for (int a = 0; a < n; ++a) {
-    const int ra = touched_[static_cast<std::size_t>(a)];
-    const double ca = cover_[static_cast<std::size_t>(ra)];
+void RingModel::add_levels(std::span<const RegionCoverage> regions, double value, Normal& normal, Rhs& rhs) {
+  for (std::size_t a = 0; a < regions.size(); ++a) {
+    const int ra = regions[a].region;
+    const double ca = regions[a].cover;
     rhs(ra) += ca * value;
-    for (int c = 0; c <= a; ++c) {
-      const int rc = touched_[static_cast<std::size_t>(c)];
-      normal(ra, rc) += ca * cover_[static_cast<std::size_t>(rc)];
-    }
+    for (std::size_t c = 0; c <= a; ++c) normal(ra, regions[c].region) += ca * regions[c].cover;
   }
 }
 
@@ -298,8 +322,8 @@ void RingModel::clear_levels_normal() {
 
 // One pixel's row of: pixel = sum over regions of coverage * level, for
 // the n regions coverage() touched.
-void RingModel::add_pixel_to_levels(int n, double grey) {
-  add_levels(n, grey, normal_.ata, normal_.atb);
+void RingModel::add_pixel_to_levels(std::span<const RegionCoverage> regions, double grey) {
+  add_levels(regions, grey, normal_.ata, normal_.atb);
   normal_.btb += grey * grey;
   ++normal_.used;
 }
@@ -310,8 +334,8 @@ bool RingModel::solve_levels(const GreyView& image) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
-      const int n = coverage(px, py, false, gx, gy, w);
-      if (n != 0) add_pixel_to_levels(n, row[px]);
+      const std::span<const RegionCoverage> regions = coverage(px, py, false, gx, gy, w);
+      if (!regions.empty()) add_pixel_to_levels(regions, row[px]);
     }
   }
   return solve_accumulated_levels();
@@ -332,14 +356,13 @@ bool RingModel::drop_clutter(const GreyView& image) {
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
-      const int n = coverage(px, py, false, gx, gy, w);
+      const std::span<const RegionCoverage> regions = coverage(px, py, false, gx, gy, w);
       double model = 0, outside = 0;
-      for (int a = 0; a < n; ++a) {
-        const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
-        model += level_(static_cast<int>(r)) * cover_[r];
-        if (static_cast<int>(r) >= kOutside) outside += cover_[r];
+      for (const RegionCoverage& region : regions) {
+        model += level_(region.region) * region.cover;
+        if (region.region >= kOutside) outside += region.cover;
       }
-      if (n == 0 || outside <= 0 || std::abs(row[px] - model) <= limit) continue;
+      if (regions.empty() || outside <= 0 || std::abs(row[px] - model) <= limit) continue;
       inside_[static_cast<std::size_t>(py - py0_) * width + (px - px0_)] = 0;
       ++dropped;
     }
@@ -395,14 +418,13 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
     const std::uint8_t* row = image.row(py);
     for (int px = px0_; px <= px1_; ++px) {
       double gx = 0, gy = 0, w = 0;
-      const int n = coverage(px, py, true, gx, gy, w);
-      if (n == 0) continue;
+      const std::span<const RegionCoverage> regions = coverage(px, py, true, gx, gy, w);
+      if (regions.empty()) continue;
       double model = 0, dgx = 0, dgy = 0;
-      for (int a = 0; a < n; ++a) {
-        const auto r = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
-        model += level_(static_cast<int>(r)) * cover_[r];
-        dgx += level_(static_cast<int>(r)) * slope_x_[r];
-        dgy += level_(static_cast<int>(r)) * slope_y_[r];
+      for (const RegionCoverage& region : regions) {
+        model += level_(region.region) * region.cover;
+        dgx += level_(region.region) * region.slope_x;
+        dgy += level_(region.region) * region.slope_y;
       }
       const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
       const double radial = dgx * gx + dgy * gy;
@@ -411,15 +433,14 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
       const double e = row[px] - model;
       squared_residuals += e * e;
       ++pixels;
-      add_levels(n, e, jtj, jte);
+      add_levels(regions, e, jtj, jte);
       // Deep in the hole or a cell, no line within reach: the map moves
       // nothing there.
       if (dgx == 0 && dgy == 0) continue;
-      for (int a = 0; a < n; ++a) {
-        const auto ia = static_cast<std::size_t>(touched_[static_cast<std::size_t>(a)]);
-        const double ja = cover_[ia];
+      for (const RegionCoverage& region : regions) {
+        auto& row_of = map_level[static_cast<std::size_t>(region.region)];
         for (int k = 0; k < 8; ++k)
-          map_level[ia][static_cast<std::size_t>(k)] += geometry[static_cast<std::size_t>(k)] * ja;
+          row_of[static_cast<std::size_t>(k)] += geometry[static_cast<std::size_t>(k)] * region.cover;
       }
       for (int k = 0; k < 8; ++k) {
         const double jk = geometry[static_cast<std::size_t>(k)];
@@ -463,6 +484,7 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
   to_grid_(1, 2) += d(kRegions + 5);
   to_grid_(2, 0) += d(kRegions + 6);
   to_grid_(2, 1) += d(kRegions + 7);
+  map_moved();
   const Eigen::Matrix3d after = grid_to_image();
   moved = 0;
   for (const auto& [gx, gy] : kOuterCorners) {
@@ -517,6 +539,7 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
       // The steps wandered off: keep where it started.
       if (geometry) return false;
       to_grid_ = start;
+      map_moved();
       level_ = start_level;
       rms_ = start_rms;
     }

@@ -16,6 +16,7 @@
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "frame8/common.hpp"
@@ -75,6 +76,12 @@ class RingModel {
   using Vector = Eigen::Matrix<double, kRegions, 1>;
 
   using LevelsMatrix = Eigen::Matrix<double, kRegions, kRegions>;
+  // What of a pixel's footprint each region covers, and how fast that
+  // changes along the grid's axes, for the regions it touches (ascending).
+  struct RegionCoverage {
+    int region;
+    double cover, slope_x, slope_y;
+  };
 
   // Pixels of the footprint, the map from (centred) pixels to the grid, and
   // the pixels the fit uses with their mean grey; the levels' normal
@@ -85,7 +92,7 @@ class RingModel {
   bool solve_levels(const GreyView& image);
   bool solve_accumulated_levels();
   void clear_levels_normal();
-  void add_pixel_to_levels(int n, double grey);
+  void add_pixel_to_levels(std::span<const RegionCoverage> regions, double grey);
   // Gauss-Newton steps of the map until one moves it less than `converged`
   // pixels, `iterations` at most; false when a step cannot be taken.
   bool align(const GreyView& image, int iterations, double converged, bool keep_covariance);
@@ -100,16 +107,20 @@ class RingModel {
   // The map's scatter at the last align_step(): its covariance as one
   // standard deviation along each principal direction.
   void map_noise(MapNoise& out) const;
-  // Each region's share of the pixel's footprint (cover_), and its slope
-  // along the grid's axes (slope_x_, slope_y_) when `slopes`; the pixel's
-  // grid coordinates in gx, gy, and the map's denominator in w. Returns the
-  // number of regions touched (listed in touched_), 0 for a pixel that lies
-  // mostly outside the marker.
-  int coverage(int px, int py, bool slopes, double& gx, double& gy, double& w);
-  // Adds the n regions coverage() touched to the levels' normal equations
-  // (`normal`'s levels block, lower triangle) with `value` on the right.
+  // The regions the pixel's footprint touches, with their slopes when
+  // `slopes` (otherwise only those whose share matters); the pixel's grid
+  // coordinates in gx, gy, and the map's denominator in w. Empty for a
+  // pixel the fit does not use. Valid until the next call.
+  std::span<const RegionCoverage> coverage(int px, int py, bool slopes, double& gx, double& gy, double& w);
+  // The same for the pixel at `pixel` (index in the box) as the map is now,
+  // appended to covered_; the number of regions.
+  int compute_coverage(std::size_t pixel, int px, int py, double& gx, double& gy, double& w);
+  // The map (to_grid_) moved: coverages computed before are stale.
+  void map_moved() { ++map_version_; }
+  // Adds the regions' row to the levels' normal equations (`normal`'s
+  // levels block, lower triangle) with `value` on the right.
   template <typename Normal, typename Rhs>
-  void add_levels(int n, double value, Normal& normal, Rhs& rhs) const;
+  static void add_levels(std::span<const RegionCoverage> regions, double value, Normal& normal, Rhs& rhs);
   [[nodiscard]] Eigen::Matrix3d grid_to_image() const;
   [[nodiscard]] Eigen::Matrix3d from_centred() const;  // centred pixel -> pixel
 
@@ -123,8 +134,22 @@ class RingModel {
   // grid units; fixed at prepare() with the map it started from.
   std::vector<std::array<float, 2>> width_;
   double prior_ = 0;  // their mean grey, which every level is pulled towards
-  std::array<double, kRegions> cover_{}, slope_x_{}, slope_y_{};
-  std::array<int, kRegions> touched_{};
+  // What coverage() computed for each pixel of the box, for the map it was
+  // computed with: a fit passes over the pixels several times with one map
+  // (the levels solved, the clutter dropped, the levels again, the first
+  // step of an alignment), and this is most of each pass's time. A
+  // pixel's regions lie in covered_, from its `first`, for the map of
+  // version map_version_ when `version` is it.
+  struct PixelCoverage {
+    std::uint32_t version = 0;
+    std::uint32_t first = 0;
+    int n = 0;
+    double gx = 0, gy = 0, w = 0;
+  };
+  std::vector<PixelCoverage> pixel_coverage_;
+  std::vector<RegionCoverage> covered_;
+  std::array<RegionCoverage, kRegions> shares_{};  // coverage()'s regions without slopes, where fewer
+  std::uint32_t map_version_ = 1, covered_version_ = 0;
   // The levels' normal equations (lower triangle), summed over the pixels used.
   struct LevelsNormal {
     LevelsMatrix ata = LevelsMatrix::Zero();
