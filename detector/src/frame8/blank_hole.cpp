@@ -20,12 +20,11 @@ namespace markerd::detector::frame8 {
 
 bool Frame8Detector::hole_is_blank_paper(const Homography& seen, const Homography& H, int hidden_side) const {
   // The line's grey beside each side seen, for the hole's contrast.
-  constexpr std::array<double, 6> kMiddle{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
-  std::array<float, 4 * kMiddle.size()> line{};
+  std::array<float, 4 * kSideMiddle.size()> line{};
   std::size_t lines = 0;
   for (int side = 0; side < 4; ++side) {
     if (side == hidden_side) continue;
-    for (const double along : kMiddle) {
+    for (const double along : kSideMiddle) {
       const Point2 q = grid_point(H, side_point(side, along, kInnerLo - 0.25));
       if (!sample(full_, q.x, q.y, line[lines++])) return false;
     }

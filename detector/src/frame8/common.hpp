@@ -69,6 +69,10 @@ inline Point2 grid_point(const Homography& H, double gx, double gy) {
 
 inline Point2 grid_point(const Homography& H, Point2 g) { return grid_point(H, g.x, g.y); }
 
+// Where along a side (cells, side_point()'s `along`) to sample its line or
+// the hole beside it: the middle six cells, clear of the corners' blur.
+inline constexpr std::array<double, 6> kSideMiddle{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
+
 // H as a 3x3 matrix on homogeneous coordinates of its unit square.
 inline Eigen::Matrix3d unit_map(const Homography& H) {
   Eigen::Matrix3d unit_to_image;

@@ -45,18 +45,17 @@ constexpr double kMinAmbiguousHiddenSideRatio = 0.4;
 // corner to corner, where a cover that leaves the hole whole still lies
 // (every id but 0 has a light cell there on every side).
 bool Frame8Detector::looks_covered(const Homography& H, int side, bool into_hole) const {
-  constexpr std::array<double, 6> kMiddle{2.5, 3.5, 4.5, 5.5, 6.5, 7.5};
   constexpr std::array<double, 10> kWhole{0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5, 8.5, 9.5};
   constexpr std::array<double, 3> kBeyondQuad{1.2, 0.8, 0.4};
   constexpr std::array<double, 1> kOuterRing{0.25};
-  const auto along = into_hole ? std::span<const double>(kMiddle) : std::span<const double>(kWhole);
+  const auto along = into_hole ? std::span<const double>(kSideMiddle) : std::span<const double>(kWhole);
   const auto beyond = into_hole ? std::span<const double>(kBeyondQuad) : std::span<const double>(kOuterRing);
   // The cover's grey may vary by this share of its contrast with the hole.
   constexpr float kUniform = 0.3F;
   constexpr float kMinContrast = 30;
-  std::array<float, kMiddle.size()> hole{};
-  for (std::size_t k = 0; k < kMiddle.size(); ++k) {
-    const Point2 p = grid_point(H, side_point(side, kMiddle[k], kInnerLo + 0.5));
+  std::array<float, kSideMiddle.size()> hole{};
+  for (std::size_t k = 0; k < kSideMiddle.size(); ++k) {
+    const Point2 p = grid_point(H, side_point(side, kSideMiddle[k], kInnerLo + 0.5));
     if (!sample(full_, p.x, p.y, hole[k])) return false;
   }
   float lo = 255, hi = 0;
@@ -78,9 +77,9 @@ bool Frame8Detector::looks_covered(const Homography& H, int side, bool into_hole
   // a side's ring is never all white (its corners C0, C2 and C3 are black,
   // and only id 255 has no black data cell), so a ring as light as the
   // hole from corner to corner, beside a dark line, is hidden.
-  std::array<float, kMiddle.size()> line{};
-  for (std::size_t k = 0; k < kMiddle.size(); ++k) {
-    const Point2 p = grid_point(H, side_point(side, kMiddle[k], kInnerLo - 0.25));
+  std::array<float, kSideMiddle.size()> line{};
+  for (std::size_t k = 0; k < kSideMiddle.size(); ++k) {
+    const Point2 p = grid_point(H, side_point(side, kSideMiddle[k], kInnerLo - 0.25));
     if (!sample(full_, p.x, p.y, line[k])) return false;
   }
   std::nth_element(line.begin(), line.begin() + line.size() / 2, line.end());
@@ -205,6 +204,8 @@ bool Frame8Detector::read_hidden_side(const std::array<Point2, 4>& inner, int si
   }
   if (id < 0) return false;
   if (hole_printed_blank_) {
+    // H, the whole hole at the depth that read best, gives the line's and
+    // the ring's grey; the part seen, the hole's.
     std::array<Point2, 4> whole{};
     if (!hole_for(kHiddenDepth[best_k], whole) || !hole_is_blank_paper(seen, H, side)) {
       note_attempt(Read::side_hidden, Rejection::hole_not_blank);

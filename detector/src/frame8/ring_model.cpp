@@ -321,7 +321,7 @@ void RingModel::clear_levels_normal() {
 }
 
 // One pixel's row of: pixel = sum over regions of coverage * level, for
-// the n regions coverage() touched.
+// the regions coverage() gave.
 void RingModel::add_pixel_to_levels(std::span<const RegionCoverage> regions, double grey) {
   add_levels(regions, grey, normal_.ata, normal_.atb);
   normal_.btb += grey * grey;
