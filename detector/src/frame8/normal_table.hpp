@@ -24,6 +24,16 @@ struct NormalTable {
     }
   }
 
+  // Phi(z) alone, as at() gives it.
+  [[nodiscard]] double cdf(double z) const {
+    if (z <= -kRange) return 0;
+    if (z >= kRange) return 1;
+    const double f = (z + kRange) * kPerUnit;
+    const auto i = static_cast<std::size_t>(f);
+    const double t = f - static_cast<double>(i);
+    return cdf_table[i] + t * (cdf_table[i + 1] - cdf_table[i]);
+  }
+
   // Phi(z) and phi(z), linearly interpolated (off by under 1e-5).
   void at(double z, double& c, double& p) const {
     if (z <= -kRange) {

@@ -87,32 +87,51 @@ bool Frame8Detector::fit_short_edge(const Homography& H, int side, int id, doubl
     Vector6 cross;
   };
   const detail::NormalTable& table = detail::normal_table();
+  // The part each cell's share goes to: the code's colour, or its corner's.
+  std::array<int, frame8::grid> part_of{};
+  for (int c = 0; c < frame8::grid; ++c) {
+    part_of[static_cast<std::size_t>(c)] = c == 0 ? 2 : c == frame8::grid - 1 ? 3 : ((id >> (8 - c)) & 1);
+  }
+  // The profile fits below take this some forty times an edge, for every
+  // read of a marker turned far: its loops are the fit's time.
   auto moments = [&](double stretch, double shift, Moments& m) {
-    m.gram.setZero();
-    m.cross.setZero();
+    std::array<double, 21> gram{};  // the lower triangle, row by row
+    std::array<double, 6> cross{};
+    // The edge's first boundary, then the end of each cell along it.
+    const double first = 5 + shift - 5 * stretch;
+    std::array<double, frame8::grid> end{};
+    for (int c = 0; c < frame8::grid; ++c) end[static_cast<std::size_t>(c)] = 5 + shift + stretch * (c - 4);
     for (int i = 0; i < kSamples; ++i) {
       const double t = -1.0 + static_cast<double>(i) / kPerCell;
       const double is = inv_sigma[static_cast<std::size_t>(i)];
-      Vector6 part = Vector6::Zero();
-      double below = 0, unused = 0;
-      table.at((5 + shift - 5 * stretch - t) * is, below, unused);
-      part(4) = below;
+      std::array<double, 6> part{};
+      double below = table.cdf((first - t) * is);
+      part[4] = below;
       for (int c = 0; c < frame8::grid; ++c) {
-        double upto = 0;
-        table.at((5 + shift + stretch * (c - 4) - t) * is, upto, unused);
-        const int to = c == 0 ? 2 : c == frame8::grid - 1 ? 3 : ((id >> (8 - c)) & 1);
-        part(to) += upto - below;
+        const double z = (end[static_cast<std::size_t>(c)] - t) * is;
+        const double upto = table.cdf(z);
+        part[static_cast<std::size_t>(part_of[static_cast<std::size_t>(c)])] += upto - below;
         below = upto;
+        // Every boundary further on is as far past the table's end, its
+        // share exactly 0.
+        if (z >= detail::NormalTable::kRange) break;
       }
-      part(5) = 1 - below;
-      // The lower triangle by hand: Eigen's rank update of a fixed 6x6
-      // takes its general blocked path, and this loop is most of the fit.
-      for (int a = 0; a < 6; ++a) {
-        for (int b = 0; b <= a; ++b) m.gram(a, b) += part(a) * part(b);
+      part[5] = 1 - below;
+      std::size_t k = 0;
+#pragma GCC unroll 6
+      for (std::size_t a = 0; a < 6; ++a) {
+#pragma GCC unroll 6
+        for (std::size_t b = 0; b <= a; ++b) gram[k++] += part[a] * part[b];
       }
-      m.cross += part * level[static_cast<std::size_t>(i)];
+      const double y = level[static_cast<std::size_t>(i)];
+#pragma GCC unroll 6
+      for (std::size_t a = 0; a < 6; ++a) cross[a] += part[a] * y;
     }
-    m.gram = m.gram.selfadjointView<Eigen::Lower>();
+    std::size_t k = 0;
+    for (int a = 0; a < 6; ++a) {
+      for (int b = 0; b <= a; ++b) m.gram(a, b) = m.gram(b, a) = gram[k++];
+      m.cross(a) = cross[static_cast<std::size_t>(a)];
+    }
   };
   // Black, white and the outside levels are held near the ring's levels
   // and the measured background by as much as a few samples would: no
