@@ -255,25 +255,26 @@ int RingModel::compute_coverage(std::size_t pixel, int px, int py, double& gx, d
   // under 3e-7), and a region between two lines on the same side has no
   // share and no slope.
   const NormalTable& table = normal_table();
-  std::array<double, kLines.size()> fx{}, fy{}, dx{}, dy{};
   int x_lo = 0, x_hi = 0, y_lo = 0, y_hi = 0;  // the lines looked up: [lo, hi)
-  auto axis = [&](double at, double s, std::array<double, kLines.size()>& f, std::array<double, kLines.size()>& d,
-                  int& lo, int& hi) {
+  auto lines_within_reach = [&](double at, double s, int& lo, int& hi) {
     const double reach = kReach * s;
     lo = 0;
     while (lo < static_cast<int>(kLines.size()) && kLines[static_cast<std::size_t>(lo)] <= at - reach) ++lo;
     hi = lo;
-    while (hi < static_cast<int>(kLines.size()) && kLines[static_cast<std::size_t>(hi)] < at + reach) {
+    while (hi < static_cast<int>(kLines.size()) && kLines[static_cast<std::size_t>(hi)] < at + reach) ++hi;
+  };
+  auto axis = [&](double at, double s, int lo, int hi, std::array<double, kLines.size()>& f,
+                  std::array<double, kLines.size()>& d) {
+    for (int k = lo; k < hi; ++k) {
       double c = 0, p = 0;
-      table.at((kLines[static_cast<std::size_t>(hi)] - at) / s, c, p);
-      f[static_cast<std::size_t>(hi)] = c;
-      d[static_cast<std::size_t>(hi)] = -p / s;  // d/d(at) of Phi((line - at) / s)
-      ++hi;
+      table.at((kLines[static_cast<std::size_t>(k)] - at) / s, c, p);
+      f[static_cast<std::size_t>(k)] = c;
+      d[static_cast<std::size_t>(k)] = -p / s;  // d/d(at) of Phi((line - at) / s)
     }
     for (int k = hi; k < static_cast<int>(kLines.size()); ++k) f[static_cast<std::size_t>(k)] = 1;
   };
-  axis(gx, sx, fx, dx, x_lo, x_hi);
-  axis(gy, sy, fy, dy, y_lo, y_hi);
+  lines_within_reach(gx, sx, x_lo, x_hi);
+  lines_within_reach(gy, sy, y_lo, y_hi);
   // A region with both bounds below the looked-up lines, or both above,
   // has nothing: the ones left span an interval from the one before x_lo
   // to the one before x_hi.
@@ -283,6 +284,12 @@ int RingModel::compute_coverage(std::size_t pixel, int px, int py, double& gx, d
       regions |= kRegionBits[static_cast<std::size_t>(y)][static_cast<std::size_t>(x)];
     }
   }
+  // One region (deep in the hole, mostly): its bounds lie beyond the lines
+  // within reach, whose values it does not read.
+  const bool one_region = (regions & (regions - 1)) == 0;
+  std::array<double, kLines.size()> fx{}, fy{}, dx{}, dy{};
+  axis(gx, sx, one_region ? x_hi : x_lo, x_hi, fx, dx);
+  axis(gy, sy, one_region ? y_hi : y_lo, y_hi, fy, dy);
   int n = 0;
   for (; regions != 0; regions &= regions - 1) {
     const int r = __builtin_ctzll(regions);
@@ -387,22 +394,22 @@ bool RingModel::solve_accumulated_levels() {
   return true;
 }
 
-bool RingModel::align(const GreyView& image, int iterations, double converged, bool keep_covariance) {
+bool RingModel::align(const GreyView& image, int iterations, double converged) {
   for (int iter = 0; iter < iterations; ++iter) {
     double moved = 0;
-    if (!align_step(image, moved, keep_covariance)) return false;
+    if (!align_step(image, moved)) return false;
     if (moved < converged) break;
   }
   return true;
 }
 
-bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covariance) {
+bool RingModel::align_step(const GreyView& image, double& moved) {
   // Gauss-Newton over the levels and the map together: apart, the two trade
   // against each other (a line drawn thinner and darker) and creep.
   // Parameters: the levels, then the eight free entries of the map from
   // centred pixels to the grid (the ninth is 1).
-  constexpr int kParams = kRegions + 8;
-  using Matrix = Eigen::Matrix<double, kParams, kParams>;
+  constexpr int kParams = kStepParams;
+  using Matrix = StepMatrix;
   using Params = Eigen::Matrix<double, kParams, 1>;
   // The normal equations in three blocks, each entry summed over the
   // pixels in the same order as one matrix would: the levels' own (lower
@@ -426,10 +433,6 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
         dgx += level_(region.region) * region.slope_x;
         dgy += level_(region.region) * region.slope_y;
       }
-      const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
-      const double radial = dgx * gx + dgy * gy;
-      const std::array<double, 8> geometry{dgx * u / w, dgx * v / w, dgx / w,         dgy * u / w,
-                                           dgy * v / w, dgy / w,     -radial * u / w, -radial * v / w};
       const double e = row[px] - model;
       squared_residuals += e * e;
       ++pixels;
@@ -437,6 +440,10 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
       // Deep in the hole or a cell, no line within reach: the map moves
       // nothing there.
       if (dgx == 0 && dgy == 0) continue;
+      const double u = (px - cx_) / scale_, v = (py - cy_) / scale_;
+      const double radial = dgx * gx + dgy * gy;
+      const std::array<double, 8> geometry{dgx * u / w, dgx * v / w, dgx / w,         dgy * u / w,
+                                           dgy * v / w, dgy / w,     -radial * u / w, -radial * v / w};
       for (const RegionCoverage& region : regions) {
         auto& row_of = map_level[static_cast<std::size_t>(region.region)];
         for (int k = 0; k < 8; ++k)
@@ -461,19 +468,11 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
   }
   // Levenberg's damping keeps a step within what the linearisation holds.
   for (int k = kRegions; k < kParams; ++k) jtj(k, k) *= 1.0 + 1e-3;
-  const Eigen::LDLT<Matrix> solver(jtj);
-  if (solver.info() != Eigen::Success) return false;
-  const Params d = solver.solve(jte);
+  step_solver_.compute(jtj);
+  if (step_solver_.info() != Eigen::Success) return false;
+  const Params d = step_solver_.solve(jte);
   if (!d.allFinite()) return false;
-  if (keep_covariance) {
-    // The map's block of the inverse normal equations: its covariance per
-    // unit of the residuals' variance, the levels solved for with it (the
-    // damping, a thousandth of the diagonal, makes it that much smaller).
-    Eigen::Matrix<double, kParams, 8> unit = Eigen::Matrix<double, kParams, 8>::Zero();
-    unit.bottomRows<8>().setIdentity();
-    map_covariance_ = solver.solve(unit).bottomRows<8>();
-    step_variance_ = pixels > kParams ? squared_residuals / (pixels - kParams) : 0.0;
-  }
+  step_variance_ = pixels > kParams ? squared_residuals / (pixels - kParams) : 0.0;
   level_ += d.head<kRegions>();
   const Eigen::Matrix3d before = grid_to_image();
   to_grid_(0, 0) += d(kRegions + 0);
@@ -496,7 +495,14 @@ bool RingModel::align_step(const GreyView& image, double& moved, bool keep_covar
 
 void RingModel::map_noise(MapNoise& out) const {
   out.count = 0;
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 8, 8>> eig(map_covariance_);
+  // The map's block of the last step's inverse normal equations: its
+  // covariance per unit of the residuals' variance, the levels solved for
+  // with it (the damping, a thousandth of the diagonal, makes it that much
+  // smaller).
+  Eigen::Matrix<double, kStepParams, 8> unit = Eigen::Matrix<double, kStepParams, 8>::Zero();
+  unit.bottomRows<8>().setIdentity();
+  const Eigen::Matrix<double, 8, 8> covariance = step_solver_.solve(unit).bottomRows<8>();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 8, 8>> eig(covariance);
   if (eig.info() != Eigen::Success || !(step_variance_ > 0)) return;
   // Along each principal direction the map scatters by the square root of
   // the covariance's eigenvalue; the map to the image moves by
@@ -526,13 +532,12 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;
     const double start_rms = rms_;
-    const bool keep_covariance = geometry && noise != nullptr;
     const int iterations = geometry ? kGeometryIterations : kAlignIterations;
     const double converged = geometry ? kGeometryConverged : kAlignConverged;
-    bool stepped = align(image, iterations, converged, keep_covariance);
+    bool stepped = align(image, iterations, converged);
     if (geometry && stepped && solve_levels(image) && drop_clutter(image)) {
       // Fitted again without the pixels of whatever stood beside the print.
-      stepped = align(image, iterations, converged, keep_covariance);
+      stepped = align(image, iterations, converged);
     }
     if (!stepped || !solve_levels(image)) return false;
     if (rms_ > start_rms) {

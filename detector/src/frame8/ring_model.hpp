@@ -13,6 +13,7 @@
 // deconvolution with a handful of unknowns, well posed down to cells about
 // a pixel and a half wide.
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <array>
 #include <cstdint>
@@ -95,12 +96,11 @@ class RingModel {
   void add_pixel_to_levels(std::span<const RegionCoverage> regions, double grey);
   // Gauss-Newton steps of the map until one moves it less than `converged`
   // pixels, `iterations` at most; false when a step cannot be taken.
-  bool align(const GreyView& image, int iterations, double converged, bool keep_covariance);
+  bool align(const GreyView& image, int iterations, double converged);
   // One Gauss-Newton step of the map for the current levels; false when it
   // cannot be taken. `moved` is the largest displacement it makes, pixels.
-  // With `keep_covariance`, the map's covariance before the step is kept
-  // for map_noise().
-  bool align_step(const GreyView& image, double& moved, bool keep_covariance);
+  // Its factored normal equations are kept for map_noise().
+  bool align_step(const GreyView& image, double& moved);
   // The geometry's fit: drops the pixels partly outside the marker that the
   // model misses by far, and solves the levels again. False when none went.
   bool drop_clutter(const GreyView& image);
@@ -159,10 +159,12 @@ class RingModel {
   } normal_;
   Vector level_ = Vector::Zero();
   double rms_ = 0;
-  // The last align_step()'s covariance of the map per unit of the
-  // residuals' variance, and that variance; kept for the geometry's fit
-  // when its noise is asked for.
-  Eigen::Matrix<double, 8, 8> map_covariance_ = Eigen::Matrix<double, 8, 8>::Zero();
+  // The last align_step()'s normal equations, factored, and its residuals'
+  // variance: the map's covariance, for the geometry's fit when its noise
+  // is asked for, is solved from them once the fit has settled.
+  static constexpr int kStepParams = kRegions + 8;
+  using StepMatrix = Eigen::Matrix<double, kStepParams, kStepParams>;
+  Eigen::LDLT<StepMatrix> step_solver_;
   double step_variance_ = 0;
 };
 
