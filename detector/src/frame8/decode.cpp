@@ -86,15 +86,32 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
 // tenth of the cost) confirmed 4 of the 14 wrong reads.
 Rejection Frame8Detector::confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det,
                                            int rotation) {
+  Eigen::Matrix3d M = grid_map(H);
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::aligned_levels, levels_))
+    return Rejection::model_disagrees;
+  return judge_model_read(M, cell_size, det, rotation);
+}
+
+// The same at a map the ring model has aligned already (its geometry's
+// fit): the levels alone, a fraction of an alignment's cost.
+Rejection Frame8Detector::confirm_at_model_map(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
+                                               int rotation) {
+  Eigen::Matrix3d M = aligned;
+  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::levels, levels_))
+    return Rejection::model_disagrees;
+  return judge_model_read(M, cell_size, det, rotation);
+}
+
+// The read of the model's levels (levels_) at its map M, against the
+// sampled read `det`.
+Rejection Frame8Detector::judge_model_read(const Eigen::Matrix3d& M, CellSize cell_size, const Detection& det,
+                                           int rotation) {
   // The code and its orientation are compared: the structural checks are
   // the sampled read's, and the model's own test of the line (as dark as
   // the black cells) does not hold on a socket frame, whose line lies on
   // the inner roll, mixed with the hole and the fold where it turns away
   // (a side's line up to the white cells' level in a third of far socket
   // reads).
-  Eigen::Matrix3d M = grid_map(H);
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::aligned_levels, levels_))
-    return Rejection::model_disagrees;
   RingRead r;
   const Rejection why = read_code(Homography::from_grid_map(M), cell_size, &levels_, r);
   note_attempt(Read::model_check, why);

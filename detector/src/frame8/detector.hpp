@@ -142,6 +142,9 @@ class Frame8Detector final : public MarkerDetector {
                       RingRead& r) const;
   bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
   Rejection confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det, int rotation);
+  Rejection confirm_at_model_map(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
+                                 int rotation);
+  Rejection judge_model_read(const Eigen::Matrix3d& M, CellSize cell_size, const Detection& det, int rotation);
   // 4a: the cells (decode_cells.cpp).
   Rejection read_cells(const Homography& H, CellSize cell_size, const frame8::RingModel::Levels* model,
                        RingRead& r) const;
@@ -195,11 +198,13 @@ class Frame8Detector final : public MarkerDetector {
                             const HiddenSide& hidden = {}, HoleEdge hole_edge = HoleEdge::measured);
   bool fit_grid_map(Eigen::Matrix3d& grid_to_image, MapNoise* noise = nullptr);
   Rejection finish_by_pattern(int rotation, Detection& det);
-  // Small cells: the corners (and the pose) from the ring model's map,
-  // aligned to every pixel the marker reaches (RingModel::Aim::geometry),
-  // started from `start` (grid to image pixels). False, with `det` as it
-  // was, when the model does not fit or its corners are no marker's.
-  bool finish_by_model(const Eigen::Matrix3d& start, int rotation, Detection& det);
+  // Small cells: the ring model's map aligned to every pixel the marker
+  // reaches (RingModel::Aim::geometry), started from `map` (grid to image
+  // pixels), with its noise; false when the model does not fit. Then the
+  // corners (and the pose) from it: false, with `det` as it was, when they
+  // are no marker's.
+  bool fit_model_geometry(Eigen::Matrix3d& map, MapNoise& noise);
+  bool finish_by_model(const Eigen::Matrix3d& map, const MapNoise& noise, int rotation, Detection& det);
 
   // Stage 6: corners and pose (corners_and_pose.cpp). The map goes from the
   // grid to where the detector works (undistorted: normalized coordinates

@@ -277,13 +277,14 @@ Rejection Frame8Detector::finish_by_pattern(int rotation, Detection& det) {
 // same frame without noise by as much: no noise, but the phase). The ring
 // model fits the blurred print to every pixel at once instead: half the
 // pattern's corner error from 1.4 m out.
-bool Frame8Detector::finish_by_model(const Eigen::Matrix3d& start, int rotation, Detection& det) {
-  Eigen::Matrix3d M = start;
-  MapNoise noise;
+bool Frame8Detector::fit_model_geometry(Eigen::Matrix3d& map, MapNoise& noise) {
   RingModel::Levels levels;
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::geometry, levels, &noise)) return false;
+  return ring_model_.fit(full_, map, config_.frame8.blur_sigma_px, RingModel::Aim::geometry, levels, &noise);
+}
+
+bool Frame8Detector::finish_by_model(const Eigen::Matrix3d& map, const MapNoise& noise, int rotation, Detection& det) {
   Detection measured = det;
-  if (report(M, rotation, measured, &noise, MapSpace::pixels) != Rejection::none) return false;
+  if (report(map, rotation, measured, &noise, MapSpace::pixels) != Rejection::none) return false;
   det = measured;
   return true;
 }
