@@ -417,9 +417,10 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
   // lean on it (without the second try, 11 of some 5,400 frames of the
   // bare print to 3 m, and 3 of 50 socket frames at 2.5 m, were lost). But
   // a near-uniform read, the class a grid's squares and a far marker's
-  // blur both give, stands on the first: a disc-blurred marker at 3 m, id
-  // 213, read 128 sampled twice and at the model's own map, not at the
-  // geometry's.
+  // blur both give, must be read at both maps: a disc-blurred marker at
+  // 3 m, id 213, read 128 sampled twice and at the model's own map, not at
+  // the geometry's; a light tile in its grout, 129, at the geometry's and
+  // not at the model's own.
   std::optional<Eigen::Matrix3d> model_map;
   MapNoise model_noise;
   if (Eigen::Matrix3d M = pattern_map.value_or(grid_map(H)); model_geometry && fit_model_geometry(M, model_noise)) {
@@ -431,9 +432,15 @@ Rejection Frame8Detector::measure_and_read(const std::array<Point2, 4>& coarse, 
     // ring's all the same, and the model's levels, free of any code, still
     // read.
     const Homography start = pattern_map ? Homography::from_grid_map(*pattern_map) : H;
-    Rejection why = model_map ? confirm_at_model_map(*model_map, cell_size, det, rotation) : Rejection::model_disagrees;
-    if (why != Rejection::none && !(model_map && near_uniform(det.id))) {
+    Rejection why = Rejection::none;
+    if (!model_map) {
       why = confirm_by_model(start, cell_size, det, rotation);
+    } else {
+      why = confirm_at_model_map(*model_map, cell_size, det, rotation);
+      // A near-uniform read must stand at both maps, any other at either.
+      if (near_uniform(det.id) ? why == Rejection::none : why != Rejection::none) {
+        why = confirm_by_model(start, cell_size, det, rotation);
+      }
     }
     if (why != Rejection::none) return why;
   }
