@@ -90,11 +90,7 @@ void Frame8Detector::unmix_ring(const Homography& H, std::array<CellSample, 4>& 
     }
   }
   const detail::NormalTable& table = detail::normal_table();
-  auto cdf = [&](double z) {
-    double c = 0, unused = 0;
-    table.at(z, c, unused);
-    return c;
-  };
+  auto cdf = [&](double z) { return table.cdf(z); };
   constexpr int last = frame8::grid - 1;
   std::array<Mix, kRing> mix{};
   std::array<double, kRing> seen{}, value{};
