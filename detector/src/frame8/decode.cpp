@@ -67,7 +67,7 @@ bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampl
   // light patch in a checkered surround, not of a ring a fraction of a
   // cell off: not worth moving the map for.
   if (!worth_remeasuring(unaligned) || unaligned == Rejection::c1_contradicted) return false;
-  if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::aligned_levels, levels_)) return false;
+  if (!ring_model_.align_levels(full_, M, levels_)) return false;
   const Homography aligned = Homography::from_grid_map(M);
   const Rejection aligned_read = decode(aligned, cell_size, det, rotation, &levels_);
   note_attempt(Read::aligned_ring_model, aligned_read);

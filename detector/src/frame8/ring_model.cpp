@@ -532,6 +532,15 @@ bool RingModel::fit(const GreyView& image, Eigen::Matrix3d& grid_to_image, doubl
   if (!prepare(image, grid_to_image, geometry ? kMaxOutsideForGeometry : kMaxOutsideToRead) ||
       !solve_accumulated_levels())
     return false;
+  return finish(image, grid_to_image, aim, out, noise);
+}
+
+bool RingModel::align_levels(const GreyView& image, Eigen::Matrix3d& grid_to_image, Levels& out) {
+  return finish(image, grid_to_image, Aim::aligned_levels, out, nullptr);
+}
+
+bool RingModel::finish(const GreyView& image, Eigen::Matrix3d& grid_to_image, Aim aim, Levels& out, MapNoise* noise) {
+  const bool geometry = aim == Aim::geometry;
   if (aim != Aim::levels) {
     const Eigen::Matrix3d start = to_grid_;
     const Vector start_level = level_;
