@@ -283,7 +283,7 @@ int main(int argc, char** argv) {
                  "every frame shows this id (one family only) instead of random ones: to measure one id class, "
                  "such as the near-uniform rings (1, 126, 127, 128, 129, 254)")
       ->check(CLI::NonNegativeNumber);
-  bool model_small_cells = false;
+  bool sampled_only = false;
   bool cut_hole = false;
   app.add_flag("--cut-hole", cut_hole,
                "frame8: the hole cut out, the background showing through it (--mount cut-hole)");
@@ -340,8 +340,9 @@ int main(int argc, char** argv) {
                  "write each frame whose marker was not found into this directory, as PGM named as for --dump-wrong "
                  "(with the marker's true corners in a comment)")
       ->check(CLI::ExistingDirectory);
-  app.add_flag("--model-small-cells", model_small_cells,
-               "frame8: read cells under 3 px by fitting the blurred ring (Frame8Options::model_small_cells)");
+  app.add_flag("--no-model-small-cells", sampled_only,
+               "frame8: read cells under 3 px by sampling alone, never by fitting the blurred ring "
+               "(Frame8Options::model_small_cells off)");
 
   std::vector<double> distances, yaw_at, yaws;
   try {
@@ -488,9 +489,7 @@ int main(int argc, char** argv) {
                cover, cover == "each" ? " in turn" : "", cover_depth, cover_grey);
   }
   if (tell_mounting) fmt::print("- frame8 is told the mount\n");
-  if (model_small_cells) {
-    fmt::print("- frame8 reads cells under 3 px with the ring model, told the blur sigma above\n");
-  }
+  if (sampled_only) fmt::print("- frame8 reads cells under 3 px by sampling alone, not with the ring model\n");
   fmt::print(
       "- {} frames per point, marker centre within {:.0f} px of the principal point, roll within +-{:.0f} deg, "
       "{}, seed {}\n",
@@ -517,7 +516,7 @@ int main(int argc, char** argv) {
       config.family = info.family;
       config.camera = camera;
       config.marker_size_m = size_m;
-      config.frame8.model_small_cells = model_small_cells;
+      config.frame8.model_small_cells = !sampled_only;
       config.frame8.blur_sigma_px = blur;
       if (tell_mounting) {
         using markerd::detector::Mounting;

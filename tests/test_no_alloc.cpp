@@ -65,7 +65,10 @@ TEST(NoAllocation, Frame8WithPose) {
 }
 
 // The far frames and the white cells of the near markers (small light
-// squares in a dark surround) send candidates through the ring model.
+// squares in a dark surround) send candidates through the ring model, and
+// three markers at 2.9 m (cells of 1.4 px) through the model's own look,
+// taken where the other looks found nothing: it reads the first, and
+// nothing in the other two.
 TEST(NoAllocation, Frame8WithTheRingModel) {
   const CameraModel cam = CameraModel::thesis_640x480();
   DetectorConfig cfg;
@@ -73,7 +76,26 @@ TEST(NoAllocation, Frame8WithTheRingModel) {
   cfg.marker_size_m = 0.08;
   cfg.frame8.model_small_cells = true;
   auto det = make_detector(cfg);
-  EXPECT_EQ(allocations_in_steady_state(*det, frames(cam)), 0);
+  std::vector<GreyImage> images = frames(cam);
+  for (const int k : {6, 8, 12}) {
+    Scene s;
+    s.id = 1 + (k * 37) % 254;
+    const double shift_px = (k % 7) * 6 - 18;
+    s.pose = facing_pose(2.9, 0, 0, -5 + k % 10, shift_px * 2.9 / cam.fx, -shift_px * 2.9 / cam.fy);
+    s.noise_sigma = 2;
+    s.blur_sigma_px = 0.6;
+    s.clutter = true;
+    s.seed = static_cast<std::uint64_t>(500 + k);
+    images.push_back(render_scene(cam, s));
+  }
+  DetectorConfig sampled_only = cfg;
+  sampled_only.frame8.model_small_cells = false;
+  std::vector<Detection> by_model, by_sampling;
+  det->detect(images[images.size() - 3], by_model);
+  make_detector(sampled_only)->detect(images[images.size() - 3], by_sampling);
+  ASSERT_EQ(by_model.size(), 1U) << "the frame the model's look reads";
+  ASSERT_TRUE(by_sampling.empty()) << "the frame the model's look reads";
+  EXPECT_EQ(allocations_in_steady_state(*det, images), 0);
 }
 
 TEST(NoAllocation, Frame8AtHighResolution) {

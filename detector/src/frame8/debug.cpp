@@ -98,7 +98,9 @@ void Frame8Detector::write_debug(const std::vector<Detection>& out) {
                 cv::FONT_HERSHEY_PLAIN, 0.8, colour, 1, cv::LINE_AA);
 
     json += fmt::format(R"({}{{"index": {}, "look": "{}", "corners": [)", i ? ", " : "", i,
-                        i < debug_second_look_from_ ? "first" : "second");
+                        i >= debug_model_look_from_    ? "model"
+                        : i >= debug_second_look_from_ ? "second"
+                                                       : "first");
     for (std::size_t k = 0; k < 4; ++k) {
       json += fmt::format("{}[{:.2f}, {:.2f}]", k ? ", " : "", c.quad[k].x, c.quad[k].y);
     }

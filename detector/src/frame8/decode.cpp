@@ -3,6 +3,8 @@
 
 #include "frame8/detector.hpp"
 
+#include <algorithm>
+
 namespace markerd::detector::frame8 {
 
 namespace {
@@ -17,6 +19,10 @@ constexpr double kPaperHole = 0.8;
 // next); grout beside a light tile read 0.4 to 1 on one side, or 0.15 to
 // 0.2 on three.
 constexpr double kFlatLineCeiling = 0.4;
+// Told a lighter blur than this (or none), the model's own reads are
+// checked against a blur a third heavier than this one: a sharp lens still
+// spreads a cell over its neighbours by a few tenths of a pixel.
+constexpr double kMinModelBlurPx = 0.3;
 }  // namespace
 
 // Decides the code from the ring cells' grey levels: sampled in the image,
@@ -49,14 +55,24 @@ Rejection Frame8Detector::read_code(const Homography& H, CellSize cell_size, con
 
 // Reads cells too small to sample from the blur model of the ring, when the
 // sampled reads were worth another measurement (worth_remeasuring); with the
-// map moved to where the model fits best, H follows it.
+// map moved to where the model fits best, H follows it. Outside the model's
+// own look (model_look) it only notes that the quad is worth that look.
 bool Frame8Detector::read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det,
                                    int& rotation) {
-  // The model costs a few hundred microseconds: only for small cells, and
-  // only for what has a ring of dark and light cells (clutter mostly
-  // fails on contrast already).
-  if (!config_.frame8.model_small_cells || cell_size.narrow >= kResolvedCells || !sampled_worth_it) return false;
+  // The model costs a few million instructions: only for small cells, not
+  // under the least that is read at all, and only for what has a ring of
+  // dark and light cells where the quad puts them (clutter mostly fails on
+  // contrast already; of the rest, a third shows no such ring, and no
+  // marker the model read at 2.5 to 2.7 m failed to).
+  if (!config_.frame8.model_small_cells || cell_size.narrow >= kResolvedCells || cell_size.narrow < kMinCells ||
+      !sampled_worth_it) {
+    return false;
+  }
   Eigen::Matrix3d M = grid_map(H);
+  if (!model_look_) {
+    model_wanted_ = model_wanted_ || ring_shows_cells(M);
+    return false;
+  }
   // First the levels where the quad puts the cells (a tenth of the cost):
   // enough when the quad is right, and to turn away what has no line.
   if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::levels, levels_)) return false;
@@ -100,6 +116,31 @@ Rejection Frame8Detector::confirm_at_model_map(const Eigen::Matrix3d& aligned, C
   if (!ring_model_.fit(full_, M, config_.frame8.blur_sigma_px, RingModel::Aim::levels, levels_))
     return Rejection::model_disagrees;
   return judge_model_read(M, cell_size, det, rotation);
+}
+
+// The same, where the blur the detector was told fits the pixels better
+// than one a third heavier (Rejection::model_blur_differs otherwise). Under
+// a blur heavier than told the model spreads each cell too little, and a
+// lone cell takes its neighbours' colour on every edge alike: discs of 1.6
+// to 2 px over cells of 1.6 px at 2.4 to 2.7 m, told a Gaussian of 0.6 px,
+// gave 43 wrong ids in 2,400 frames (one model read in eight); read
+// at the blur of least residual instead, 25. There the blur a third
+// heavier fitted with 0.52 to 0.73 of the told one's residual, and on the
+// print as told (Gaussian 0.6 px, 2.4 to 2.9 m) with 1.55 to 1.92 of it. A
+// lighter blur than told spreads the cells too much, which the reads bear
+// (the print as told fits a blur a third lighter about as well).
+Rejection Frame8Detector::confirm_at_told_blur(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
+                                               int rotation) {
+  constexpr double kBlurStep = 4.0 / 3;
+  const double told = config_.frame8.blur_sigma_px;
+  Eigen::Matrix3d M = aligned;
+  if (!ring_model_.fit(full_, M, std::max(told, kMinModelBlurPx) * kBlurStep, RingModel::Aim::levels, levels_)) {
+    return Rejection::model_disagrees;
+  }
+  const double heavier_residual = levels_.rms_residual;
+  if (!ring_model_.fit(full_, M, told, RingModel::Aim::levels, levels_)) return Rejection::model_disagrees;
+  if (heavier_residual < levels_.rms_residual) return Rejection::model_blur_differs;
+  return judge_model_read(aligned, cell_size, det, rotation);
 }
 
 // The read of the model's levels (levels_) at its map M, against the

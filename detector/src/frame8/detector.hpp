@@ -72,6 +72,9 @@ class Frame8Detector final : public MarkerDetector {
   }
   // Segmentation under `rule`, then stages 2 to 6 (detector.cpp).
   void look(LocalRule rule, std::vector<Detection>& out);
+  // The last look, where the others found nothing: the candidates the
+  // ring model might read (model_candidates_), read with it.
+  void model_look(std::vector<Detection>& out);
   // How far a quad's corners from the valley rule's pixels are moved in
   // (working pixels) before its sides are searched: about the half width
   // of the edges' blur, which the first rule takes off a hole's outline.
@@ -143,6 +146,8 @@ class Frame8Detector final : public MarkerDetector {
   bool read_by_model(Homography& H, CellSize cell_size, bool sampled_worth_it, Detection& det, int& rotation);
   Rejection confirm_by_model(const Homography& H, CellSize cell_size, const Detection& det, int rotation);
   Rejection confirm_at_model_map(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
+                                 int rotation);
+  Rejection confirm_at_told_blur(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
                                  int rotation);
   Rejection judge_model_read(const Eigen::Matrix3d& M, CellSize cell_size, const Detection& det, int rotation);
   // 4a: the cells (decode_cells.cpp).
@@ -447,11 +452,29 @@ class Frame8Detector final : public MarkerDetector {
   // Set while read_inset() decodes a hole grown beyond its component: the
   // structural checks then allow no light corner of the line.
   bool reading_grown_hole_ = false;
+  // The ring model's read of small cells costs a few million instructions,
+  // and clutter offers several candidates a frame that reach it; the true
+  // marker, where the model is all that reads it, leaves every other look
+  // empty. So the looks only note such a candidate (its coarse quad, and
+  // the rule it was found under), and the model reads them in a look of
+  // its own once the others found nothing: the candidates that measured as
+  // a quad and read well enough to be worth it (worth_remeasuring), largest
+  // first, at most kMaxModelCandidates a frame.
+  struct ModelCandidate {
+    std::array<Point2, 4> coarse{};
+    LocalRule rule = LocalRule::brightest_neighbour;
+  };
+  static constexpr std::size_t kMaxModelCandidates = 16;
+  std::vector<ModelCandidate> model_candidates_;
+  bool model_look_ = false;    // the model's look is under way: it reads
+  bool model_wanted_ = false;  // the quad being read would have been read by the model
   bool debug_ = false;
   int debug_frame_ = 0;
   std::vector<DebugCandidate> debug_candidates_;
-  // The second look's first candidate (none: no second look).
+  // The second look's first candidate (none: no second look), and the
+  // model's look's.
   std::size_t debug_second_look_from_ = std::numeric_limits<std::size_t>::max();
+  std::size_t debug_model_look_from_ = std::numeric_limits<std::size_t>::max();
 };
 
 }  // namespace markerd::detector::frame8

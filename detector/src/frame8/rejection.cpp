@@ -59,6 +59,8 @@ Stage stage_of(Rejection r) {
     case Rejection::unconfirmed_small_cells: return Stage::structure;
     case Rejection::unconfirmed_dark_hole: return Stage::structure;
     case Rejection::model_disagrees: return Stage::structure;
+    case Rejection::model_read_corrected: return Stage::structure;
+    case Rejection::model_blur_differs: return Stage::structure;
     case Rejection::grid_like_read: return Stage::structure;
     case Rejection::outvoted_scattered: return Stage::structure;
     case Rejection::pattern_fit_failed: return Stage::pattern_fit;
@@ -143,6 +145,8 @@ const char* rejection_name(Rejection r) {
     case Rejection::unconfirmed_small_cells: return "unconfirmed_small_cells";
     case Rejection::unconfirmed_dark_hole: return "unconfirmed_dark_hole";
     case Rejection::model_disagrees: return "model_disagrees";
+    case Rejection::model_read_corrected: return "model_read_corrected";
+    case Rejection::model_blur_differs: return "model_blur_differs";
     case Rejection::pattern_fit_failed: return "pattern_fit_failed";
     case Rejection::corners_not_convex: return "corners_not_convex";
     case Rejection::no_pose: return "no_pose";
