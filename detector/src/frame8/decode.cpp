@@ -132,15 +132,15 @@ Rejection Frame8Detector::confirm_at_model_map(const Eigen::Matrix3d& aligned, C
 Rejection Frame8Detector::confirm_at_told_blur(const Eigen::Matrix3d& aligned, CellSize cell_size, const Detection& det,
                                                int rotation) {
   constexpr double kBlurStep = 4.0 / 3;
-  const double told = config_.frame8.blur_sigma_px;
+  const double heavier = std::max(config_.frame8.blur_sigma_px, kMinModelBlurPx) * kBlurStep;
   Eigen::Matrix3d M = aligned;
-  if (!ring_model_.fit(full_, M, std::max(told, kMinModelBlurPx) * kBlurStep, RingModel::Aim::levels, levels_)) {
-    return Rejection::model_disagrees;
-  }
+  if (!ring_model_.fit(full_, M, heavier, RingModel::Aim::levels, levels_)) return Rejection::model_disagrees;
   const double heavier_residual = levels_.rms_residual;
-  if (!ring_model_.fit(full_, M, told, RingModel::Aim::levels, levels_)) return Rejection::model_disagrees;
+  // The read at the told blur; its fit's residual is left in levels_ (a
+  // failed fit leaves the heavier one's, which is no less than itself).
+  const Rejection why = confirm_at_model_map(aligned, cell_size, det, rotation);
   if (heavier_residual < levels_.rms_residual) return Rejection::model_blur_differs;
-  return judge_model_read(aligned, cell_size, det, rotation);
+  return why;
 }
 
 // The read of the model's levels (levels_) at its map M, against the

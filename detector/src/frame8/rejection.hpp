@@ -87,7 +87,7 @@ enum class Rejection : std::uint8_t {
   unconfirmed_dark_hole,      // a hole as dark as the ink read once, the second measurement reading nothing
   model_disagrees,            // small cells: the ring model, fitted to every pixel, reads otherwise
   model_read_corrected,       // read by the ring model alone, with a cell outvoted
-  model_blur_differs,         // read by the ring model alone, a blur a third from the told one fitting better
+  model_blur_differs,         // read by the ring model alone, a blur a third heavier than the told one fitting better
   grid_like_read,  // a near-uniform id or a cell outvoted, on a hole measured past its first reach, of two pieces, or
                    // seen with a side hidden under 3 px
   outvoted_scattered,  // resolved cells outvoted where no one cover lies (clutter, or a misplaced grid)
