@@ -145,6 +145,9 @@ inline bool reads_like_a_grid(const Detection& det) { return near_uniform(det.id
 
 inline double cross(Point2 o, Point2 a, Point2 b) { return (a.x - o.x) * (b.y - o.y) - (a.y - o.y) * (b.x - o.x); }
 
+// The mean of a quad's corners.
+inline Point2 centre_of(const Quad& q) { return 0.25 * (q[0] + q[1] + q[2] + q[3]); }
+
 // Whether a point lies on the image (within its first and last pixel
 // centres).
 inline bool in_image(const GreyView& img, Point2 p) {

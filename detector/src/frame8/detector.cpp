@@ -89,7 +89,7 @@ void Frame8Detector::model_look(std::vector<Detection>& out) {
   model_look_ = true;
   for (const ModelCandidate& candidate : model_candidates_) {
     const auto& q = candidate.coarse;
-    if (inside_any(out, 0.25 * (q[0] + q[1] + q[2] + q[3]))) continue;
+    if (inside_any(out, centre_of(q))) continue;
     rule_ = candidate.rule;
     if (debug_) debug_candidates_.push_back({q, Rejection::none, -1, {}, {}});
     Detection det;
@@ -140,7 +140,7 @@ namespace {
 
 // The quad with each corner moved `by` pixels towards its centre.
 std::array<Point2, 4> moved_in(const std::array<Point2, 4>& quad, double by) {
-  const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
+  const Point2 centre = centre_of(quad);
   std::array<Point2, 4> in = quad;
   for (Point2& p : in) {
     const Point2 v = p - centre;
@@ -541,7 +541,7 @@ void Frame8Detector::remove_nested(std::vector<Detection>& out) {
     return std::abs(a) / 2;
   };
   for (std::size_t i = out.size(); i-- > 0;) {
-    const Point2 centre = 0.25 * (out[i].corners[0] + out[i].corners[1] + out[i].corners[2] + out[i].corners[3]);
+    const Point2 centre = centre_of(out[i].corners);
     const double a = area(out[i].corners);
     for (std::size_t j = 0; j < out.size(); ++j) {
       // A cell is a seventh of the hole's side: its "marker" is tiny beside the real one.

@@ -144,7 +144,7 @@ bool Frame8Detector::read_pieces(std::initializer_list<Component*> pieces, std::
   std::array<Point2, 4> quad{};
   if (!fit_pieces_quad(pieces, quad)) return false;
   for (auto& p : quad) p = to_full(p);
-  const Point2 centre = 0.25 * (quad[0] + quad[1] + quad[2] + quad[3]);
+  const Point2 centre = centre_of(quad);
   if (inside_any(out, centre)) return false;
   // Clutter's neighbouring shapes make most such pairs: a look at where
   // the ring would be costs less than measuring the sides.

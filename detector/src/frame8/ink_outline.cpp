@@ -176,7 +176,7 @@ void Frame8Detector::find_marker_on_ink_outline(int scale, std::vector<Detection
       return;
     }
     if (!std::all_of(outer.begin(), outer.end(), [&](Point2 p) { return in_image(full_, p); })) return;
-    const Point2 centre = 0.25 * (outer[0] + outer[1] + outer[2] + outer[3]);
+    const Point2 centre = centre_of(outer);
     if (inside_any(out, centre)) return;
     if (debug_) debug_candidates_.push_back({outer, Rejection::ink_outline_unread, -1, {}, {}});
     Detection det;

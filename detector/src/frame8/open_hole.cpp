@@ -355,7 +355,7 @@ void Frame8Detector::find_open_holes_on_outline(double min_side, std::vector<Det
       return p.x >= ring && p.y >= ring && p.x <= full_.width - 1 - ring && p.y <= full_.height - 1 - ring;
     };
     if (!in_image(seen[1]) || !in_image(seen[2])) continue;
-    const Point2 centre = 0.25 * (seen[0] + seen[1] + seen[2] + seen[3]);
+    const Point2 centre = centre_of(seen);
     if (inside_any(out, centre)) continue;
     if (debug_) debug_candidates_.push_back({seen, Rejection::open_hole_unread, -1, {}, {}});
     Detection det;
